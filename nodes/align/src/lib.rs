@@ -1,0 +1,359 @@
+//! Puts the spike and event streams on one clock and cuts them into aligned windows.
+//!
+//! Window geometry: a window of `N` planes around reference plane `c` holds planes
+//! `c - N/2 ..= c + (N - 1 - N/2)` (33 planes: 16 either side; 32 planes: 16 before, 15 after).
+//! Reference planes are the multiples of the stride `K` whose window starts at or after plane 0,
+//! so a simulator that emits ground truth at every `K`-th plane has a truth for every window.
+//! Plane `k` carries the light of `(t_k - T, t_k]`, so the window's events are those of
+//! `[t_first - T, t_last)` on the spike clock, where an event's spike-clock time is its own
+//! time plus `event_offset_ns`.
+//!
+//! A window is emitted once its last plane has arrived and (when the graph has an event camera)
+//! the event batches cover its whole interval. At end of stream the windows whose planes all
+//! arrived are flushed; a window whose planes never arrived is not counted as produced.
+#![deny(missing_docs)]
+
+use std::collections::VecDeque;
+
+use neuspike_schemas::{AlignedWindow, EventBatch, SpikeChunk, bytes_per_plane};
+
+/// Aligner settings. Every field is a node argument in the graph YAML.
+#[derive(Clone, Debug, clap::Args)]
+pub struct AlignConfig {
+    /// Planes per window (N).
+    #[arg(long, default_value_t = 33, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub window_planes: u32,
+    /// Planes between two reference planes (K): one window every K planes.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..))]
+    pub stride_planes: u64,
+    /// Added to event timestamps to put them on the spike clock, nanoseconds.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    pub event_offset_ns: i64,
+}
+
+impl Default for AlignConfig {
+    fn default() -> Self {
+        AlignConfig { window_planes: 33, stride_planes: 20, event_offset_ns: 0 }
+    }
+}
+
+/// An input that cannot be aligned; the message names what and the values.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum AlignError {
+    /// A chunk's geometry differs from the stream's.
+    #[error("spike chunk {seq}: geometry {got} differs from the stream's {expected}")]
+    Geometry {
+        /// The chunk's sequence number.
+        seq: u64,
+        /// Geometry found.
+        got: String,
+        /// Geometry of the stream.
+        expected: String,
+    },
+}
+
+/// Cuts the two streams into windows.
+#[derive(Debug)]
+pub struct Aligner {
+    cfg: AlignConfig,
+    with_events: bool,
+    before: u64,
+    after: u64,
+    /// Geometry of the spike stream, from the first chunk: width, height, period, t of plane 0.
+    geometry: Option<(usize, usize, i64, i64)>,
+    lum_per_rate: Option<f64>,
+    /// Buffered planes, contiguous from `first_buffered`.
+    planes: VecDeque<Vec<u8>>,
+    first_buffered: u64,
+    next_ref: u64,
+    events: EventBatch,
+    events_cover_until_ns: i64,
+    event_size: (usize, usize),
+    spikes_closed: bool,
+    events_closed: bool,
+    emitted: u64,
+    skipped_windows: u64,
+}
+
+impl Aligner {
+    /// An aligner; `with_events` says whether an event stream is connected.
+    pub fn new(cfg: AlignConfig, with_events: bool) -> Self {
+        let n = u64::from(cfg.window_planes);
+        let before = n / 2;
+        let after = n - 1 - before;
+        let next_ref = before.div_ceil(cfg.stride_planes) * cfg.stride_planes;
+        Aligner {
+            cfg,
+            with_events,
+            before,
+            after,
+            geometry: None,
+            lum_per_rate: None,
+            planes: VecDeque::new(),
+            first_buffered: 0,
+            next_ref,
+            events: EventBatch::default(),
+            events_cover_until_ns: i64::MIN,
+            event_size: (0, 0),
+            spikes_closed: false,
+            events_closed: !with_events,
+            emitted: 0,
+            skipped_windows: 0,
+        }
+    }
+
+    /// Windows emitted so far.
+    pub fn emitted(&self) -> u64 {
+        self.emitted
+    }
+
+    /// Windows that could not be built because planes were missing.
+    pub fn skipped_windows(&self) -> u64 {
+        self.skipped_windows
+    }
+
+    fn plane_time(&self, k: u64) -> i64 {
+        let (_, _, period, t0) = self.geometry.unwrap_or((0, 0, 0, 0));
+        t0.saturating_add((k as i64).saturating_mul(period))
+    }
+
+    /// Adds a spike chunk; call [`Aligner::pop_ready`] until it returns `None` after each push.
+    /// A chunk after a gap (lost planes) restarts the buffer there; windows
+    /// that needed the lost planes are skipped and counted.
+    pub fn push_spikes(&mut self, chunk: SpikeChunk) -> Result<(), AlignError> {
+        let geo = (chunk.width, chunk.height, chunk.plane_period_ns);
+        match self.geometry {
+            None => {
+                let t0 = chunk.t_first_ns - (chunk.first_plane as i64) * chunk.plane_period_ns;
+                self.geometry = Some((geo.0, geo.1, geo.2, t0));
+                self.first_buffered = chunk.first_plane;
+                self.lum_per_rate = chunk.lum_per_rate;
+            }
+            Some((w, h, p, _)) if (w, h, p) != geo => {
+                return Err(AlignError::Geometry {
+                    seq: chunk.seq,
+                    got: format!("{}x{} every {} ns", geo.0, geo.1, geo.2),
+                    expected: format!("{w}x{h} every {p} ns"),
+                });
+            }
+            Some(_) => {}
+        }
+        let end = self.first_buffered + self.planes.len() as u64;
+        if chunk.first_plane > end {
+            tracing::warn!(from = end, to = chunk.first_plane, "spike planes missing; restarting the window buffer");
+            self.planes.clear();
+            self.first_buffered = chunk.first_plane;
+            while self.next_ref.saturating_sub(self.before) < chunk.first_plane {
+                self.next_ref += self.cfg.stride_planes;
+                self.skipped_windows += 1;
+            }
+        }
+        let per = bytes_per_plane(chunk.width, chunk.height);
+        for (i, plane) in chunk.bits.chunks_exact(per.max(1)).enumerate() {
+            let k = chunk.first_plane + i as u64;
+            if k >= self.first_buffered + self.planes.len() as u64 {
+                self.planes.push_back(plane.to_vec());
+            }
+        }
+        Ok(())
+    }
+
+    /// Adds an event batch (its timestamps are shifted onto the spike clock).
+    pub fn push_events(&mut self, batch: EventBatch) {
+        let off = self.cfg.event_offset_ns;
+        self.event_size = (batch.width, batch.height);
+        for i in 0..batch.len() {
+            let mut e = batch.get(i);
+            e.t_ns = e.t_ns.saturating_add(off);
+            self.events.push(e);
+        }
+        self.events_cover_until_ns = self.events_cover_until_ns.max(batch.t_end_ns.saturating_add(off));
+    }
+
+    /// No more spikes will come.
+    pub fn close_spikes(&mut self) {
+        self.spikes_closed = true;
+    }
+
+    /// No more events will come.
+    pub fn close_events(&mut self) {
+        self.events_closed = true;
+    }
+
+    /// Whether no further window can ever be emitted.
+    pub fn finished(&self) -> bool {
+        self.spikes_closed && !self.has_planes_for(self.next_ref)
+    }
+
+    fn has_planes_for(&self, c: u64) -> bool {
+        let last = c + self.after;
+        self.geometry.is_some()
+            && c >= self.before
+            && c - self.before >= self.first_buffered
+            && last < self.first_buffered + self.planes.len() as u64
+    }
+
+    /// The next window, if everything it needs has arrived.
+    pub fn pop_ready(&mut self) -> Option<AlignedWindow> {
+        let c = self.next_ref;
+        if !self.has_planes_for(c) {
+            return None;
+        }
+        let (w, h, period, _) = self.geometry?;
+        let first = c - self.before;
+        let last = c + self.after;
+        let t_start = self.plane_time(first) - period;
+        let t_end = self.plane_time(last);
+        if !self.events_closed && self.events_cover_until_ns < t_end {
+            return None;
+        }
+        let n = (last - first + 1) as usize;
+        let offset = (first - self.first_buffered) as usize;
+        let mut bits = Vec::with_capacity(n * bytes_per_plane(w, h));
+        for p in self.planes.range(offset..offset + n) {
+            bits.extend_from_slice(p);
+        }
+        let lo = self.events.t_ns.partition_point(|&t| t < t_start);
+        let hi = self.events.t_ns.partition_point(|&t| t < t_end);
+        let mut events = EventBatch::empty(self.event_size.0, self.event_size.1, t_start, t_end, self.emitted);
+        events.t_ns.extend_from_slice(&self.events.t_ns[lo..hi]);
+        events.x.extend_from_slice(&self.events.x[lo..hi]);
+        events.y.extend_from_slice(&self.events.y[lo..hi]);
+        events.polarity.extend_from_slice(&self.events.polarity[lo..hi]);
+        let window = AlignedWindow {
+            t_ref_ns: self.plane_time(c),
+            ref_plane: c,
+            spikes: SpikeChunk {
+                width: w,
+                height: h,
+                first_plane: first,
+                n_planes: n,
+                t_first_ns: self.plane_time(first),
+                plane_period_ns: period,
+                seq: self.emitted,
+                bits,
+                lum_per_rate: self.lum_per_rate,
+            },
+            events,
+        };
+        self.emitted += 1;
+        self.next_ref += self.cfg.stride_planes;
+        self.drop_consumed();
+        Some(window)
+    }
+
+    /// Forgets planes and events no later window needs.
+    fn drop_consumed(&mut self) {
+        let keep_from = self.next_ref.saturating_sub(self.before);
+        while self.first_buffered < keep_from && !self.planes.is_empty() {
+            self.planes.pop_front();
+            self.first_buffered += 1;
+        }
+        if self.planes.is_empty() {
+            self.first_buffered = self.first_buffered.max(keep_from);
+        }
+        let (_, _, period, _) = self.geometry.unwrap_or((0, 0, 0, 0));
+        let t_keep = self.plane_time(keep_from) - period;
+        let cut = self.events.t_ns.partition_point(|&t| t < t_keep);
+        if cut > 0 {
+            self.events.t_ns.drain(..cut);
+            self.events.x.drain(..cut);
+            self.events.y.drain(..cut);
+            self.events.polarity.drain(..cut);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neuspike_schemas::Event;
+
+    const P: i64 = 50_000;
+
+    fn chunk(first: u64, n: usize, seq: u64) -> SpikeChunk {
+        // Plane k has all bits set to (k % 256) so tests can tell planes apart.
+        let per = bytes_per_plane(4, 2);
+        let bits = (0..n).flat_map(|i| vec![((first + i as u64) % 256) as u8; per]).collect();
+        SpikeChunk { width: 4, height: 2, first_plane: first, n_planes: n, t_first_ns: first as i64 * P,
+            plane_period_ns: P, seq, bits, lum_per_rate: Some(1.0) }
+    }
+
+    fn events(t0: i64, t1: i64, at: &[i64]) -> EventBatch {
+        let mut b = EventBatch::empty(4, 2, t0, t1, 0);
+        for &t in at {
+            b.push(Event { t_ns: t, x: 1, y: 1, polarity: 1 });
+        }
+        b
+    }
+
+    #[test]
+    fn windows_are_centred_on_stride_multiples() {
+        let cfg = AlignConfig { window_planes: 5, stride_planes: 4, event_offset_ns: 0 };
+        let mut a = Aligner::new(cfg, false);
+        a.push_spikes(chunk(0, 20, 0)).unwrap();
+        let mut refs = vec![];
+        while let Some(w) = a.pop_ready() {
+            assert_eq!(w.spikes.n_planes, 5);
+            assert_eq!(w.spikes.first_plane, w.ref_plane - 2);
+            assert_eq!(w.spikes.bits[w.ref_index()], (w.ref_plane % 256) as u8);
+            assert_eq!(w.t_ref_ns, w.ref_plane as i64 * P);
+            refs.push(w.ref_plane);
+        }
+        // 4, 8, 12, 16; 0 needs planes before 0, 20 needs plane 22.
+        assert_eq!(refs, vec![4, 8, 12, 16]);
+        a.close_spikes();
+        assert!(a.finished());
+    }
+
+    #[test]
+    fn waits_for_events_then_slices_them() {
+        let cfg = AlignConfig { window_planes: 3, stride_planes: 10, event_offset_ns: 1_000 };
+        let mut a = Aligner::new(cfg, true);
+        a.push_spikes(chunk(0, 12, 0)).unwrap();
+        // Window c = 10 spans planes 9..=11: events [8P, 11P) on the spike clock.
+        assert!(a.pop_ready().is_none(), "must wait for the events");
+        a.push_events(events(0, 10 * P, &[8 * P - 1_001, 8 * P - 1_000, 10 * P - 1]));
+        assert!(a.pop_ready().is_none(), "events cover only up to 10P + offset");
+        a.push_events(events(10 * P, 12 * P, &[11 * P - 1_001, 11 * P - 1_000]));
+        let w = a.pop_ready().expect("window");
+        assert_eq!(w.ref_plane, 10);
+        assert_eq!((w.events.t_start_ns, w.events.t_end_ns), (8 * P, 11 * P));
+        assert_eq!(w.events.t_ns, vec![8 * P, 10 * P + 999, 11 * P - 1]);
+    }
+
+    #[test]
+    fn flushes_at_end_of_stream_without_events() {
+        let mut a = Aligner::new(AlignConfig { window_planes: 3, stride_planes: 2, event_offset_ns: 0 }, true);
+        a.push_spikes(chunk(0, 6, 0)).unwrap();
+        assert!(a.pop_ready().is_none());
+        a.close_events();
+        a.close_spikes();
+        let n = std::iter::from_fn(|| a.pop_ready()).count();
+        assert_eq!(n, 2); // refs 2 and 4; 6 would need plane 7
+        assert!(a.finished());
+    }
+
+    #[test]
+    fn gap_skips_windows_and_counts_them() {
+        let mut a = Aligner::new(AlignConfig { window_planes: 3, stride_planes: 2, event_offset_ns: 0 }, false);
+        let mut refs = vec![];
+        for c in [chunk(0, 4, 0), chunk(10, 6, 2)] {
+            a.push_spikes(c).unwrap();
+            refs.extend(std::iter::from_fn(|| a.pop_ready()).map(|w| (w.ref_plane, w.seq())));
+        }
+        assert_eq!(refs, vec![(2, 0), (12, 1), (14, 2)]);
+        assert_eq!(a.skipped_windows(), 4); // 4, 6, 8, 10
+    }
+
+    #[test]
+    fn geometry_change_is_an_error() {
+        let mut a = Aligner::new(AlignConfig::default(), false);
+        a.push_spikes(chunk(0, 2, 0)).unwrap();
+        let mut c = chunk(2, 2, 1);
+        c.width = 8;
+        c.bits = vec![0; 2 * bytes_per_plane(8, 2)];
+        let e = a.push_spikes(c).unwrap_err().to_string();
+        assert!(e.contains("8x2") && e.contains("4x2"), "{e}");
+    }
+}

@@ -1,0 +1,144 @@
+//! dora node: aligns the spike and event streams. Inputs `spikes` (SpikeChunk) and, optionally,
+//! `events` (EventBatch); output `windows` (AlignedWindow).
+
+use dora_node_api::{DoraNode, Event, EventStream};
+use neuspike_align::{AlignConfig, Aligner};
+use neuspike_schemas::node::{self, output, send, send_end};
+use neuspike_schemas::{
+    AlignedWindow, EventBatch, Message, SeqStatus, SeqTracker, SpikeChunk, is_end_of_stream,
+};
+
+/// Node arguments (the graph's `args:`).
+#[derive(Debug, clap::Parser)]
+#[command(name = "neuspike-align", about = "Aligns spikes and events into windows", args_override_self = true)]
+struct Args {
+    #[command(flatten)]
+    align: AlignConfig,
+}
+
+fn main() -> eyre::Result<()> {
+    node::init_logging();
+    let args: Args = node::parse_config("align")?;
+    let (node, events) = DoraNode::init_from_env()?;
+    let with_events = node.node_config().inputs.keys().any(|k| k.as_ref() == "events");
+    run(node, events, Aligner::new(args.align, with_events))
+}
+
+fn observe(tracker: &mut SeqTracker, input: &str, seq: u64) {
+    match tracker.observe(seq) {
+        SeqStatus::InOrder => {}
+        SeqStatus::Gap { missing } => tracing::error!(input, seq, missing, "messages lost before this one"),
+        SeqStatus::Stale => tracing::warn!(input, seq, "stale message"),
+    }
+}
+
+fn run(mut node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyre::Result<()> {
+    let out = output("windows");
+    let (mut spike_seq, mut event_seq) = (SeqTracker::default(), SeqTracker::default());
+    while let Some(event) = events.recv() {
+        match event {
+            Event::Input { id, metadata, data } => {
+                let meta = &metadata.parameters;
+                let data = data.as_array();
+                match id.as_ref() {
+                    "spikes" => {
+                        if let Some(count) = is_end_of_stream(meta) {
+                            let lost = spike_seq.end(count);
+                            if lost > 0 {
+                                tracing::error!(lost, "spike chunks lost at the end of the stream");
+                            }
+                            aligner.close_spikes();
+                        } else {
+                            let chunk = SpikeChunk::from_arrow(meta, data)?;
+                            observe(&mut spike_seq, "spikes", chunk.seq);
+                            aligner.push_spikes(chunk)?;
+                        }
+                    }
+                    "events" => {
+                        if let Some(count) = is_end_of_stream(meta) {
+                            let lost = event_seq.end(count);
+                            if lost > 0 {
+                                tracing::error!(lost, "event batches lost at the end of the stream");
+                            }
+                            aligner.close_events();
+                        } else {
+                            let batch = EventBatch::from_arrow(meta, data)?;
+                            observe(&mut event_seq, "events", batch.seq);
+                            aligner.push_events(batch);
+                        }
+                    }
+                    other => tracing::warn!(input = other, "unknown input ignored"),
+                }
+            }
+            Event::InputClosed { id } => match id.as_ref() {
+                "spikes" => aligner.close_spikes(),
+                "events" => aligner.close_events(),
+                _ => {}
+            },
+            Event::Stop(_) => break,
+            _ => {}
+        }
+        while let Some(window) = aligner.pop_ready() {
+            send::<AlignedWindow>(&mut node, &out, &window)?;
+        }
+        if aligner.finished() {
+            break;
+        }
+    }
+    aligner.close_spikes();
+    aligner.close_events();
+    while let Some(window) = aligner.pop_ready() {
+        send::<AlignedWindow>(&mut node, &out, &window)?;
+    }
+    send_end::<AlignedWindow>(&mut node, &out, aligner.emitted())?;
+    tracing::info!(
+        windows = aligner.emitted(),
+        skipped = aligner.skipped_windows(),
+        spike_chunks_lost = spike_seq.missing(),
+        event_batches_lost = event_seq.missing(),
+        "align finished"
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neuspike_schemas::testing::{CannedInputs, output_ids, payload_len};
+
+    fn chunk(first: u64, n: usize, seq: u64) -> SpikeChunk {
+        SpikeChunk { width: 8, height: 2, first_plane: first, n_planes: n, t_first_ns: first as i64 * 50_000,
+            plane_period_ns: 50_000, seq, bits: vec![0b1010_0101; 2 * n], lum_per_rate: Some(1.0) }
+    }
+
+    #[test]
+    fn windows_then_end_of_stream() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = CannedInputs::new(dir.path());
+        for i in 0..5 {
+            c.message("spikes", &chunk(i * 20, 20, i)).unwrap();
+        }
+        c.end::<SpikeChunk>("spikes", 5).unwrap();
+        c.end::<EventBatch>("events", 0).unwrap();
+        let cfg = AlignConfig { window_planes: 33, stride_planes: 20, event_offset_ns: 0 };
+        let out = c.run(|node, events| run(node, events, Aligner::new(cfg, true))).unwrap();
+        // 100 planes: references 20, 40, 60 (80 would need plane 96..=96+16 > 99).
+        assert_eq!(output_ids(&out), vec!["windows"; 4]);
+        assert_eq!(payload_len(&out[0]), 1, "one row per window");
+        assert_eq!(payload_len(&out[3]), 0, "end-of-stream marker");
+    }
+
+    #[test]
+    fn bad_chunk_stops_with_a_named_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = CannedInputs::new(dir.path());
+        let mut bad = chunk(0, 4, 0);
+        bad.bits.pop();
+        let (meta, _) = bad.to_arrow();
+        let data: neuspike_schemas::arrow::array::ArrayRef =
+            std::sync::Arc::new(neuspike_schemas::arrow::array::UInt8Array::from(bad.bits.clone()));
+        c.raw("spikes", meta, data).unwrap();
+        let err = c.run(|node, events| run(node, events, Aligner::new(AlignConfig::default(), false))).unwrap_err();
+        assert!(format!("{err:#}").contains("7 bytes"), "{err:#}");
+    }
+}

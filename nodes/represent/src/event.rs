@@ -1,0 +1,843 @@
+//! Event representations: the paper's event integration (Eq. 8) and the signed event count.
+//!
+//! Events arrive as an [`EventSlice`], a struct of slices sorted by time. The sensor's size is the
+//! destination's `[H, W]`; an event outside it is an error, never clipped.
+//!
+//! Each kernel has a plain `*_reference` (the oracle) and a fast path. The fast path of event
+//! integration costs `O(events + K * H * W)` instead of the reference's `O(events * K + K * H * W)`
+//! and fans out over blocks of [`ROWS_PER_TASK`] rows on rayon when the work reaches
+//! [`MIN_ELEMENTS_FOR_RAYON`] (events are first bucketed by row block, keeping their time order).
+//! The signed count splits long event runs over rayon threads, one histogram each, and sums them.
+
+use std::ops::Range;
+
+use ndarray::{ArrayViewMut2, ArrayViewMut3, Axis};
+use rayon::prelude::*;
+
+use crate::error::{RepresentError, shape_str};
+use crate::spike::{MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK};
+
+/// Events as parallel slices: event `i` is `(t_ns[i], x[i], y[i], polarity[i])`.
+///
+/// Invariants every kernel checks (see [`EventSlice::validate`]): the four slices have equal
+/// lengths, `t_ns` is sorted non-decreasing, `polarity` is `+1` (ON) or `-1` (OFF), and
+/// `x < W`, `y < H` for the sensor the kernel writes.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct EventSlice<'a> {
+    /// Timestamps in nanoseconds, non-decreasing.
+    pub t_ns: &'a [i64],
+    /// Column, `0..W`.
+    pub x: &'a [u16],
+    /// Row, `0..H` (row 0 at the top, as in the spike planes).
+    pub y: &'a [u16],
+    /// `+1` for ON (brighter), `-1` for OFF (darker).
+    pub polarity: &'a [i8],
+}
+
+impl EventSlice<'_> {
+    /// Number of events (the length of `t_ns`).
+    pub fn len(&self) -> usize {
+        self.t_ns.len()
+    }
+
+    /// Whether there are no events.
+    pub fn is_empty(&self) -> bool {
+        self.t_ns.is_empty()
+    }
+
+    /// Checks the invariants for a sensor of `height` rows and `width` columns, in one pass.
+    ///
+    /// # Errors
+    /// - [`RepresentError::Shape`] when `x`, `y` or `polarity` is not as long as `t_ns`.
+    /// - [`RepresentError::Param`] when `t_ns` decreases somewhere or a polarity is not ±1
+    ///   (the message gives the event's index and value).
+    /// - [`RepresentError::Index`] when an event lies outside the sensor (`x >= width` or
+    ///   `y >= height`), naming the event and the coordinate.
+    pub fn validate(&self, height: usize, width: usize) -> Result<(), RepresentError> {
+        let n = self.t_ns.len();
+        for (what, len) in [
+            ("event slice x length", self.x.len()),
+            ("event slice y length", self.y.len()),
+            ("event slice polarity length", self.polarity.len()),
+        ] {
+            if len != n {
+                return Err(RepresentError::Shape {
+                    what,
+                    expected: format!("[{n}] (the length of t_ns)"),
+                    actual: shape_str(&[len]),
+                });
+            }
+        }
+        for i in 0..n {
+            if i > 0 && self.t_ns[i] < self.t_ns[i - 1] {
+                return Err(RepresentError::Param {
+                    name: "events.t_ns",
+                    value: format!(
+                        "t_ns[{i}] = {} after t_ns[{}] = {}",
+                        self.t_ns[i],
+                        i - 1,
+                        self.t_ns[i - 1]
+                    ),
+                    reason: "events must be sorted by time (non-decreasing)",
+                });
+            }
+            let (x, y) = (usize::from(self.x[i]), usize::from(self.y[i]));
+            if x >= width {
+                return Err(RepresentError::Index {
+                    what: format!("x of event {i}"),
+                    value: x as u64,
+                    limit: width as u64,
+                });
+            }
+            if y >= height {
+                return Err(RepresentError::Index {
+                    what: format!("y of event {i}"),
+                    value: y as u64,
+                    limit: height as u64,
+                });
+            }
+            let p = self.polarity[i];
+            if p != 1 && p != -1 {
+                return Err(RepresentError::Param {
+                    name: "events.polarity",
+                    value: format!("polarity[{i}] = {p}"),
+                    reason: "must be +1 (ON) or -1 (OFF)",
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Decay
+// ---------------------------------------------------------------------------------------------
+
+/// The decay kernel `exp(-dt / tau)` with its two limits made explicit.
+#[derive(Clone, Copy, Debug)]
+enum Decay {
+    /// `tau -> 0`: 1 at `dt = 0`, 0 for any `dt > 0`.
+    Instant,
+    /// A finite positive `tau` in nanoseconds.
+    Exp(f64),
+    /// `tau = +inf`: 1 for every `dt`.
+    Never,
+}
+
+impl Decay {
+    fn new(tau_ns: f64) -> Result<Self, RepresentError> {
+        if tau_ns.is_nan() {
+            return Err(RepresentError::Param {
+                name: "tau_ns",
+                value: format!("{tau_ns}"),
+                reason: "the decay time must be a number (<= 0 for the tau -> 0 limit, +inf for no decay)",
+            });
+        }
+        Ok(if tau_ns <= 0.0 {
+            Self::Instant
+        } else if tau_ns == f64::INFINITY {
+            Self::Never
+        } else {
+            Self::Exp(tau_ns)
+        })
+    }
+
+    /// `exp(-(later - earlier) / tau)` for `later >= earlier`, in `[0, 1]`. The difference is taken
+    /// in `i128`, so any two `i64` instants work, then converted to `f64`. Division (not
+    /// multiplication by `1 / tau`) keeps `dt = 0` at exactly 1 even for a subnormal `tau`.
+    #[inline]
+    fn factor(self, later_ns: i64, earlier_ns: i64) -> f64 {
+        let dt = i128::from(later_ns) - i128::from(earlier_ns);
+        match self {
+            Self::Instant => {
+                if dt == 0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+            Self::Exp(tau) => (-(dt as f64) / tau).exp(),
+            Self::Never => 1.0,
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Event integration
+// ---------------------------------------------------------------------------------------------
+
+/// Event integration, paper Eq. 8: `K` channels of `V(t)` at the instants `ts_ns`.
+///
+/// For channel `k` and each pixel,
+/// `dst[k, y, x] = V_on - V_off` with
+/// `V_on = sum over ON events at the pixel with t0_ns <= t_i <= ts_ns[k] of (1 + exp(-(ts_ns[k] - t_i) / tau_ns))`
+/// and `V_off` the same sum over OFF events: the plain signed count plus the exponentially decayed
+/// count, ON and OFF accumulated separately in `f64` and summed at the end (REFERENCE.md).
+/// Both window ends are inclusive. `K = ts_ns.len()`, `dst` is `[K, H, W]` and `[H, W]` is the
+/// sensor. The output is finite, with `|dst| <= 2 * (events at the pixel)`.
+///
+/// Limits of `tau_ns`:
+/// - `tau_ns <= 0` (also `-inf`) is the `tau -> 0+` limit: the decay term is 0 for events before
+///   `ts_ns[k]`, so the channel is the plain signed count, except that an event exactly at
+///   `ts_ns[k]` has `exp(0) = 1` for every `tau` and so contributes 2 (±).
+/// - `tau_ns = +inf`: no decay, the channel is twice the signed count.
+///
+/// Time differences are taken in `i128` and converted to `f64`, so instants anywhere in the `i64`
+/// range (near `i64::MAX` included) work without overflow. The fast path carries each pixel's
+/// decayed sums from `ts_ns[k - 1]` to `ts_ns[k]` by the factor `exp(-(ts_ns[k] - ts_ns[k - 1]) / tau)`,
+/// so it matches the reference to about `1e-12` relative before the final rounding to `f32`.
+///
+/// # Errors
+/// - [`RepresentError::Shape`] when `dst` has not `ts_ns.len()` channels, or the event slices differ
+///   in length.
+/// - [`RepresentError::Param`] when `tau_ns` is NaN, `ts_ns` decreases somewhere, the events are
+///   not sorted by time, or a polarity is not ±1.
+/// - [`RepresentError::Index`] for an event outside the sensor, naming the event and coordinate.
+///
+/// No events, or none in a channel's window, give zeros. `K = 0` writes nothing.
+///
+/// ```
+/// use ndarray::Array3;
+/// use neuspike_represent::{EventSlice, event_integration_into};
+/// let events = EventSlice { t_ns: &[1_000], x: &[0], y: &[0], polarity: &[1] };
+/// let mut v = Array3::<f32>::zeros((2, 1, 1));
+/// event_integration_into(events, 0, &[500, 1_500], 500.0, v.view_mut()).unwrap();
+/// assert_eq!(v[[0, 0, 0]], 0.0); // the event comes after the first instant
+/// assert!((v[[1, 0, 0]] - (1.0 + (-1.0f32).exp())).abs() < 1e-6);
+/// ```
+pub fn event_integration_into(
+    events: EventSlice,
+    t0_ns: i64,
+    ts_ns: &[i64],
+    tau_ns: f64,
+    dst: ArrayViewMut3<f32>,
+) -> Result<(), RepresentError> {
+    let (decay, window) = check_integration(events, t0_ns, ts_ns, tau_ns, dst.dim())?;
+    let (k, h, w) = dst.dim();
+    let parallel = k * h * w + window.len() >= MIN_ELEMENTS_FOR_RAYON;
+    integration_fast(events, window, ts_ns, decay, dst, ROWS_PER_TASK, parallel);
+    Ok(())
+}
+
+/// Checks for event integration; returns the decay and the range of events with
+/// `t0_ns <= t_i <= max(ts_ns)`.
+fn check_integration(
+    events: EventSlice,
+    t0_ns: i64,
+    ts_ns: &[i64],
+    tau_ns: f64,
+    dst_dim: (usize, usize, usize),
+) -> Result<(Decay, Range<usize>), RepresentError> {
+    let (k, h, w) = dst_dim;
+    if k != ts_ns.len() {
+        return Err(RepresentError::Shape {
+            what: "event integration dst (one channel per instant in ts_ns)",
+            expected: format!("[{}, {h}, {w}]", ts_ns.len()),
+            actual: shape_str(&[k, h, w]),
+        });
+    }
+    let decay = Decay::new(tau_ns)?;
+    if let Some(i) = (1..ts_ns.len()).find(|&i| ts_ns[i] < ts_ns[i - 1]) {
+        return Err(RepresentError::Param {
+            name: "ts_ns",
+            value: format!(
+                "ts_ns[{i}] = {} after ts_ns[{}] = {}",
+                ts_ns[i],
+                i - 1,
+                ts_ns[i - 1]
+            ),
+            reason: "channel instants must be non-decreasing",
+        });
+    }
+    events.validate(h, w)?;
+    let first = events.t_ns.partition_point(|&t| t < t0_ns);
+    let last = match ts_ns.last() {
+        Some(&t_max) => events.t_ns.partition_point(|&t| t <= t_max),
+        None => first,
+    };
+    Ok((decay, first..last.max(first)))
+}
+
+/// Scalar oracle for [`event_integration_into`]: for every channel, every event of the window,
+/// the closed form `p * (1 + exp(-(ts - t_i) / tau))` summed per polarity in `f64`. Same checks.
+#[doc(hidden)]
+pub fn event_integration_reference(
+    events: EventSlice,
+    t0_ns: i64,
+    ts_ns: &[i64],
+    tau_ns: f64,
+    mut dst: ArrayViewMut3<f32>,
+) -> Result<(), RepresentError> {
+    let (decay, _) = check_integration(events, t0_ns, ts_ns, tau_ns, dst.dim())?;
+    let (_, h, w) = dst.dim();
+    for (k, &t_k) in ts_ns.iter().enumerate() {
+        let mut on = vec![0.0f64; h * w];
+        let mut off = vec![0.0f64; h * w];
+        for i in 0..events.len() {
+            let t_i = events.t_ns[i];
+            if t_i < t0_ns || t_i > t_k {
+                continue;
+            }
+            let p = usize::from(events.y[i]) * w + usize::from(events.x[i]);
+            let weight = 1.0 + decay.factor(t_k, t_i);
+            if events.polarity[i] > 0 {
+                on[p] += weight;
+            } else {
+                off[p] += weight;
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                dst[[k, y, x]] = (on[y * w + x] - off[y * w + x]) as f32;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// One pixel's running sums, referred to the latest channel instant.
+#[derive(Clone, Copy, Debug, Default)]
+struct PixelSums {
+    on_count: f64,
+    on_decayed: f64,
+    off_count: f64,
+    off_decayed: f64,
+}
+
+impl PixelSums {
+    #[inline]
+    fn value(&self) -> f32 {
+        ((self.on_count + self.on_decayed) - (self.off_count + self.off_decayed)) as f32
+    }
+}
+
+/// Fast event integration over row blocks. `window` holds the events with
+/// `t0 <= t_i <= max(ts)`; everything was checked by the caller.
+fn integration_fast(
+    events: EventSlice,
+    window: Range<usize>,
+    ts_ns: &[i64],
+    decay: Decay,
+    mut dst: ArrayViewMut3<f32>,
+    rows_per_task: usize,
+    parallel: bool,
+) {
+    let h = dst.len_of(Axis(1));
+    if parallel {
+        let rows_per_task = rows_per_task.max(1);
+        let buckets = RowBuckets::new(events.y, window, rows_per_task, h);
+        dst.axis_chunks_iter_mut(Axis(1), rows_per_task)
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(b, block)| {
+                let idx = buckets.block(b).iter().copied();
+                integrate_block(events, idx, ts_ns, decay, b * rows_per_task, block);
+            });
+    } else {
+        integrate_block(events, window, ts_ns, decay, 0, dst);
+    }
+}
+
+/// Integrates the events `idx` (time-ordered, all inside rows `y0..y0 + rows`) into the block
+/// `dst` `[K, rows, W]`, channel by channel: decay the carried sums to the next instant, add the
+/// events up to it, write.
+fn integrate_block(
+    events: EventSlice,
+    idx: impl Iterator<Item = usize>,
+    ts_ns: &[i64],
+    decay: Decay,
+    y0: usize,
+    mut dst: ArrayViewMut3<f32>,
+) {
+    let (_, rows, w) = dst.dim();
+    let mut sums = vec![PixelSums::default(); rows * w];
+    let mut idx = idx.peekable();
+    for (k, &t_k) in ts_ns.iter().enumerate() {
+        if k > 0 {
+            let f = decay.factor(t_k, ts_ns[k - 1]);
+            if f != 1.0 {
+                for s in &mut sums {
+                    s.on_decayed *= f;
+                    s.off_decayed *= f;
+                }
+            }
+        }
+        while let Some(&i) = idx.peek() {
+            let t_i = events.t_ns[i];
+            if t_i > t_k {
+                break;
+            }
+            idx.next();
+            let p = (usize::from(events.y[i]) - y0) * w + usize::from(events.x[i]);
+            let fresh = decay.factor(t_k, t_i);
+            let s = &mut sums[p];
+            if events.polarity[i] > 0 {
+                s.on_count += 1.0;
+                s.on_decayed += fresh;
+            } else {
+                s.off_count += 1.0;
+                s.off_decayed += fresh;
+            }
+        }
+        let mut plane = dst.index_axis_mut(Axis(0), k);
+        match plane.as_slice_mut() {
+            Some(out) => {
+                for (d, s) in out.iter_mut().zip(&sums) {
+                    *d = s.value();
+                }
+            }
+            None => {
+                for (d, s) in plane.iter_mut().zip(&sums) {
+                    *d = s.value();
+                }
+            }
+        }
+    }
+}
+
+/// Events below which one rayon task of [`event_count_into`] does not go.
+const MIN_EVENTS_PER_TASK: usize = 1 << 15;
+
+/// Event indices grouped by block of rows, each group in time order (a stable counting sort).
+struct RowBuckets {
+    /// `offsets[b]..offsets[b + 1]` is block `b`'s part of `order`.
+    offsets: Vec<usize>,
+    order: Vec<usize>,
+}
+
+impl RowBuckets {
+    /// Buckets `range` of events by `y / rows_per_task` (`rows_per_task >= 1`, every `y < height`).
+    fn new(y: &[u16], range: Range<usize>, rows_per_task: usize, height: usize) -> Self {
+        let n_blocks = height.div_ceil(rows_per_task);
+        let mut offsets = vec![0usize; n_blocks + 1];
+        for &row in &y[range.clone()] {
+            offsets[usize::from(row) / rows_per_task + 1] += 1;
+        }
+        for b in 0..n_blocks {
+            offsets[b + 1] += offsets[b];
+        }
+        let mut fill = offsets.clone();
+        let mut order = vec![0usize; range.len()];
+        for i in range {
+            let b = usize::from(y[i]) / rows_per_task;
+            order[fill[b]] = i;
+            fill[b] += 1;
+        }
+        Self { offsets, order }
+    }
+
+    fn block(&self, b: usize) -> &[usize] {
+        &self.order[self.offsets[b]..self.offsets[b + 1]]
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Event count
+// ---------------------------------------------------------------------------------------------
+
+/// Signed event count per pixel over all events given: ON adds 1, OFF subtracts 1.
+///
+/// `dst` is `[H, W]`, the sensor. Counts are exact integers (kept in `i64`, written as `f32`,
+/// exact up to `2^24` in magnitude). No events give zeros. Time is not looked at beyond the
+/// sortedness check: the caller slices the window.
+///
+/// # Errors
+/// As [`EventSlice::validate`]: unequal slice lengths (`Shape`), unsorted times or a polarity not
+/// ±1 (`Param`), an event outside the sensor (`Index`, naming the event and coordinate).
+pub fn event_count_into(events: EventSlice, dst: ArrayViewMut2<f32>) -> Result<(), RepresentError> {
+    let (h, w) = dst.dim();
+    events.validate(h, w)?;
+    let parallel = events.len() >= MIN_ELEMENTS_FOR_RAYON;
+    count_fast(events, dst, MIN_EVENTS_PER_TASK, parallel);
+    Ok(())
+}
+
+/// Scalar oracle for [`event_count_into`].
+#[doc(hidden)]
+pub fn event_count_reference(
+    events: EventSlice,
+    mut dst: ArrayViewMut2<f32>,
+) -> Result<(), RepresentError> {
+    let (h, w) = dst.dim();
+    events.validate(h, w)?;
+    let mut on = vec![0i64; h * w];
+    let mut off = vec![0i64; h * w];
+    for i in 0..events.len() {
+        let p = usize::from(events.y[i]) * w + usize::from(events.x[i]);
+        if events.polarity[i] > 0 {
+            on[p] += 1;
+        } else {
+            off[p] += 1;
+        }
+    }
+    for y in 0..h {
+        for x in 0..w {
+            dst[[y, x]] = (on[y * w + x] - off[y * w + x]) as f32;
+        }
+    }
+    Ok(())
+}
+
+/// Fast signed count: the events split into at most one contiguous run per rayon thread (each at
+/// least `min_events_per_task` long), one `i64` histogram per run, histograms summed. Exact, so
+/// identical to the reference. Checked by the caller.
+fn count_fast(
+    events: EventSlice,
+    mut dst: ArrayViewMut2<f32>,
+    min_events_per_task: usize,
+    parallel: bool,
+) {
+    let (h, w) = dst.dim();
+    let n = events.len();
+    let histogram = |range: Range<usize>| {
+        let mut counts = vec![0i64; h * w];
+        for i in range {
+            let p = usize::from(events.y[i]) * w + usize::from(events.x[i]);
+            counts[p] += i64::from(events.polarity[i]);
+        }
+        counts
+    };
+    let min_run = min_events_per_task.max(1);
+    let counts = if parallel && n > min_run {
+        let run = n.div_ceil(rayon::current_num_threads()).max(min_run);
+        (0..n.div_ceil(run))
+            .into_par_iter()
+            .map(|r| histogram(r * run..((r + 1) * run).min(n)))
+            .reduce_with(|mut a, b| {
+                for (x, y) in a.iter_mut().zip(&b) {
+                    *x += y;
+                }
+                a
+            })
+            .unwrap_or_else(|| vec![0; h * w])
+    } else {
+        histogram(0..n)
+    };
+    match dst.as_slice_mut() {
+        Some(out) => {
+            for (d, &c) in out.iter_mut().zip(&counts) {
+                *d = c as f32;
+            }
+        }
+        None => {
+            for (d, &c) in dst.iter_mut().zip(&counts) {
+                *d = c as f32;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::{Array2, Array3};
+    use proptest::prelude::*;
+
+    /// Owned events for tests.
+    #[derive(Clone, Debug, Default)]
+    struct Events {
+        t_ns: Vec<i64>,
+        x: Vec<u16>,
+        y: Vec<u16>,
+        polarity: Vec<i8>,
+    }
+
+    impl Events {
+        fn from(list: &[(i64, u16, u16, i8)]) -> Self {
+            let mut e = Self::default();
+            for &(t, x, y, p) in list {
+                e.t_ns.push(t);
+                e.x.push(x);
+                e.y.push(y);
+                e.polarity.push(p);
+            }
+            e
+        }
+
+        fn slice(&self) -> EventSlice<'_> {
+            EventSlice {
+                t_ns: &self.t_ns,
+                x: &self.x,
+                y: &self.y,
+                polarity: &self.polarity,
+            }
+        }
+    }
+
+    fn integrate(e: &Events, t0: i64, ts: &[i64], tau: f64, h: usize, w: usize) -> Array3<f32> {
+        let mut v = Array3::from_elem((ts.len(), h, w), f32::NAN);
+        event_integration_into(e.slice(), t0, ts, tau, v.view_mut()).expect("integration");
+        let mut r = Array3::from_elem((ts.len(), h, w), f32::NAN);
+        event_integration_reference(e.slice(), t0, ts, tau, r.view_mut()).expect("reference");
+        for (a, b) in v.iter().zip(&r) {
+            assert!(
+                (a - b).abs() <= 1e-6 * (1.0 + b.abs()),
+                "fast {a} vs reference {b}"
+            );
+        }
+        v
+    }
+
+    fn count(e: &Events, h: usize, w: usize) -> Array2<f32> {
+        let mut c = Array2::from_elem((h, w), f32::NAN);
+        event_count_into(e.slice(), c.view_mut()).expect("count");
+        c
+    }
+
+    /// A few events over a 2 x 3 sensor, none exactly at the instants used below.
+    fn scene() -> Events {
+        Events::from(&[
+            (100, 0, 0, 1),
+            (150, 2, 1, -1),
+            (200, 0, 0, 1),
+            (250, 1, 1, 1),
+            (300, 0, 0, -1),
+            (350, 2, 1, -1),
+            (420, 1, 0, 1),
+        ])
+    }
+
+    #[test]
+    fn tau_to_zero_gives_the_plain_count_and_infinity_doubles_it() {
+        let e = scene();
+        let c = count(&e, 2, 3);
+        for tau in [0.0, -5.0, f64::NEG_INFINITY, 1e-300] {
+            let v = integrate(&e, 0, &[1_000], tau, 2, 3);
+            assert_eq!(v.index_axis(Axis(0), 0), c, "tau = {tau}");
+        }
+        let v = integrate(&e, 0, &[1_000], f64::INFINITY, 2, 3);
+        assert_eq!(v.index_axis(Axis(0), 0), c.mapv(|n| 2.0 * n));
+        assert_eq!(c[[0, 0]], 1.0);
+        assert_eq!(c[[1, 2]], -2.0);
+    }
+
+    #[test]
+    fn single_event_decays_to_one_plus_exp_minus_one_after_tau() {
+        let e = Events::from(&[(1_000, 0, 0, 1)]);
+        let v = integrate(&e, 0, &[1_000, 1_500, 2_000], 500.0, 1, 1);
+        assert_eq!(v[[0, 0, 0]], 2.0);
+        assert!((f64::from(v[[1, 0, 0]]) - (1.0 + (-1.0f64).exp())).abs() < 1e-6);
+        assert!((f64::from(v[[2, 0, 0]]) - (1.0 + (-2.0f64).exp())).abs() < 1e-6);
+        let off = Events::from(&[(1_000, 0, 0, -1)]);
+        let v = integrate(&off, 0, &[1_500], 500.0, 1, 1);
+        assert!((f64::from(v[[0, 0, 0]]) + (1.0 + (-1.0f64).exp())).abs() < 1e-6);
+    }
+
+    #[test]
+    fn events_at_identical_timestamps_all_count() {
+        let e = Events::from(&[
+            (700, 0, 0, 1),
+            (700, 0, 0, 1),
+            (700, 0, 0, 1),
+            (700, 1, 0, -1),
+        ]);
+        let v = integrate(&e, 700, &[700, 700, 1_200], 500.0, 1, 2);
+        // At the instant itself every event weighs 1 + exp(0) = 2, also in the tau -> 0 limit.
+        assert_eq!(
+            v.slice(ndarray::s![0..2, 0, ..]).to_owned(),
+            ndarray::array![[6.0, -2.0], [6.0, -2.0]]
+        );
+        let expected = 3.0 * (1.0 + (-1.0f64).exp());
+        assert!((f64::from(v[[2, 0, 0]]) - expected).abs() < 1e-5);
+        let v = integrate(&e, 0, &[700, 701], 0.0, 1, 2);
+        assert_eq!(v.index_axis(Axis(0), 0), ndarray::array![[6.0, -2.0]]);
+        assert_eq!(v.index_axis(Axis(0), 1), ndarray::array![[3.0, -1.0]]);
+    }
+
+    #[test]
+    fn on_and_off_cancel() {
+        let e = Events::from(&[(10, 0, 0, 1), (10, 0, 0, -1), (20, 0, 0, -1), (30, 0, 0, 1)]);
+        let v = integrate(&e, 0, &[10, 30, 100], 20.0, 1, 1);
+        assert_eq!(v[[0, 0, 0]], 0.0);
+        assert_eq!(count(&e, 1, 1)[[0, 0]], 0.0);
+        // At 30: counts cancel; decayed parts 1 - exp(-0.5) (the ON at 30 against the OFF at 20).
+        let expected = 1.0 - (-0.5f64).exp();
+        assert!((f64::from(v[[1, 0, 0]]) - expected).abs() < 1e-6);
+        let v = integrate(&e, 0, &[100], f64::INFINITY, 1, 1);
+        assert_eq!(v[[0, 0, 0]], 0.0);
+    }
+
+    #[test]
+    fn window_start_and_channel_instants_are_inclusive() {
+        let e = Events::from(&[
+            (99, 0, 0, 1),
+            (100, 0, 0, 1),
+            (200, 0, 0, 1),
+            (201, 0, 0, 1),
+        ]);
+        let v = integrate(&e, 100, &[50, 100, 200, 10_000], f64::INFINITY, 1, 1);
+        let got: Vec<f32> = v.iter().copied().collect();
+        assert_eq!(got, vec![0.0, 2.0, 4.0, 6.0]);
+    }
+
+    #[test]
+    fn zero_events_give_zeros() {
+        let e = Events::default();
+        let v = integrate(&e, 0, &[0, 5, 9], 3.0, 2, 4);
+        assert!(v.iter().all(|&x| x == 0.0));
+        assert!(count(&e, 2, 4).iter().all(|&x| x == 0.0));
+        let mut empty = Array3::<f32>::zeros((0, 2, 4));
+        event_integration_into(e.slice(), 0, &[], 3.0, empty.view_mut()).expect("K = 0");
+    }
+
+    #[test]
+    fn timestamps_near_the_ends_of_i64_do_not_overflow() {
+        let e = Events::from(&[
+            (i64::MIN, 0, 0, 1),
+            (i64::MAX - 10, 0, 0, 1),
+            (i64::MAX, 0, 0, -1),
+        ]);
+        let v = integrate(
+            &e,
+            i64::MIN,
+            &[i64::MIN, i64::MAX - 10, i64::MAX],
+            10.0,
+            1,
+            1,
+        );
+        assert_eq!(v[[0, 0, 0]], 2.0);
+        assert_eq!(v[[1, 0, 0]], 3.0); // the first has decayed over ~2^64 ns to nothing
+        let expected = 2.0 + (-1.0f64).exp() - 2.0;
+        assert!((f64::from(v[[2, 0, 0]]) - expected).abs() < 1e-6);
+        assert!(v.iter().all(|x| x.is_finite()));
+        let v = integrate(&e, i64::MIN, &[i64::MAX], f64::MAX, 1, 1);
+        assert!(v.iter().all(|x| x.is_finite()));
+    }
+
+    #[test]
+    fn bad_inputs_are_errors_naming_the_value() {
+        let e = Events::from(&[(1, 0, 0, 1), (2, 3, 0, 1)]);
+        let mut v = Array3::<f32>::zeros((1, 2, 3));
+        let err = event_integration_into(e.slice(), 0, &[5], 1.0, v.view_mut()).expect_err("x");
+        assert!(
+            matches!(
+                &err,
+                RepresentError::Index {
+                    value: 3,
+                    limit: 3,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert!(err.to_string().contains("x of event 1"), "{err}");
+
+        let e = Events::from(&[(1, 0, 2, 1)]);
+        let mut c = Array2::<f32>::zeros((2, 3));
+        let err = event_count_into(e.slice(), c.view_mut()).expect_err("y");
+        assert!(err.to_string().contains("y of event 0 = 2"), "{err}");
+
+        let e = Events::from(&[(5, 0, 0, 1), (4, 0, 0, 1)]);
+        let err = event_count_into(e.slice(), c.view_mut()).expect_err("unsorted");
+        assert!(err.to_string().contains("t_ns[1] = 4"), "{err}");
+
+        let e = Events::from(&[(5, 0, 0, 0)]);
+        let err = event_count_into(e.slice(), c.view_mut()).expect_err("polarity");
+        assert!(err.to_string().contains("polarity[0] = 0"), "{err}");
+
+        let mut e = Events::from(&[(5, 0, 0, 1)]);
+        e.x.push(1);
+        let err = event_count_into(e.slice(), c.view_mut()).expect_err("lengths");
+        assert!(matches!(err, RepresentError::Shape { .. }), "{err}");
+
+        let e = scene();
+        let err = event_integration_into(e.slice(), 0, &[5, 6], 1.0, v.view_mut()).expect_err("K");
+        assert!(matches!(err, RepresentError::Shape { .. }), "{err}");
+        let mut v2 = Array3::<f32>::zeros((2, 2, 3));
+        let err =
+            event_integration_into(e.slice(), 0, &[6, 5], 1.0, v2.view_mut()).expect_err("ts");
+        assert!(err.to_string().contains("ts_ns[1] = 5"), "{err}");
+        let err =
+            event_integration_into(e.slice(), 0, &[5], f64::NAN, v.view_mut()).expect_err("tau");
+        assert!(err.to_string().contains("tau_ns = NaN"), "{err}");
+    }
+
+    #[test]
+    fn large_input_takes_the_rayon_path_and_matches() {
+        let (h, w, n) = (37, 50, 70_000usize);
+        let mut e = Events::default();
+        for i in 0..n {
+            e.t_ns.push(i as i64 * 3);
+            e.x.push(((i * 7919) % w) as u16);
+            e.y.push(((i * 104_729) % h) as u16);
+            e.polarity.push(if i % 3 == 0 { -1 } else { 1 });
+        }
+        let ts: Vec<i64> = (1..=8).map(|k| k * 25_000).collect();
+        integrate(&e, 1_000, &ts, 20_000.0, h, w);
+        let mut c = Array2::<f32>::zeros((h, w));
+        event_count_reference(e.slice(), c.view_mut()).expect("ref");
+        assert_eq!(count(&e, h, w), c);
+    }
+
+    /// Random sorted events on a small sensor, sorted channel instants and a decay of each kind.
+    fn case() -> impl Strategy<Value = (Events, usize, usize, i64, Vec<i64>, f64)> {
+        (1usize..6, 1usize..7, 0usize..40).prop_flat_map(|(h, w, n)| {
+            let event = (
+                0i64..200,
+                0..w as u16,
+                0..h as u16,
+                prop_oneof![Just(1i8), Just(-1i8)],
+            );
+            (
+                proptest::collection::vec(event, n),
+                Just((h, w)),
+                -20i64..100,
+                proptest::collection::vec(0i64..220, 0..5),
+                prop_oneof![Just(0.0), Just(-1.0), Just(f64::INFINITY), 0.5f64..500.0],
+            )
+                .prop_map(|(mut list, (h, w), t0, mut ts, tau)| {
+                    list.sort_by_key(|e| e.0);
+                    ts.sort_unstable();
+                    (Events::from(&list), h, w, t0, ts, tau)
+                })
+        })
+    }
+
+    proptest! {
+        #[test]
+        fn integration_fast_matches_reference(
+            (e, h, w, t0, ts, tau) in case(), rows in 1usize..4, par in any::<bool>()
+        ) {
+            let k = ts.len();
+            let mut slow = Array3::<f32>::zeros((k, h, w));
+            event_integration_reference(e.slice(), t0, &ts, tau, slow.view_mut()).expect("ref");
+            let (decay, window) = check_integration(e.slice(), t0, &ts, tau, (k, h, w)).expect("ok");
+            let mut fast = Array3::<f32>::from_elem((k, h, w), f32::NAN);
+            integration_fast(e.slice(), window, &ts, decay, fast.view_mut(), rows, par);
+            // Tolerance: 1e-5 absolute per unit of |value| bound (2 per event at the pixel).
+            let bound = 2.0 * e.t_ns.len() as f32 + 1.0;
+            for (a, b) in fast.iter().zip(&slow) {
+                prop_assert!(a.is_finite());
+                prop_assert!((a - b).abs() <= 1e-6 * bound, "fast {} vs reference {}", a, b);
+                prop_assert!(b.abs() <= bound);
+            }
+        }
+
+        #[test]
+        fn count_fast_matches_reference_exactly(
+            (e, h, w, _t0, _ts, _tau) in case(), run in 1usize..8, par in any::<bool>()
+        ) {
+            let mut slow = Array2::<f32>::zeros((h, w));
+            event_count_reference(e.slice(), slow.view_mut()).expect("ref");
+            let mut fast = Array2::<f32>::from_elem((h, w), f32::NAN);
+            count_fast(e.slice(), fast.view_mut(), run, par);
+            prop_assert_eq!(&fast, &slow);
+            prop_assert_eq!(fast.sum(), e.polarity.iter().map(|&p| f32::from(p)).sum::<f32>());
+        }
+
+        #[test]
+        fn infinite_tau_is_twice_tau_zero_away_from_the_instants(
+            (e, h, w, t0, ts, _tau) in case()
+        ) {
+            // Shift the instants off the event grid (events at even times, instants odd).
+            let e = Events { t_ns: e.t_ns.iter().map(|t| 2 * t).collect(), ..e };
+            let ts: Vec<i64> = ts.iter().map(|t| 2 * t + 1).collect();
+            let k = ts.len();
+            let mut zero = Array3::<f32>::zeros((k, h, w));
+            let mut inf = Array3::<f32>::zeros((k, h, w));
+            event_integration_into(e.slice(), t0, &ts, 0.0, zero.view_mut()).expect("zero");
+            event_integration_into(e.slice(), t0, &ts, f64::INFINITY, inf.view_mut()).expect("inf");
+            prop_assert_eq!(inf, zero.mapv(|v| 2.0 * v));
+        }
+    }
+}

@@ -1,0 +1,34 @@
+//! Representations of spike planes and events for neuspike's reconstruction nodes.
+//!
+//! Pure kernels, no dora: the `neuspike-represent` node decodes its Arrow inputs, calls these and
+//! sends the result. Definitions follow `REFERENCE.md` (after NeuSpike-Net, ICCV 2021):
+//!
+//! | kernel | produces |
+//! |---|---|
+//! | [`tfp_into`] | TFP: firing rate per tick over the planes given, `[H, W]` in `[0, 1]` |
+//! | [`isi_into`] | ISI in ticks at a reference plane, `[H, W]` `>= 1`, plus a validity mask |
+//! | [`tfi_into`] | TFI: `1 / ISI`, `[H, W]` in `(0, 1]` |
+//! | [`spike_representation_into`] | NeuSpike-Net spike tensor: 1/ISI channel + `n - 1` raw planes |
+//! | [`event_integration_into`] | event integration (paper Eq. 8), one channel per instant |
+//! | [`event_count_into`] | signed event count per pixel |
+//!
+//! Conventions: spike planes are `ArrayView3<u8>` `[N, H, W]` (nonzero = spike), events an
+//! [`EventSlice`] sorted by time. Kernels never modify their inputs, write every element of their
+//! destination, and never write NaN or infinity. Each has a scalar `*_reference` oracle that the
+//! tests compare the fast path against.
+#![deny(missing_docs)]
+
+mod error;
+mod event;
+mod spike;
+
+pub use error::RepresentError;
+pub use event::{
+    EventSlice, event_count_into, event_count_reference, event_integration_into,
+    event_integration_reference,
+};
+pub use spike::{
+    MAX_PLANES, MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK, isi_into, isi_reference, raw_block_start,
+    spike_representation_into, spike_representation_reference, tfi_into, tfi_reference, tfp_into,
+    tfp_reference,
+};

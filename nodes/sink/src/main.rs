@@ -1,0 +1,274 @@
+//! dora node: writes frames as PNG, scores them against ground truth, summarises the run.
+//!
+//! Inputs: `ground_truth` (Frame, optional) and any number of frame inputs under other ids (one per
+//! method). Writes `<out>/<method>/<seq>.png`, `<out>/metrics.csv` (a row per frame, flushed as it
+//! goes) and, at the end, `<out>/summary.md` with the mean metrics per method and the frames
+//! expected, written and missing on every input.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::PathBuf;
+
+use dora_node_api::{DoraNode, Event, EventStream};
+use eyre::WrapErr;
+use neuspike_schemas::{Frame, Message, SeqStatus, SeqTracker, is_end_of_stream};
+use neuspike_schemas::node;
+use neuspike_sink::metrics::{check_same_shape, entropy_2d, psnr, psnr_after_gain, ssim};
+use neuspike_sink::png_out::{BitDepth, write_frame_png};
+use neuspike_sink::report::{FrameMetrics, MetricsCsv, Summary};
+
+/// Node arguments (the graph's `args:`).
+#[derive(Debug, clap::Parser)]
+#[command(name = "neuspike-sink", about = "Writes and scores frames", args_override_self = true)]
+struct Args {
+    /// Output folder (relative paths are relative to the graph's folder).
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// PNG bit depth: 8 or 16.
+    #[arg(long, default_value = "16")]
+    bit_depth: BitDepth,
+    /// Also write the ground-truth frames as PNG.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    write_ground_truth: bool,
+}
+
+fn main() -> eyre::Result<()> {
+    node::init_logging();
+    let args: Args = node::parse_config("sink")?;
+    let (node, events) = DoraNode::init_from_env()?;
+    let has_gt = node.node_config().inputs.keys().any(|k| k.as_ref() == "ground_truth");
+    run(node, events, &args, has_gt)
+}
+
+/// Per-input bookkeeping.
+#[derive(Default)]
+struct InputState {
+    seq: SeqTracker,
+    written: u64,
+    ended: bool,
+}
+
+struct Sink {
+    out: PathBuf,
+    depth: BitDepth,
+    write_gt: bool,
+    has_gt: bool,
+    csv: MetricsCsv,
+    summary: Summary,
+    inputs: BTreeMap<String, InputState>,
+    /// Ground truth by time, kept until every frame input has passed it.
+    truth: BTreeMap<i64, Frame>,
+    truth_until_ns: i64,
+    truth_closed: bool,
+    /// Frames waiting for their ground truth.
+    pending: VecDeque<(String, Frame)>,
+}
+
+impl Sink {
+    fn new(args: &Args, has_gt: bool) -> eyre::Result<Self> {
+        std::fs::create_dir_all(&args.out)
+            .wrap_err_with(|| format!("sink: cannot create the output folder {}", args.out.display()))?;
+        let csv = MetricsCsv::create(&args.out.join("metrics.csv"))?;
+        Ok(Sink {
+            out: args.out.clone(),
+            depth: args.bit_depth,
+            write_gt: args.write_ground_truth,
+            has_gt,
+            csv,
+            summary: Summary::default(),
+            inputs: BTreeMap::new(),
+            truth: BTreeMap::new(),
+            truth_until_ns: i64::MIN,
+            truth_closed: !has_gt,
+            pending: VecDeque::new(),
+        })
+    }
+
+    fn frame_path(&self, method: &str, seq: u64) -> eyre::Result<(PathBuf, String)> {
+        let dir = self.out.join(method);
+        std::fs::create_dir_all(&dir)
+            .wrap_err_with(|| format!("sink: cannot create {}", dir.display()))?;
+        let name = format!("{method}/{seq:06}.png");
+        Ok((self.out.join(&name), name))
+    }
+
+    fn on_truth(&mut self, f: Frame) -> eyre::Result<()> {
+        if self.write_gt {
+            let (path, _) = self.frame_path("ground-truth", f.seq)?;
+            write_frame_png(&path, f.data.view(), self.depth)?;
+        }
+        self.truth_until_ns = self.truth_until_ns.max(f.t_ref_ns);
+        self.truth.insert(f.t_ref_ns, f);
+        self.drain_pending()
+    }
+
+    fn on_frame(&mut self, input: &str, f: Frame) -> eyre::Result<()> {
+        self.pending.push_back((input.to_string(), f));
+        self.drain_pending()
+    }
+
+    /// Writes every pending frame whose ground truth has arrived or can no longer arrive.
+    fn drain_pending(&mut self) -> eyre::Result<()> {
+        while let Some((_, f)) = self.pending.front() {
+            if !self.truth_closed && f.t_ref_ns > self.truth_until_ns {
+                break;
+            }
+            if let Some((input, f)) = self.pending.pop_front() {
+                self.write(&input, f)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, input: &str, f: Frame) -> eyre::Result<()> {
+        let (path, name) = self.frame_path(&f.method, f.seq)?;
+        write_frame_png(&path, f.data.view(), self.depth)?;
+        let gt = self.truth.get(&f.t_ref_ns);
+        let (p, pg, ss) = match gt {
+            Some(g) => {
+                check_same_shape(f.data.view(), g.data.view())?;
+                (
+                    Some(psnr(f.data.view(), g.data.view())),
+                    Some(psnr_after_gain(f.data.view(), g.data.view())),
+                    Some(ssim(f.data.view(), g.data.view())),
+                )
+            }
+            None => {
+                if self.has_gt {
+                    tracing::warn!(t_ref_ns = f.t_ref_ns, method = %f.method, "no ground truth at this instant");
+                }
+                (None, None, None)
+            }
+        };
+        let row = FrameMetrics {
+            seq: f.seq,
+            t_ref_ns: f.t_ref_ns,
+            method: f.method.clone(),
+            compute_ns: f.compute_ns,
+            psnr_db: p,
+            psnr_gain_db: pg,
+            ssim: ss,
+            entropy_2d: entropy_2d(f.data.view()),
+            file: name,
+        };
+        self.csv.append(&row)?;
+        self.summary.add(&row);
+        self.inputs.entry(input.to_string()).or_default().written += 1;
+        self.evict_truth();
+        Ok(())
+    }
+
+    /// Forgets ground truth older than every frame still to come.
+    fn evict_truth(&mut self) {
+        let oldest_pending = self.pending.iter().map(|(_, f)| f.t_ref_ns).min().unwrap_or(i64::MAX);
+        let keep_from = oldest_pending.min(self.truth_until_ns.saturating_sub(TRUTH_HISTORY_NS));
+        self.truth = self.truth.split_off(&keep_from);
+    }
+
+    fn finish(mut self) -> eyre::Result<()> {
+        self.truth_closed = true;
+        self.drain_pending()?;
+        for (name, st) in &mut self.inputs {
+            let expected = st.seq.announced();
+            if !st.ended {
+                tracing::error!(input = %name, "input ended without its end-of-stream marker");
+            }
+            self.summary.set_counts(
+                name,
+                expected.unwrap_or(st.seq.received() + st.seq.missing()),
+                st.written,
+                st.seq.missing(),
+                st.ended,
+            );
+        }
+        let table = self.summary.to_markdown_table();
+        let path = self.out.join("summary.md");
+        self.summary.write(&path)?;
+        tracing::info!("summary written to {}\n{table}", path.display());
+        Ok(())
+    }
+}
+
+/// How long ground truth is kept for frames that come late, nanoseconds.
+const TRUTH_HISTORY_NS: i64 = 1_000_000_000;
+
+fn run(_node: DoraNode, mut events: EventStream, args: &Args, has_gt: bool) -> eyre::Result<()> {
+    let mut sink = Sink::new(args, has_gt)?;
+    while let Some(event) = events.recv() {
+        match event {
+            Event::Input { id, metadata, data } => {
+                let meta = &metadata.parameters;
+                let id = id.to_string();
+                let st = sink.inputs.entry(id.clone()).or_default();
+                if let Some(n) = is_end_of_stream(meta) {
+                    let lost = st.seq.end(n);
+                    st.ended = true;
+                    if lost > 0 {
+                        tracing::error!(input = %id, lost, "frames lost at the end of the stream");
+                    }
+                    if id == "ground_truth" {
+                        sink.truth_closed = true;
+                        sink.drain_pending()?;
+                    }
+                } else {
+                    let f = Frame::from_arrow(meta, data.as_array())
+                        .wrap_err_with(|| format!("sink: bad frame on input `{id}`"))?;
+                    if let SeqStatus::Gap { missing } = st.seq.observe(f.seq) {
+                        tracing::error!(input = %id, seq = f.seq, missing, "frames lost before this one");
+                    }
+                    if id == "ground_truth" {
+                        sink.on_truth(f)?;
+                    } else {
+                        sink.on_frame(&id, f)?;
+                    }
+                }
+            }
+            Event::InputClosed { id } => {
+                if id.as_ref() == "ground_truth" {
+                    sink.truth_closed = true;
+                    sink.drain_pending()?;
+                }
+            }
+            Event::Stop(_) => break,
+            _ => {}
+        }
+    }
+    sink.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array2;
+    use neuspike_schemas::FrameKind;
+    use neuspike_schemas::testing::CannedInputs;
+
+    fn frame(kind: FrameKind, method: &str, seq: u64, value: f32) -> Frame {
+        Frame { kind, method: method.into(), t_ref_ns: 1_000 * seq as i64, compute_ns: 5, seq,
+            data: Array2::from_shape_fn((16, 16), |(y, x)| value * (x + y) as f32 / 30.0) }
+    }
+
+    #[test]
+    fn writes_scores_and_summarises() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let mut c = CannedInputs::new(dir.path());
+        // Frames arrive before their ground truth: the sink must wait for it.
+        c.message("tfp", &frame(FrameKind::Reconstruction, "tfp", 0, 1.0)).unwrap();
+        c.message("ground_truth", &frame(FrameKind::GroundTruth, "ground-truth", 0, 1.0)).unwrap();
+        c.message("ground_truth", &frame(FrameKind::GroundTruth, "ground-truth", 1, 1.0)).unwrap();
+        // seq 1 of tfp is lost; seq 2 has no truth.
+        c.message("tfp", &frame(FrameKind::Reconstruction, "tfp", 2, 0.9)).unwrap();
+        c.end::<Frame>("tfp", 3).unwrap();
+        c.end::<Frame>("ground_truth", 2).unwrap();
+        let args = Args { out: out.clone(), bit_depth: BitDepth::Eight, write_ground_truth: true };
+        c.run(|node, events| run(node, events, &args, true)).unwrap();
+        let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+        let rows: Vec<&str> = csv.lines().skip(1).collect();
+        assert_eq!(rows.len(), 2, "{csv}");
+        assert!(rows[0].contains(",inf,"), "identical frame is exact: {}", rows[0]);
+        assert!(out.join("tfp/000000.png").is_file() && out.join("tfp/000002.png").is_file());
+        assert!(out.join("ground-truth/000001.png").is_file());
+        let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+        assert!(summary.contains("tfp"), "{summary}");
+    }
+}

@@ -1,0 +1,479 @@
+//! The run report: `metrics.csv`, one row a frame, and a per-method summary in Markdown.
+//!
+//! The summary is written as Markdown text (`summary.md`: the table plus the frame counts), not
+//! JSON: the crate has no JSON dependency, and the per-frame figures a program would want are all
+//! in `metrics.csv` already.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use crate::SinkError;
+use crate::png_out::write_atomically;
+
+/// Header line of `metrics.csv` (without the newline).
+pub const CSV_HEADER: &str = "seq,t_ref_ns,method,compute_ns,psnr_db,psnr_gain_db,ssim,entropy_2d,file";
+
+/// One row of `metrics.csv`: the figures of one reconstructed frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameMetrics {
+    /// Sequence number of the frame in the stream.
+    pub seq: u64,
+    /// Reference time of the frame, ns.
+    pub t_ref_ns: i64,
+    /// Reconstruction method that produced it (e.g. `tfp`, `tfi`, `neuspike`).
+    pub method: String,
+    /// Time the method took to compute it, ns.
+    pub compute_ns: i64,
+    /// PSNR against ground truth in dB (`inf` when exact); `None` without ground truth.
+    pub psnr_db: Option<f64>,
+    /// PSNR after the least-squares gain, dB; `None` without ground truth.
+    pub psnr_gain_db: Option<f64>,
+    /// SSIM against ground truth; `None` without ground truth.
+    pub ssim: Option<f64>,
+    /// 2D entropy of the frame in bits (no reference needed).
+    pub entropy_2d: f64,
+    /// The PNG file written for the frame, as the sink names it (may be empty).
+    pub file: String,
+}
+
+/// A float as the CSV shows it: shortest round-trip decimal; `inf`, `-inf` and `nan` spelled so.
+fn csv_float(v: f64) -> String {
+    if v.is_nan() {
+        "nan".to_owned()
+    } else if v == f64::INFINITY {
+        "inf".to_owned()
+    } else if v == f64::NEG_INFINITY {
+        "-inf".to_owned()
+    } else {
+        format!("{v}")
+    }
+}
+
+fn csv_opt(v: Option<f64>) -> String {
+    v.map(csv_float).unwrap_or_default()
+}
+
+/// A text field quoted as RFC 4180 asks when it holds a comma, a quote or a line break.
+fn csv_text(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_owned()
+    }
+}
+
+/// `row` as one CSV line, newline included.
+pub fn csv_line(row: &FrameMetrics) -> String {
+    format!(
+        "{},{},{},{},{},{},{},{},{}\n",
+        row.seq,
+        row.t_ref_ns,
+        csv_text(&row.method),
+        row.compute_ns,
+        csv_opt(row.psnr_db),
+        csv_opt(row.psnr_gain_db),
+        csv_opt(row.ssim),
+        csv_float(row.entropy_2d),
+        csv_text(&row.file),
+    )
+}
+
+/// Writer of `metrics.csv`. Each row is flushed to the operating system as soon as it is appended,
+/// so a crash or a kill of the node loses no row already produced (no fsync: power loss may).
+#[derive(Debug)]
+pub struct MetricsCsv {
+    path: PathBuf,
+    out: BufWriter<File>,
+}
+
+impl MetricsCsv {
+    /// Creates (or truncates) `path` and writes the header ([`CSV_HEADER`]).
+    pub fn create(path: &Path) -> Result<Self, SinkError> {
+        let io_error = |source| SinkError::Io {
+            path: path.to_owned(),
+            source,
+        };
+        let file = File::create(path).map_err(io_error)?;
+        let mut csv = Self {
+            path: path.to_owned(),
+            out: BufWriter::new(file),
+        };
+        csv.write_flushed(&format!("{CSV_HEADER}\n"))?;
+        Ok(csv)
+    }
+
+    /// Appends one row and flushes it. `None` figures are empty fields; infinite PSNR is `inf`.
+    pub fn append(&mut self, row: &FrameMetrics) -> Result<(), SinkError> {
+        self.write_flushed(&csv_line(row))
+    }
+
+    /// The file being written.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn write_flushed(&mut self, text: &str) -> Result<(), SinkError> {
+        self.out
+            .write_all(text.as_bytes())
+            .and_then(|()| self.out.flush())
+            .map_err(|source| SinkError::Io {
+                path: self.path.clone(),
+                source,
+            })
+    }
+}
+
+/// Running mean of the values added.
+#[derive(Clone, Copy, Debug, Default)]
+struct Mean {
+    sum: f64,
+    n: u64,
+}
+
+impl Mean {
+    fn add(&mut self, v: f64) {
+        self.sum += v;
+        self.n += 1;
+    }
+
+    fn get(&self) -> Option<f64> {
+        (self.n > 0).then(|| self.sum / self.n as f64)
+    }
+}
+
+/// Accumulated figures of one method.
+#[derive(Clone, Debug, Default)]
+struct MethodAccumulator {
+    frames: u64,
+    psnr: Mean,
+    psnr_exact: u64,
+    psnr_gain: Mean,
+    psnr_gain_exact: u64,
+    ssim: Mean,
+    entropy: Mean,
+    compute_ns: Mean,
+    nan_values: u64,
+}
+
+impl MethodAccumulator {
+    fn add(&mut self, row: &FrameMetrics) {
+        self.frames += 1;
+        self.compute_ns.add(row.compute_ns as f64);
+        Self::add_psnr(row.psnr_db, &mut self.psnr, &mut self.psnr_exact, &mut self.nan_values);
+        Self::add_psnr(
+            row.psnr_gain_db,
+            &mut self.psnr_gain,
+            &mut self.psnr_gain_exact,
+            &mut self.nan_values,
+        );
+        for (value, mean) in [(row.ssim, &mut self.ssim), (Some(row.entropy_2d), &mut self.entropy)] {
+            match value {
+                Some(v) if v.is_finite() => mean.add(v),
+                Some(_) => self.nan_values += 1,
+                None => {}
+            }
+        }
+    }
+
+    /// Finite PSNR goes into the mean, `+inf` (exact frame) is counted, anything else is NaN-like.
+    fn add_psnr(value: Option<f64>, mean: &mut Mean, exact: &mut u64, nan_values: &mut u64) {
+        match value {
+            Some(v) if v.is_finite() => mean.add(v),
+            Some(v) if v == f64::INFINITY => *exact += 1,
+            Some(_) => *nan_values += 1,
+            None => {}
+        }
+    }
+
+    fn summary(&self, method: &str) -> MethodSummary {
+        MethodSummary {
+            method: method.to_owned(),
+            frames: self.frames,
+            psnr_mean_db: self.psnr.get(),
+            psnr_finite: self.psnr.n,
+            psnr_exact: self.psnr_exact,
+            psnr_gain_mean_db: self.psnr_gain.get(),
+            psnr_gain_exact: self.psnr_gain_exact,
+            ssim_mean: self.ssim.get(),
+            entropy_mean: self.entropy.get(),
+            compute_ms_mean: self.compute_ns.get().map(|ns| ns / 1e6),
+            nan_values: self.nan_values,
+        }
+    }
+}
+
+/// Summary figures of one method, as [`Summary::methods`] gives them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MethodSummary {
+    /// The method's name.
+    pub method: String,
+    /// Frames added for the method.
+    pub frames: u64,
+    /// Mean PSNR in dB over the frames with a finite PSNR; `None` if there are none.
+    pub psnr_mean_db: Option<f64>,
+    /// Frames whose PSNR is finite (those in the mean).
+    pub psnr_finite: u64,
+    /// Frames with an infinite PSNR (MSE 0): exact, counted and never averaged.
+    pub psnr_exact: u64,
+    /// Mean gain-corrected PSNR in dB over the frames where it is finite.
+    pub psnr_gain_mean_db: Option<f64>,
+    /// Frames whose gain-corrected PSNR is infinite.
+    pub psnr_gain_exact: u64,
+    /// Mean SSIM over the frames that have one (finite).
+    pub ssim_mean: Option<f64>,
+    /// Mean 2D entropy in bits over the frames where it is finite.
+    pub entropy_mean: Option<f64>,
+    /// Mean compute time in ms.
+    pub compute_ms_mean: Option<f64>,
+    /// Figures that were NaN (or `-inf`), left out of every mean: a sign of a broken frame.
+    pub nan_values: u64,
+}
+
+/// How many frames the run expected, wrote and missed (set by the node).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FrameCounts {
+    /// Frames the run should have produced.
+    pub expected: u64,
+    /// Frames written to disk.
+    pub written: u64,
+    /// Frames that never arrived.
+    pub missing: u64,
+}
+
+/// Per-method summary of a run, built row by row from what goes into `metrics.csv`.
+#[derive(Clone, Debug, Default)]
+pub struct Summary {
+    methods: BTreeMap<String, MethodAccumulator>,
+    counts: FrameCounts,
+}
+
+impl Summary {
+    /// An empty summary.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds one frame's figures to its method.
+    pub fn add(&mut self, row: &FrameMetrics) {
+        self.methods.entry(row.method.clone()).or_default().add(row);
+    }
+
+    /// Records how many frames were expected, written and missing.
+    pub fn set_counts(&mut self, expected: u64, written: u64, missing: u64) {
+        self.counts = FrameCounts {
+            expected,
+            written,
+            missing,
+        };
+    }
+
+    /// The counts last set with [`Summary::set_counts`] (all 0 before).
+    pub fn counts(&self) -> FrameCounts {
+        self.counts
+    }
+
+    /// One summary a method, sorted by method name.
+    pub fn methods(&self) -> Vec<MethodSummary> {
+        self.methods
+            .iter()
+            .map(|(name, acc)| acc.summary(name))
+            .collect()
+    }
+
+    /// The per-method Markdown table, one row a method sorted by name. Missing figures are `-`.
+    ///
+    /// `PSNR dB` is the mean over the finite frames only and `exact` counts the frames with an
+    /// infinite PSNR (MSE 0); likewise for the gain-corrected PSNR.
+    pub fn to_markdown_table(&self) -> String {
+        fn fixed(v: Option<f64>, decimals: usize) -> String {
+            v.map_or_else(|| "-".to_owned(), |v| format!("{v:.decimals$}"))
+        }
+        let mut table = String::from(
+            "| method | frames | PSNR dB | exact | PSNR after gain dB | exact after gain | SSIM | 2D entropy bits | compute ms | NaN |\n\
+             |---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        );
+        for m in self.methods() {
+            let _ = writeln!(
+                table,
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                m.method.replace('|', "\\|"),
+                m.frames,
+                fixed(m.psnr_mean_db, 2),
+                m.psnr_exact,
+                fixed(m.psnr_gain_mean_db, 2),
+                m.psnr_gain_exact,
+                fixed(m.ssim_mean, 4),
+                fixed(m.entropy_mean, 3),
+                fixed(m.compute_ms_mean, 3),
+                m.nan_values,
+            );
+        }
+        table
+    }
+
+    /// The whole summary as Markdown: the table, the frame counts and how to read them.
+    pub fn to_markdown(&self) -> String {
+        let c = self.counts;
+        format!(
+            "# neuspike run summary\n\n{}\nframes expected: {}, written: {}, missing: {}\n\n\
+             PSNR dB: mean over frames with a finite PSNR; exact: frames with MSE 0 (PSNR inf), \
+             counted, never averaged. PSNR after gain: least-squares gain, clipped to [0, 1]. \
+             NaN: figures that were NaN, left out of the means.\n",
+            self.to_markdown_table(),
+            c.expected,
+            c.written,
+            c.missing,
+        )
+    }
+
+    /// Writes [`Summary::to_markdown`] to `path` (e.g. `summary.md`) atomically, through
+    /// `<path>.tmp` and a rename.
+    pub fn write_markdown(&self, path: &Path) -> Result<(), SinkError> {
+        let text = self.to_markdown();
+        write_atomically(path, |out, tmp| {
+            out.write_all(text.as_bytes()).map_err(|source| SinkError::Io {
+                path: tmp.to_owned(),
+                source,
+            })
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(seq: u64, method: &str, psnr: Option<f64>, ssim: Option<f64>) -> FrameMetrics {
+        FrameMetrics {
+            seq,
+            t_ref_ns: 1_000_000 * seq as i64,
+            method: method.to_owned(),
+            compute_ns: 2_000_000,
+            psnr_db: psnr,
+            psnr_gain_db: psnr.map(|p| p + 1.0),
+            ssim,
+            entropy_2d: 7.5,
+            file: format!("frames/{method}_{seq:06}.png"),
+        }
+    }
+
+    #[test]
+    fn csv_has_header_and_rows_with_inf_and_empty_fields() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("metrics.csv");
+        let mut csv = MetricsCsv::create(&path).expect("create");
+        csv.append(&row(0, "tfp", Some(25.5), Some(0.75))).expect("row 0");
+        // Read while the writer is still open: each row is already flushed.
+        let text = std::fs::read_to_string(&path).expect("read");
+        assert_eq!(
+            text,
+            "seq,t_ref_ns,method,compute_ns,psnr_db,psnr_gain_db,ssim,entropy_2d,file\n\
+             0,0,tfp,2000000,25.5,26.5,0.75,7.5,frames/tfp_000000.png\n"
+        );
+        csv.append(&row(1, "tfi", Some(f64::INFINITY), Some(1.0))).expect("row 1");
+        csv.append(&row(2, "neuspike", None, None)).expect("row 2");
+        let text = std::fs::read_to_string(&path).expect("read");
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 4);
+        assert_eq!(lines[2], "1,1000000,tfi,2000000,inf,inf,1,7.5,frames/tfi_000001.png");
+        assert_eq!(lines[3], "2,2000000,neuspike,2000000,,,,7.5,frames/neuspike_000002.png");
+        assert_eq!(csv.path(), path);
+    }
+
+    #[test]
+    fn csv_quotes_text_with_commas_and_quotes() {
+        let mut r = row(3, "a,b", Some(f64::NAN), None);
+        r.file = "say \"hi\".png".to_owned();
+        assert_eq!(
+            csv_line(&r),
+            "3,3000000,\"a,b\",2000000,nan,nan,,7.5,\"say \"\"hi\"\".png\"\n"
+        );
+    }
+
+    #[test]
+    fn csv_floats_round_trip() {
+        for v in [0.1, 1e-9, 123_456.789_012_345, -3.25] {
+            let back: f64 = csv_float(v).parse().expect("parse");
+            assert_eq!(back, v);
+        }
+    }
+
+    #[test]
+    fn csv_create_in_missing_folder_names_the_path() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("nowhere").join("metrics.csv");
+        let err = MetricsCsv::create(&path).expect_err("missing folder");
+        assert!(err.to_string().contains("nowhere"), "{err}");
+    }
+
+    #[test]
+    fn summary_mean_skips_inf_and_counts_it() {
+        let mut s = Summary::new();
+        s.add(&row(0, "tfp", Some(20.0), Some(0.5)));
+        s.add(&row(1, "tfp", Some(f64::INFINITY), Some(1.0)));
+        s.add(&row(2, "tfp", Some(30.0), Some(0.9)));
+        s.add(&row(0, "neuspike", None, None));
+        s.add(&row(1, "neuspike", Some(f64::NAN), Some(0.8)));
+        s.set_counts(4, 3, 1);
+
+        let methods = s.methods();
+        assert_eq!(methods.len(), 2);
+        // sorted by name
+        assert_eq!(methods[0].method, "neuspike");
+        let tfp = &methods[1];
+        assert_eq!(tfp.frames, 3);
+        assert_eq!(tfp.psnr_mean_db, Some(25.0));
+        assert_eq!(tfp.psnr_finite, 2);
+        assert_eq!(tfp.psnr_exact, 1);
+        assert_eq!(tfp.psnr_gain_mean_db, Some(26.0));
+        assert_eq!(tfp.psnr_gain_exact, 1);
+        assert!((tfp.ssim_mean.expect("ssim") - 0.8).abs() < 1e-12);
+        assert_eq!(tfp.entropy_mean, Some(7.5));
+        assert_eq!(tfp.compute_ms_mean, Some(2.0));
+        assert_eq!(tfp.nan_values, 0);
+        let ns = &methods[0];
+        assert_eq!(ns.psnr_mean_db, None);
+        assert_eq!(ns.psnr_exact, 0);
+        assert_eq!(ns.nan_values, 2); // plain and gain-corrected PSNR
+        assert_eq!(ns.ssim_mean, Some(0.8));
+
+        let table = s.to_markdown_table();
+        let lines: Vec<&str> = table.lines().collect();
+        assert_eq!(lines.len(), 4, "{table}");
+        assert_eq!(
+            lines[2],
+            "| neuspike | 2 | - | 0 | - | 0 | 0.8000 | 7.500 | 2.000 | 2 |"
+        );
+        assert_eq!(
+            lines[3],
+            "| tfp | 3 | 25.00 | 1 | 26.00 | 1 | 0.8000 | 7.500 | 2.000 | 0 |"
+        );
+        assert_eq!(
+            s.counts(),
+            FrameCounts {
+                expected: 4,
+                written: 3,
+                missing: 1
+            }
+        );
+        assert!(s.to_markdown().contains("frames expected: 4, written: 3, missing: 1"));
+    }
+
+    #[test]
+    fn summary_is_written_atomically() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("summary.md");
+        let mut s = Summary::new();
+        s.add(&row(0, "tfi", Some(31.0), Some(0.9)));
+        s.set_counts(1, 1, 0);
+        s.write_markdown(&path).expect("write");
+        assert_eq!(std::fs::read_to_string(&path).expect("read"), s.to_markdown());
+        assert!(!dir.path().join("summary.md.tmp").exists());
+        let bad = dir.path().join("absent").join("summary.md");
+        let err = s.write_markdown(&bad).expect_err("missing folder");
+        assert!(err.to_string().contains("absent"), "{err}");
+    }
+}

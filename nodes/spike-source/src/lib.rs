@@ -1,0 +1,464 @@
+//! The spike-camera model (PKU Vidar): each pixel integrates light and fires when its accumulator
+//! reaches the threshold `phi`.
+//!
+//! Per tick of period `plane_period_ns`, pixel `i` adds `light_scale * I_i` (the scene luminance at
+//! the middle of the tick) to its accumulator; at `acc >= phi` it fires and the accumulator is reset
+//! by subtraction (`acc -= phi`, default) or to zero. A pixel fires at most once a tick: under
+//! saturating light the remainder is clamped below `2 phi`, so the accumulator stays bounded and a
+//! saturated pixel fires every tick (ISI 1).
+//!
+//! Noise, as the NeuSpike-Net paper describes it (both switchable):
+//! - **random initial accumulator** (readout and reset jitter): `acc_0 ~ U[0, phi)` per pixel;
+//! - **fixed-pattern cap**: each pixel draws `cap_i ~ N(mu, sigma)` ticks once (default
+//!   `N(180, 50)`, rounded, at least 1); a pixel that has not fired for `cap_i` ticks fires anyway
+//!   (dark current) and its accumulator restarts from 0.
+//!
+//! The simulation is deterministic for a seed: the noise draws come from a ChaCha generator seeded
+//! with it. The scene is rendered at key instants every `render_step_ticks` ticks and linearly
+//! interpolated in time between them (1 = render every tick).
+#![deny(missing_docs)]
+
+use ndarray::{Array2, ArrayViewMut2, Zip};
+use neuspike_scene::Scene;
+use neuspike_schemas::{SpikeChunk, bytes_per_plane};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// How the accumulator resets after a spike.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Reset {
+    /// `acc -= phi`: the remainder carries over (the PKU camera).
+    Subtract,
+    /// `acc = 0`.
+    Zero,
+}
+
+/// Spike-camera settings. Every field is a node argument in the graph YAML.
+#[derive(Clone, Debug, clap::Args)]
+pub struct CameraConfig {
+    /// Sensor width in pixels.
+    #[arg(long, default_value_t = 400)]
+    pub width: usize,
+    /// Sensor height in pixels.
+    #[arg(long, default_value_t = 250)]
+    pub height: usize,
+    /// Plane rate in Hz (the tick period is rounded to whole nanoseconds).
+    #[arg(long, default_value_t = 20_000.0)]
+    pub rate_hz: f64,
+    /// Firing threshold phi, in units of luminance x light scale per tick.
+    #[arg(long, default_value_t = 1.0)]
+    pub phi: f64,
+    /// Accumulator reset after a spike.
+    #[arg(long, value_enum, default_value_t = Reset::Subtract)]
+    pub reset: Reset,
+    /// Random initial accumulator (readout / reset jitter).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub random_init: bool,
+    /// Fixed-pattern noise: cap each pixel's inter-spike interval at a per-pixel draw.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub fpn_cap: bool,
+    /// Mean of the per-pixel ISI cap, ticks.
+    #[arg(long, default_value_t = 180.0)]
+    pub fpn_mu: f64,
+    /// Standard deviation of the per-pixel ISI cap, ticks.
+    #[arg(long, default_value_t = 50.0)]
+    pub fpn_sigma: f64,
+    /// Render the scene every this many ticks and interpolate between (0 = choose from the scene's
+    /// motion so that no point moves more than a quarter pixel between renders, at most 16).
+    #[arg(long, default_value_t = 0)]
+    pub render_step_ticks: u32,
+    /// Seed of the noise draws (the scene has its own seed).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        CameraConfig {
+            width: 400,
+            height: 250,
+            rate_hz: 20_000.0,
+            phi: 1.0,
+            reset: Reset::Subtract,
+            random_init: true,
+            fpn_cap: true,
+            fpn_mu: 180.0,
+            fpn_sigma: 50.0,
+            render_step_ticks: 0,
+            seed: 0,
+        }
+    }
+}
+
+/// A setting out of its range. The message names the setting and the value.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("spike camera: `{key}` = {value} is invalid: {why}")]
+pub struct ConfigError {
+    /// The setting.
+    pub key: &'static str,
+    /// Its value.
+    pub value: String,
+    /// What is wrong.
+    pub why: &'static str,
+}
+
+impl CameraConfig {
+    /// Checks every setting; returns the tick period in nanoseconds.
+    pub fn validate(&self) -> Result<i64, ConfigError> {
+        let bad = |key, value: String, why| Err(ConfigError { key, value, why });
+        if self.width == 0 || self.width > u16::MAX as usize {
+            return bad("width", self.width.to_string(), "must be in 1..=65535");
+        }
+        if self.height == 0 || self.height > u16::MAX as usize {
+            return bad("height", self.height.to_string(), "must be in 1..=65535");
+        }
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1e9) {
+            return bad("rate-hz", self.rate_hz.to_string(), "must be in (0, 1e9]");
+        }
+        if !(self.phi.is_finite() && self.phi > 0.0) {
+            return bad("phi", self.phi.to_string(), "must be finite and > 0");
+        }
+        if !(self.fpn_mu.is_finite() && self.fpn_mu >= 1.0) {
+            return bad("fpn-mu", self.fpn_mu.to_string(), "must be finite and >= 1 tick");
+        }
+        if !(self.fpn_sigma.is_finite() && self.fpn_sigma >= 0.0) {
+            return bad("fpn-sigma", self.fpn_sigma.to_string(), "must be finite and >= 0");
+        }
+        Ok((1e9 / self.rate_hz).round().max(1.0) as i64)
+    }
+}
+
+/// The spike camera looking at a scene: state of every pixel plus the tick clock.
+pub struct SpikeCamera {
+    scene: Scene,
+    cfg: CameraConfig,
+    period_ns: i64,
+    render_step: u64,
+    light_scale: f32,
+    phi: f32,
+    acc: Vec<f32>,
+    since: Vec<u32>,
+    cap: Vec<u32>,
+    /// Luminance at the previous and next key instants.
+    key_a: Array2<f32>,
+    key_b: Array2<f32>,
+    key_tick: u64,
+    tick: u64,
+}
+
+impl SpikeCamera {
+    /// A camera at tick 0.
+    pub fn new(scene: Scene, cfg: CameraConfig) -> Result<Self, ConfigError> {
+        let period_ns = cfg.validate()?;
+        let n = cfg.width * cfg.height;
+        let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+        let phi = cfg.phi as f32;
+        let acc = if cfg.random_init {
+            (0..n).map(|_| rng.random::<f32>() * phi).collect()
+        } else {
+            vec![0.0; n]
+        };
+        let cap = if cfg.fpn_cap {
+            let normal = Normal::new(cfg.fpn_mu, cfg.fpn_sigma).map_err(|_| ConfigError {
+                key: "fpn-sigma",
+                value: cfg.fpn_sigma.to_string(),
+                why: "not a valid standard deviation",
+            })?;
+            (0..n)
+                .map(|_| normal.sample(&mut rng).round().clamp(1.0, u32::MAX as f64) as u32)
+                .collect()
+        } else {
+            vec![u32::MAX; n]
+        };
+        let render_step = if cfg.render_step_ticks > 0 {
+            u64::from(cfg.render_step_ticks)
+        } else {
+            auto_render_step(&scene, period_ns, cfg.width)
+        };
+        let light_scale = scene.light_scale() as f32;
+        let shape = (cfg.height, cfg.width);
+        let mut cam = SpikeCamera {
+            scene,
+            period_ns,
+            render_step,
+            light_scale,
+            phi,
+            acc,
+            since: vec![0; n],
+            cap,
+            key_a: Array2::zeros(shape),
+            key_b: Array2::zeros(shape),
+            key_tick: 0,
+            tick: 0,
+            cfg,
+        };
+        cam.render_key(0);
+        Ok(cam)
+    }
+
+    /// Tick period in nanoseconds.
+    pub fn period_ns(&self) -> i64 {
+        self.period_ns
+    }
+
+    /// Ticks between two scene renders.
+    pub fn render_step(&self) -> u64 {
+        self.render_step
+    }
+
+    /// Index of the next plane to be produced.
+    pub fn tick(&self) -> u64 {
+        self.tick
+    }
+
+    /// Time of plane `k`.
+    pub fn plane_time_ns(&self, k: u64) -> i64 {
+        (k as i64).saturating_mul(self.period_ns)
+    }
+
+    /// Number of planes that fit in the scene's duration.
+    pub fn total_planes(&self) -> u64 {
+        (self.scene.duration_ns() / self.period_ns).max(0) as u64
+    }
+
+    /// Luminance per unit firing rate: `phi / light_scale`.
+    pub fn lum_per_rate(&self) -> f64 {
+        self.cfg.phi / self.scene.light_scale()
+    }
+
+    /// The scene being watched.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// Renders the key instants around `key_tick` (the middle of ticks `key_tick` and
+    /// `key_tick + render_step`).
+    fn render_key(&mut self, key_tick: u64) {
+        let t = |k: u64| self.mid_tick_ns(k);
+        let (ta, tb) = (t(key_tick), t(key_tick + self.render_step));
+        if key_tick == 0 || key_tick != self.key_tick + self.render_step {
+            self.scene.render_into(ta, self.key_a.view_mut());
+        } else {
+            std::mem::swap(&mut self.key_a, &mut self.key_b);
+        }
+        self.scene.render_into(tb, self.key_b.view_mut());
+        self.key_tick = key_tick;
+    }
+
+    /// Middle of tick `k`, which covers `((k - 1) T, k T]`: plane `k` carries the light of the tick
+    /// that ends at its time stamp.
+    fn mid_tick_ns(&self, k: u64) -> i64 {
+        (k as i64).saturating_mul(self.period_ns) - self.period_ns / 2
+    }
+
+    /// The luminance this tick integrates, into `dst`.
+    fn luminance_of_tick(&mut self, dst: &mut Array2<f32>) {
+        let key = self.tick - self.tick % self.render_step;
+        if key != self.key_tick {
+            self.render_key(key);
+        }
+        let w = ((self.tick - key) as f32) / (self.render_step as f32);
+        Zip::from(dst).and(&self.key_a).and(&self.key_b).for_each(|d, &a, &b| {
+            *d = a + (b - a) * w;
+        });
+    }
+
+    /// Simulates the next `n` planes into a spike chunk with sequence number `seq`.
+    pub fn next_chunk(&mut self, n: usize, seq: u64) -> SpikeChunk {
+        let per = bytes_per_plane(self.cfg.width, self.cfg.height);
+        let mut bits = vec![0u8; n * per];
+        let mut lum = Array2::<f32>::zeros((self.cfg.height, self.cfg.width));
+        let first = self.tick;
+        for plane in bits.chunks_exact_mut(per.max(1)) {
+            self.luminance_of_tick(&mut lum);
+            let lum = lum.as_slice().unwrap_or(&[]);
+            self.integrate_tick(lum, plane);
+            self.tick += 1;
+        }
+        SpikeChunk {
+            width: self.cfg.width,
+            height: self.cfg.height,
+            first_plane: first,
+            n_planes: n,
+            t_first_ns: self.plane_time_ns(first),
+            plane_period_ns: self.period_ns,
+            seq,
+            bits,
+            lum_per_rate: Some(self.lum_per_rate()),
+        }
+    }
+
+    /// One tick of every pixel: integrate `lum`, fire, reset; set the fired pixels' bits in `plane`.
+    fn integrate_tick(&mut self, lum: &[f32], plane: &mut [u8]) {
+        integrate_tick(
+            lum,
+            self.light_scale,
+            self.phi,
+            self.cfg.reset,
+            &mut self.acc,
+            &mut self.since,
+            &self.cap,
+            plane,
+        );
+    }
+
+    /// The ground-truth luminance at plane `k`'s time stamp, clipped to [0, 1].
+    pub fn ground_truth(&self, k: u64) -> Array2<f32> {
+        let mut gt = self.scene.render(self.plane_time_ns(k), self.cfg.height, self.cfg.width);
+        gt.mapv_inplace(|v| v.clamp(0.0, 1.0));
+        gt
+    }
+}
+
+/// Render step that keeps image motion under a quarter pixel between renders.
+fn auto_render_step(scene: &Scene, period_ns: i64, width: usize) -> u64 {
+    const MAX_STEP: u64 = 16;
+    const MAX_SHIFT_PX: f64 = 0.25;
+    // Scene pixels to sensor pixels.
+    let scale = width as f64 / scene.width().max(1) as f64;
+    let speed = scene.max_speed_px_per_s() * scale;
+    if speed <= 0.0 {
+        return MAX_STEP;
+    }
+    let ticks = MAX_SHIFT_PX / (speed * period_ns as f64 * 1e-9);
+    (ticks.floor() as u64).clamp(1, MAX_STEP)
+}
+
+/// One tick of every pixel (the kernel). `lum`, `acc`, `since`, `cap` have one entry per pixel,
+/// row-major; `plane` is the packed output plane (zeroed by the caller).
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_tick(
+    lum: &[f32],
+    light_scale: f32,
+    phi: f32,
+    reset: Reset,
+    acc: &mut [f32],
+    since: &mut [u32],
+    cap: &[u32],
+    plane: &mut [u8],
+) {
+    for (k, (((&l, a), s), &c)) in lum.iter().zip(acc.iter_mut()).zip(since.iter_mut()).zip(cap).enumerate() {
+        // Negative or non-finite luminance never comes from the scene; treat it as darkness.
+        let gain = if l.is_finite() { (light_scale * l).max(0.0) } else { 0.0 };
+        *a += gain;
+        *s = s.saturating_add(1);
+        let fired = if *a >= phi {
+            *a = match reset {
+                Reset::Subtract => (*a - phi).min(phi),
+                Reset::Zero => 0.0,
+            };
+            true
+        } else if *s >= c {
+            *a = 0.0;
+            true
+        } else {
+            false
+        };
+        if fired {
+            *s = 0;
+            plane[k >> 3] |= 1 << (k & 7);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array3;
+    use neuspike_schemas::unpack_planes_into;
+
+    fn flat_scene(lum: f32, light_scale: f64) -> Scene {
+        // A checkerboard with huge squares is one flat grey level over a small view.
+        let yaml = format!(
+            "width: 8\nheight: 4\nduration_ms: 10\nlight_scale: {light_scale}\nsamples_per_pixel: 1\n\
+             texture:\n  kind: checkerboard\n  square_px: 1000\n  contrast: 0.0\n  min: 0.0\n"
+        );
+        let s = Scene::from_yaml_str(&yaml, "test", None).expect("scene");
+        let v = s.render(0, 1, 1)[[0, 0]];
+        assert!((v - 0.5).abs() < 1e-6 || lum < 0.0, "flat scene renders {v}");
+        s
+    }
+
+    fn quiet(w: usize, h: usize) -> CameraConfig {
+        CameraConfig { width: w, height: h, random_init: false, fpn_cap: false, ..Default::default() }
+    }
+
+    fn planes(chunk: &SpikeChunk) -> Array3<u8> {
+        let mut p = Array3::zeros((chunk.n_planes, chunk.height, chunk.width));
+        unpack_planes_into(&chunk.bits, p.view_mut());
+        p
+    }
+
+    #[test]
+    fn half_grey_fires_every_second_tick() {
+        let mut cam = SpikeCamera::new(flat_scene(0.5, 1.0), quiet(8, 4)).unwrap();
+        let chunk = cam.next_chunk(100, 0);
+        let p = planes(&chunk);
+        // acc: 0.5, 1.0 -> fire at ticks 1, 3, 5, ...
+        for k in 0..100 {
+            assert_eq!(p[[k, 2, 3]], (k % 2) as u8, "tick {k}");
+        }
+        assert!((cam.lum_per_rate() - 1.0).abs() < 1e-12);
+        assert_eq!(chunk.t_first_ns, 0);
+        assert_eq!(chunk.plane_period_ns, 50_000);
+    }
+
+    #[test]
+    fn tfp_rate_recovers_luminance_in_the_dark() {
+        let mut cam = SpikeCamera::new(flat_scene(0.5, 0.05), quiet(8, 4)).unwrap();
+        let p = planes(&cam.next_chunk(4000, 0));
+        let rate = p.iter().map(|&v| f64::from(v)).sum::<f64>() / p.len() as f64;
+        // rate * phi / light_scale == luminance
+        assert!((rate * cam.lum_per_rate() - 0.5).abs() < 0.01, "rate {rate}");
+    }
+
+    #[test]
+    fn saturating_light_fires_every_tick_and_stays_bounded() {
+        let mut cam = SpikeCamera::new(flat_scene(0.5, 1000.0), quiet(8, 4)).unwrap();
+        let p = planes(&cam.next_chunk(500, 0));
+        assert!(p.iter().all(|&v| v == 1));
+        assert!(cam.acc.iter().all(|a| a.is_finite() && *a < 2.0 * cam.phi));
+    }
+
+    #[test]
+    fn fpn_cap_fires_dark_pixels() {
+        let mut cfg = quiet(8, 4);
+        cfg.fpn_cap = true;
+        cfg.fpn_mu = 10.0;
+        cfg.fpn_sigma = 0.0;
+        let mut cam = SpikeCamera::new(flat_scene(0.5, 1e-9), cfg).unwrap();
+        let p = planes(&cam.next_chunk(100, 0));
+        // Every pixel fires exactly every 10 ticks.
+        let per_pixel = p.sum_axis(ndarray::Axis(0));
+        assert!(per_pixel.iter().all(|&n| n == 10), "{per_pixel:?}");
+    }
+
+    #[test]
+    fn deterministic_for_a_seed() {
+        let cfg = CameraConfig { width: 8, height: 4, seed: 3, ..Default::default() };
+        let a = SpikeCamera::new(flat_scene(0.5, 0.3), cfg.clone()).unwrap().next_chunk(50, 0);
+        let b = SpikeCamera::new(flat_scene(0.5, 0.3), cfg.clone()).unwrap().next_chunk(50, 0);
+        assert_eq!(a, b);
+        let c = SpikeCamera::new(flat_scene(0.5, 0.3), CameraConfig { seed: 4, ..cfg })
+            .unwrap()
+            .next_chunk(50, 0);
+        assert_ne!(a.bits, c.bits);
+    }
+
+    #[test]
+    fn bad_settings_name_the_key() {
+        let cfg = CameraConfig { rate_hz: -1.0, ..Default::default() };
+        let e = SpikeCamera::new(flat_scene(0.5, 1.0), cfg).err().unwrap().to_string();
+        assert!(e.contains("rate-hz") && e.contains("-1"), "{e}");
+    }
+
+    #[test]
+    fn consecutive_chunks_continue_the_clock() {
+        let mut cam = SpikeCamera::new(flat_scene(0.5, 1.0), quiet(8, 4)).unwrap();
+        let a = cam.next_chunk(20, 0);
+        let b = cam.next_chunk(20, 1);
+        assert_eq!(b.first_plane, 20);
+        assert_eq!(b.t_first_ns, a.t_first_ns + 20 * a.plane_period_ns);
+    }
+}

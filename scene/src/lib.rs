@@ -1,0 +1,254 @@
+//! The scene both camera simulators draw from: luminance `I(x, y, t)` of a textured plane moving
+//! under a fixed view, at any instant (integer nanoseconds), with sub-pixel supersampling.
+//!
+//! A scene is a YAML file: a texture (procedural generator or PNG), constant-rate motion, a light
+//! scale the cameras apply, an optional high-dynamic-range gain map, the view size, the duration
+//! and a seed. Rendering is deterministic for a given seed.
+//!
+//! ```yaml
+//! width: 400            # view width in scene pixels (default 400)
+//! height: 250           # view height in scene pixels (default 250)
+//! duration_ms: 50       # default 50; or duration_ns (at most one of the two)
+//! seed: 7               # default 0; drives every random choice of the texture
+//! light_scale: 1.0      # default 1.0, finite and > 0; applied by the cameras, not by render
+//! samples_per_pixel: 2  # supersampling grid per axis, 1..=8 (1 = pixel centre), default 2
+//! texture:
+//!   kind: noise         # noise | shapes | grating | strokes | checkerboard | png
+//!   beta: 2.0           # noise: power spectrum ~ 1/f^beta (default 2)
+//!   size: 512           # canvas side of procedural textures (default 512)
+//!   contrast: 1.0       # t' = 0.5 + contrast * (t - 0.5) (default 1)
+//!   min: 0.05           # floor: values clamped to [min, 1] (default 0.02)
+//! motion:               # constant rates, all default 0
+//!   vx_px_s: 200.0      # content moves right at 200 texture px/s
+//!   vy_px_s: 0.0
+//!   rotation_deg_s: 0.0 # about the view centre
+//!   zoom_per_s: 0.0     # content scaled by s(t) = exp(zoom_per_s * t) about the view centre
+//! light:
+//!   gain_map:           # optional
+//!     kind: horizontal  # horizontal (log-linear ramp, left dim) | radial (bright centre)
+//!     decades: 6.0      # max/min gain over the view = 10^decades, geometric mean 1
+//! ```
+//!
+//! Texture parameters: `noise` takes `beta`; `shapes` takes `count` (default 40);
+//! `grating` takes `period_px` (default 32) and `angle_deg` (default 0); `checkerboard` takes
+//! `square_px` (default 32); `strokes` takes none; `png` takes `path` (8- or 16-bit grey, grey+alpha,
+//! RGB or RGBA; luminance with Rec. 709 weights on the stored values, alpha ignored) and no `size`.
+//! A parameter given for a kind that does not use it is an error.
+//!
+//! Tiling: procedural textures are periodic by construction (noise by spectral synthesis, shapes
+//! and strokes drawn with wrap-around, the grating's frequency and the checkerboard's square size
+//! snapped to whole periods per canvas), so motion never runs out and no seam shows. PNG images
+//! are mirror-tiled (period twice the image in each direction). One texture pixel is one scene
+//! pixel at zoom 1, and the view's top-left corner shows the texture's top-left corner at `t = 0`.
+//!
+//! Geometry: view point `p` at time `t` shows texture point `R(-theta(t)) (p - c) / s(t) + c - v t`
+//! where `c` is the view centre, `theta(t) = rotation_deg_s * t`, `s(t) = exp(zoom_per_s * t)`.
+//! The gain map is fixed to the view (a static lighting gradient the content moves under).
+//!
+//! ```
+//! use neuspike_scene::Scene;
+//! let scene = Scene::from_yaml_str(
+//!     "texture: { kind: checkerboard, size: 64, square_px: 8 }\nmotion: { vx_px_s: 1000.0 }",
+//!     "doc",
+//!     None,
+//! )
+//! .unwrap();
+//! // The view (400 x 250 scene pixels) mapped onto any grid, here 25 x 40.
+//! let a = scene.render(0, 25, 40);
+//! assert_eq!(a.dim(), (25, 40));
+//! assert!(a.iter().all(|&v| (0.02..=1.0).contains(&v)));
+//! // 1 ms at 1000 px/s moves the content 1 scene pixel to the right.
+//! let b = scene.render(1_000_000, 250, 400);
+//! let c = scene.render(0, 250, 400);
+//! assert!((b[[100, 201]] - c[[100, 200]]).abs() < 1e-5);
+//! ```
+#![deny(missing_docs)]
+
+mod builtin;
+mod error;
+mod fft;
+mod gain;
+mod render;
+mod spec;
+mod texture;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use ndarray::{Array2, ArrayViewMut2};
+
+pub use error::SceneError;
+pub use spec::{
+    GainMapKind, GainMapSpec, LightSpec, MotionSpec, SceneSpec, TextureKind, TextureSpec,
+};
+pub use texture::Texture;
+
+use gain::GainMap;
+
+/// A loaded scene: validated spec, generated texture, gain map. Cheap to clone (the texture is
+/// shared).
+#[derive(Clone, Debug)]
+pub struct Scene {
+    spec: SceneSpec,
+    duration_ns: i64,
+    texture: Arc<Texture>,
+    texture_min: f32,
+    gain: Option<GainMap>,
+}
+
+impl Scene {
+    /// Builds a scene from a spec; `base_dir` resolves a relative PNG path.
+    pub fn from_spec(spec: SceneSpec, base_dir: Option<&Path>) -> Result<Scene, SceneError> {
+        Scene::from_spec_at(spec, base_dir, "spec")
+    }
+
+    fn from_spec_at(
+        spec: SceneSpec,
+        base_dir: Option<&Path>,
+        origin: &str,
+    ) -> Result<Scene, SceneError> {
+        let duration_ns = spec.validate(origin)?;
+        let texture = Texture::from_spec(&spec.texture, spec.seed, base_dir, origin)?;
+        let gain = spec.gain_map().map(|g| GainMap::new(g, spec.width, spec.height));
+        Ok(Scene {
+            texture_min: spec.texture.min as f32,
+            duration_ns,
+            texture: Arc::new(texture),
+            gain,
+            spec,
+        })
+    }
+
+    /// Parses and builds a scene from YAML; `origin` names the source in errors, `base_dir`
+    /// resolves a relative PNG path.
+    pub fn from_yaml_str(
+        yaml: &str,
+        origin: &str,
+        base_dir: Option<&Path>,
+    ) -> Result<Scene, SceneError> {
+        let spec: SceneSpec = serde_yaml::from_str(yaml).map_err(|e| SceneError::Parse {
+            origin: origin.to_owned(),
+            message: e.to_string(),
+        })?;
+        Scene::from_spec_at(spec, base_dir, origin)
+    }
+
+    /// Reads a scene file; a relative PNG path is resolved against the file's folder.
+    pub fn from_path(path: &Path) -> Result<Scene, SceneError> {
+        let origin = path.display().to_string();
+        let yaml = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
+            origin: origin.clone(),
+            source,
+        })?;
+        Scene::from_yaml_str(&yaml, &origin, path.parent())
+    }
+
+    /// One of the scenes shipped in `graphs/scenes/` (embedded at build time):
+    /// "bright-static", "bright-slow", "bright-fast", "dark-slow", "hdr-pan".
+    pub fn builtin(name: &str) -> Result<Scene, SceneError> {
+        let yaml = builtin::yaml(name).ok_or_else(|| SceneError::UnknownBuiltin {
+            name: name.to_owned(),
+            expected: builtin::NAMES.join(", "),
+        })?;
+        Scene::from_yaml_str(yaml, &format!("graphs/scenes/{name}.yml (builtin)"), None)
+    }
+
+    /// The names [`Scene::builtin`] accepts.
+    pub fn builtin_names() -> &'static [&'static str] {
+        builtin::NAMES
+    }
+
+    /// A builtin scene if `name_or_path` names one, else the scene file at that path.
+    pub fn load(name_or_path: &str) -> Result<Scene, SceneError> {
+        if builtin::yaml(name_or_path).is_some() {
+            Scene::builtin(name_or_path)
+        } else {
+            Scene::from_path(Path::new(name_or_path))
+        }
+    }
+
+    /// The spec as given (defaults filled in by serde, nothing else changed).
+    pub fn spec(&self) -> &SceneSpec {
+        &self.spec
+    }
+    /// View width in scene pixels.
+    pub fn width(&self) -> usize {
+        self.spec.width
+    }
+    /// View height in scene pixels.
+    pub fn height(&self) -> usize {
+        self.spec.height
+    }
+    /// Duration in nanoseconds (> 0).
+    pub fn duration_ns(&self) -> i64 {
+        self.duration_ns
+    }
+    /// Light level the cameras multiply the luminance by (finite, > 0).
+    pub fn light_scale(&self) -> f64 {
+        self.spec.light_scale
+    }
+    /// The seed of the procedural texture.
+    pub fn seed(&self) -> u64 {
+        self.spec.seed
+    }
+    /// The texture canvas (one period).
+    pub fn texture(&self) -> &Texture {
+        &self.texture
+    }
+
+    /// Luminance `I(x, y, t) >= 0` at instant `t_ns`, written into `dst` (row-major
+    /// `[rows, cols]`, any shape and strides). The view (`width x height` scene pixels) is
+    /// mapped onto `dst`'s grid, so cameras of different resolutions see the same view.
+    /// Texture values lie in `[min, 1]`; a gain map multiplies them (only then can `I` exceed 1).
+    /// `light_scale` is not applied. Never NaN or infinite.
+    pub fn render_into(&self, t_ns: i64, dst: ArrayViewMut2<'_, f32>) {
+        let (rows, cols) = dst.dim();
+        render::render_fast(self, t_ns, dst, render::worth_parallel(self, rows, cols));
+    }
+
+    /// [`Scene::render_into`] into a new `rows x cols` array.
+    pub fn render(&self, t_ns: i64, rows: usize, cols: usize) -> Array2<f32> {
+        let mut out = Array2::zeros((rows, cols));
+        self.render_into(t_ns, out.view_mut());
+        out
+    }
+
+    /// Upper bound of the speed of any image point over the scene's duration, in scene pixels
+    /// per second: `|v| * max s(t) + (|omega| + |zoom_per_s|) * r_corner`, where `r_corner` is
+    /// the distance from the view centre to a corner and `omega` is in rad/s.
+    pub fn max_speed_px_per_s(&self) -> f64 {
+        let m = &self.spec.motion;
+        let duration_s = self.duration_ns as f64 * 1e-9;
+        let max_log_scale = (m.zoom_per_s * duration_s).clamp(0.0, render::MAX_LOG_ZOOM);
+        let corner = (self.width() as f64 / 2.0).hypot(self.height() as f64 / 2.0);
+        let translation = m.vx_px_s.hypot(m.vy_px_s) * max_log_scale.exp();
+        let rotation = m.rotation_deg_s.to_radians().abs() * corner;
+        let zoom = m.zoom_per_s.abs() * corner;
+        translation + rotation + zoom
+    }
+}
+
+/// The scalar oracle of [`Scene::render_into`]: every sub-sample from scratch, in f64. Slow;
+/// for tests and benchmarks.
+#[doc(hidden)]
+pub fn render_reference(scene: &Scene, t_ns: i64, dst: ArrayViewMut2<'_, f32>) {
+    render::render_reference(scene, t_ns, dst);
+}
+
+/// [`Scene::render_into`] with the thread choice forced (tests of the parallel path).
+#[doc(hidden)]
+pub fn render_fast_with(scene: &Scene, t_ns: i64, dst: ArrayViewMut2<'_, f32>, parallel: bool) {
+    render::render_fast(scene, t_ns, dst, parallel);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_send_sync<T: Send + Sync + Clone + std::fmt::Debug>() {}
+
+    #[test]
+    fn scene_is_send_sync_clone_debug() {
+        assert_send_sync::<Scene>();
+    }
+}

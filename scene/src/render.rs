@@ -1,0 +1,281 @@
+//! Rendering: the scalar reference (the oracle) and the fast path checked against it.
+//!
+//! Destination pixel `(r, c)` of an `R x C` grid covers scene points
+//! `x = (c + (kx + 1/2) / n) * W / C`, `y = (r + (ky + 1/2) / n) * H / R` for the `n x n`
+//! sub-samples. Each is mapped to texture coordinates by the affine [`ViewMap`] of the instant,
+//! sampled bilinearly with periodic wrap, multiplied by the gain map if any, and averaged.
+
+use ndarray::{ArrayViewMut2, Axis};
+use rayon::prelude::*;
+
+use crate::Scene;
+
+/// Below this many sub-samples per frame the fast path stays on the calling thread.
+pub(crate) const PARALLEL_MIN_SAMPLES: usize = 1 << 15;
+/// Rows per rayon task.
+pub(crate) const ROWS_PER_TASK: usize = 8;
+/// `|log s(t)|` is clamped to this, so extreme zoom never produces infinities.
+pub(crate) const MAX_LOG_ZOOM: f64 = 30.0;
+
+/// Affine map from scene coordinates to texture coordinates at one instant:
+/// `u = a11 x + a12 y + b1`, `v = a21 x + a22 y + b2`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ViewMap {
+    pub a11: f64,
+    pub a12: f64,
+    pub a21: f64,
+    pub a22: f64,
+    pub b1: f64,
+    pub b2: f64,
+}
+
+impl ViewMap {
+    /// The map at `t_ns`: view point `p` shows texture point `R(-theta) (p - c) / s + c - v t`,
+    /// with the translation reduced modulo the texture period (exact, the texture is periodic).
+    pub fn at(scene: &Scene, t_ns: i64) -> ViewMap {
+        let m = &scene.spec().motion;
+        let t = t_ns as f64 * 1e-9;
+        let theta = (m.rotation_deg_s * t).rem_euclid(360.0).to_radians();
+        let (sin, cos) = if theta == 0.0 { (0.0, 1.0) } else { theta.sin_cos() };
+        let inv_s = (-m.zoom_per_s * t).clamp(-MAX_LOG_ZOOM, MAX_LOG_ZOOM).exp();
+        let period = |x: f64, p: usize| {
+            let r = x.rem_euclid(p as f64);
+            if r.is_finite() { r } else { 0.0 }
+        };
+        let tx = period(m.vx_px_s * t, scene.texture.width());
+        let ty = period(m.vy_px_s * t, scene.texture.height());
+        let cx = scene.width() as f64 / 2.0;
+        let cy = scene.height() as f64 / 2.0;
+        let (a11, a12, a21, a22) = (inv_s * cos, inv_s * sin, -inv_s * sin, inv_s * cos);
+        ViewMap {
+            a11,
+            a12,
+            a21,
+            a22,
+            b1: cx - tx - (a11 * cx + a12 * cy),
+            b2: cy - ty - (a21 * cx + a22 * cy),
+        }
+    }
+
+    /// Whether `u` depends on `x` only and `v` on `y` only (no rotation).
+    fn is_axis_aligned(&self) -> bool {
+        self.a12 == 0.0 && self.a21 == 0.0
+    }
+}
+
+/// Sub-sample offsets `(k + 1/2) / n` within a pixel.
+fn sub_offsets(n: usize) -> Vec<f64> {
+    (0..n).map(|k| (k as f64 + 0.5) / n as f64).collect()
+}
+
+/// Output clamp: without a gain map values stay in `[texture min, 1]` despite rounding.
+fn finish(scene: &Scene, mean: f32) -> f32 {
+    let v = if mean.is_finite() { mean } else { 0.0 };
+    match scene.gain {
+        None => v.clamp(scene.texture_min, 1.0),
+        Some(_) => v.max(0.0),
+    }
+}
+
+/// The scalar oracle: every sub-sample computed from scratch in f64.
+pub fn render_reference(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32>) {
+    let (rows, cols) = dst.dim();
+    if rows == 0 || cols == 0 {
+        return;
+    }
+    let map = ViewMap::at(scene, t_ns);
+    let n = scene.spec().samples_per_pixel;
+    let offsets = sub_offsets(n);
+    let sx = scene.width() as f64 / cols as f64;
+    let sy = scene.height() as f64 / rows as f64;
+    for r in 0..rows {
+        for c in 0..cols {
+            let mut sum = 0.0f64;
+            for &oy in &offsets {
+                let y = (r as f64 + oy) * sy;
+                for &ox in &offsets {
+                    let x = (c as f64 + ox) * sx;
+                    let u = map.a11 * x + map.a12 * y + map.b1;
+                    let v = map.a21 * x + map.a22 * y + map.b2;
+                    let mut s = scene.texture.sample(u, v);
+                    if let Some(gain) = &scene.gain {
+                        s *= gain.gain_at(x, y);
+                    }
+                    sum += s;
+                }
+            }
+            dst[[r, c]] = finish(scene, (sum / (n * n) as f64) as f32);
+        }
+    }
+}
+
+/// Horizontal bilinear tap of one column sub-sample: texel columns and the weight of the right.
+#[derive(Debug, Clone, Copy)]
+struct ColumnTap {
+    c0: usize,
+    c1: usize,
+    w1: f32,
+}
+
+/// Wraps an integer texel coordinate; the common in-range case skips the division.
+#[inline]
+fn wrap(i: i64, period: usize) -> usize {
+    let p = period as i64;
+    if (0..p).contains(&i) { i as usize } else { i.rem_euclid(p) as usize }
+}
+
+/// Floor, fraction and the two wrapped texel indices of coordinate `u` (texel centres at +1/2).
+#[inline]
+fn split(u: f64, period: usize) -> (usize, usize, f32) {
+    let x = if u.is_finite() { u - 0.5 } else { 0.0 };
+    let x0 = x.floor();
+    let i0 = wrap(x0 as i64, period);
+    let i1 = if i0 + 1 == period { 0 } else { i0 + 1 };
+    (i0, i1, (x - x0) as f32)
+}
+
+/// Everything that is the same for every row of one frame.
+struct Plan<'a> {
+    scene: &'a Scene,
+    map: ViewMap,
+    n: usize,
+    offsets: Vec<f64>,
+    sy: f64,
+    /// Scene x of every column sub-sample, `cols * n` long.
+    xs: Vec<f64>,
+    /// Axis-aligned maps: the horizontal taps of every column sub-sample.
+    taps: Vec<ColumnTap>,
+    /// Horizontal gain maps: the gain of every column sub-sample.
+    column_gain: Vec<f32>,
+}
+
+impl<'a> Plan<'a> {
+    fn new(scene: &'a Scene, t_ns: i64, rows: usize, cols: usize) -> Plan<'a> {
+        let map = ViewMap::at(scene, t_ns);
+        let n = scene.spec().samples_per_pixel;
+        let offsets = sub_offsets(n);
+        let sx = scene.width() as f64 / cols as f64;
+        let sy = scene.height() as f64 / rows as f64;
+        let xs: Vec<f64> = (0..cols)
+            .flat_map(|c| offsets.iter().map(move |&ox| (c as f64 + ox) * sx))
+            .collect();
+        let taps = if map.is_axis_aligned() {
+            let w = scene.texture.width();
+            xs.iter()
+                .map(|&x| {
+                    // Same expression as the reference (a12 * y is exactly 0 here).
+                    let (c0, c1, w1) = split(map.a11 * x + 0.0 + map.b1, w);
+                    ColumnTap { c0, c1, w1 }
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let column_gain = match &scene.gain {
+            Some(g) if g.is_horizontal() => xs.iter().map(|&x| g.gain_at(x, 0.0) as f32).collect(),
+            _ => Vec::new(),
+        };
+        Plan { scene, map, n, offsets, sy, xs, taps, column_gain }
+    }
+
+    /// Renders destination row `r` into `acc` (`cols` long): the sum over sub-samples.
+    fn row_sums(&self, r: usize, acc: &mut [f32]) {
+        acc.fill(0.0);
+        let tex = &self.scene.texture;
+        let (tw, th) = (tex.width(), tex.height());
+        let data = tex.data();
+        let n = self.n;
+        let radial = self.scene.gain.filter(|g| !g.is_horizontal());
+        for &oy in &self.offsets {
+            let y = (r as f64 + oy) * self.sy;
+            // Same expression order as the reference, so coordinates agree bit for bit.
+            let (u_y, v_y) = (self.map.a12 * y, self.map.a22 * y);
+            if self.map.is_axis_aligned() {
+                let (r0, r1, wy1) = split(v_y + self.map.b2, th) // a21 * x is (-)0 here;
+                let wy0 = 1.0 - wy1;
+                let (row0, row1) = (&data[r0 * tw..(r0 + 1) * tw], &data[r1 * tw..(r1 + 1) * tw]);
+                for (c, (a, taps)) in acc.iter_mut().zip(self.taps.chunks_exact(n)).enumerate() {
+                    let mut s = 0.0f32;
+                    for (k, tap) in taps.iter().enumerate() {
+                        let w0 = 1.0 - tap.w1;
+                        let top = row0[tap.c0] * w0 + row0[tap.c1] * tap.w1;
+                        let bottom = row1[tap.c0] * w0 + row1[tap.c1] * tap.w1;
+                        let mut v = top * wy0 + bottom * wy1;
+                        v *= self.gain_factor(radial.as_ref(), c * n + k, y);
+                        s += v;
+                    }
+                    *a += s;
+                }
+            } else {
+                for (c, a) in acc.iter_mut().enumerate() {
+                    let mut s = 0.0f32;
+                    for k in 0..n {
+                        let i = c * n + k;
+                        let x = self.xs[i];
+                        let u = self.map.a11 * x + u_y + self.map.b1;
+                        let v = self.map.a21 * x + v_y + self.map.b2;
+                        let (c0, c1, wx1) = split(u, tw);
+                        let (r0, r1, wy1) = split(v, th);
+                        let wx0 = 1.0 - wx1;
+                        let top = data[r0 * tw + c0] * wx0 + data[r0 * tw + c1] * wx1;
+                        let bottom = data[r1 * tw + c0] * wx0 + data[r1 * tw + c1] * wx1;
+                        let mut val = top * (1.0 - wy1) + bottom * wy1;
+                        val *= self.gain_factor(radial.as_ref(), i, y);
+                        s += val;
+                    }
+                    *a += s;
+                }
+            }
+        }
+    }
+
+    /// Gain of column sub-sample `i` at scene row `y` (1 without a gain map).
+    #[inline]
+    fn gain_factor(&self, radial: Option<&crate::gain::GainMap>, i: usize, y: f64) -> f32 {
+        if let Some(g) = radial {
+            g.gain_at(self.xs[i], y) as f32
+        } else if self.column_gain.is_empty() {
+            1.0
+        } else {
+            self.column_gain[i]
+        }
+    }
+
+    /// Renders a block of consecutive rows starting at `first_row`.
+    fn render_block(&self, first_row: usize, mut block: ArrayViewMut2<'_, f32>, acc: &mut [f32]) {
+        let scale = 1.0 / (self.n * self.n) as f32;
+        for (i, mut row) in block.axis_iter_mut(Axis(0)).enumerate() {
+            self.row_sums(first_row + i, acc);
+            for (d, &s) in row.iter_mut().zip(acc.iter()) {
+                *d = finish(self.scene, s * scale);
+            }
+        }
+    }
+}
+
+/// The fast path: per-frame tables, per-row invariants, rayon over row blocks when `parallel`.
+pub(crate) fn render_fast(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32>, parallel: bool) {
+    let (rows, cols) = dst.dim();
+    if rows == 0 || cols == 0 {
+        return;
+    }
+    let plan = Plan::new(scene, t_ns, rows, cols);
+    if parallel {
+        dst.axis_chunks_iter_mut(Axis(0), ROWS_PER_TASK)
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(b, block)| {
+                let mut acc = vec![0.0f32; cols];
+                plan.render_block(b * ROWS_PER_TASK, block, &mut acc);
+            });
+    } else {
+        let mut acc = vec![0.0f32; cols];
+        plan.render_block(0, dst.view_mut(), &mut acc);
+    }
+}
+
+/// Whether a frame is large enough to be worth splitting over threads.
+pub(crate) fn worth_parallel(scene: &Scene, rows: usize, cols: usize) -> bool {
+    let n = scene.spec().samples_per_pixel;
+    rows.saturating_mul(cols).saturating_mul(n * n) >= PARALLEL_MIN_SAMPLES
+}

@@ -1,0 +1,56 @@
+//! Every message the neuspike nodes speak, defined once.
+//!
+//! A message travels over dora as one Arrow array (the payload) plus dora metadata parameters (the
+//! header: sizes, clocks, sequence numbers). This crate owns both halves for each message type, the
+//! conversion to and from Rust types (with errors that name the key, the expected type and the value
+//! found), and the conversion between the wire layout and `ndarray` views that kernels use.
+//!
+//! | message | payload | header keys |
+//! |---|---|---|
+//! | [`SpikeChunk`] | `UInt8`: N bit-packed planes | width, height, first_plane, n_planes, t_first_ns, plane_period_ns, seq |
+//! | [`EventBatch`] | `Struct{t_ns Int64, x UInt16, y UInt16, polarity Int8}` | width, height, t_start_ns, t_end_ns, seq |
+//! | [`AlignedWindow`] | `Struct{spikes LargeBinary, events LargeList<Event>}` (one row) | the spike header + t_ref_ns, ref_plane, t_start_ns, t_end_ns |
+//! | [`Representation`] | `Float32`: `[C, H, W]` | kind, channels, height, width, t_ref_ns, seq, `param.*` |
+//! | [`Frame`] | `Float32`: `[H, W]` luminance in [0, 1] | kind, method, width, height, t_ref_ns, compute_ns, seq |
+//!
+//! Every output stream ends with an end-of-stream marker ([`end_of_stream`]): an empty payload of
+//! the stream's type with `eos = true` and `count` = the number of messages sent before it. With
+//! the sequence number on every message, a receiver ([`SeqTracker`]) can tell exactly how many
+//! messages went missing, including at the tail of a stream.
+//!
+//! The dora type files for `output_types`/`input_types` live in `schemas/types/neuspike/` and
+//! describe the same layouts (URN prefix `neuspike/messages/v1`).
+#![deny(missing_docs)]
+
+mod events;
+mod frame;
+pub mod meta;
+pub mod node;
+mod spikes;
+mod stream;
+pub mod testing;
+mod window;
+
+pub use events::{Event, EventBatch};
+pub use frame::{Frame, FrameKind, Representation};
+pub use meta::{Meta, MetaExt, SchemaError};
+pub use spikes::{SpikeChunk, bytes_per_plane, pack_planes, unpack_planes_into};
+pub use stream::{SeqStatus, SeqTracker, end_of_stream, is_end_of_stream};
+pub use window::AlignedWindow;
+
+/// Re-exported so that nodes name the exact Arrow dora uses.
+pub use arrow;
+
+use arrow::array::ArrayRef;
+
+/// A message type with an Arrow payload and a metadata header.
+pub trait Message: Sized {
+    /// The dora type URN declared in `schemas/types` (used in `output_types`).
+    const TYPE_URN: &'static str;
+    /// The Arrow data type of the payload.
+    fn data_type() -> arrow::datatypes::DataType;
+    /// Encodes the message: header and payload.
+    fn to_arrow(&self) -> (Meta, ArrayRef);
+    /// Decodes a message, checking the header and payload against each other.
+    fn from_arrow(meta: &Meta, data: &ArrayRef) -> Result<Self, SchemaError>;
+}

@@ -1,0 +1,180 @@
+//! Aligned windows: the spike planes and the events that belong to one reconstruction instant.
+
+use std::sync::Arc;
+
+use arrow::array::{Array, ArrayRef, LargeBinaryArray, LargeListArray, StructArray};
+use arrow::buffer::OffsetBuffer;
+use arrow::datatypes::{DataType, Field, Fields};
+
+use crate::events::EventBatch;
+use crate::meta::{self, Meta, MetaExt, SchemaError, check_type, int_of};
+use crate::spikes::{SpikeChunk, bytes_per_plane};
+use crate::Message;
+
+const NAME: &str = "aligned window";
+
+/// The spike planes and events around one reconstruction instant, on the spike clock.
+///
+/// `spikes` holds the window's planes (its `seq` is the window's); `ref_plane` is the global index
+/// of the plane at `t_ref_ns`; `events` holds the events of `[events.t_start_ns, events.t_end_ns)`
+/// with timestamps already shifted onto the spike clock.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AlignedWindow {
+    /// The reconstruction instant, nanoseconds.
+    pub t_ref_ns: i64,
+    /// Global index of the reference plane (inside the window's planes).
+    pub ref_plane: u64,
+    /// The window's spike planes.
+    pub spikes: SpikeChunk,
+    /// The window's events (may be empty, and has size 0x0 when the graph has no event camera).
+    pub events: EventBatch,
+}
+
+impl AlignedWindow {
+    /// Sequence number of the window.
+    pub fn seq(&self) -> u64 {
+        self.spikes.seq
+    }
+
+    /// Index of the reference plane inside the window's planes.
+    pub fn ref_index(&self) -> usize {
+        (self.ref_plane - self.spikes.first_plane) as usize
+    }
+
+    fn fields() -> Fields {
+        Fields::from(vec![
+            Field::new("spikes", DataType::LargeBinary, false),
+            Field::new(
+                "events",
+                DataType::LargeList(Arc::new(Field::new(
+                    "item",
+                    DataType::Struct(EventBatch::event_fields()),
+                    true,
+                ))),
+                false,
+            ),
+        ])
+    }
+}
+
+impl Message for AlignedWindow {
+    const TYPE_URN: &'static str = "neuspike/messages/v1/AlignedWindow";
+
+    fn data_type() -> DataType {
+        DataType::Struct(Self::fields())
+    }
+
+    fn to_arrow(&self) -> (Meta, ArrayRef) {
+        let (mut m, _) = self.spikes.to_arrow();
+        m.set_int(meta::T_REF_NS, self.t_ref_ns);
+        m.set_int(meta::REF_PLANE, self.ref_plane as i64);
+        m.set_int(meta::T_START_NS, self.events.t_start_ns);
+        m.set_int(meta::T_END_NS, self.events.t_end_ns);
+        m.set_int("event_width", int_of(self.events.width));
+        m.set_int("event_height", int_of(self.events.height));
+        let spikes = LargeBinaryArray::from_iter_values([self.spikes.bits.as_slice()]);
+        let events = self.events.to_struct_array();
+        let list = LargeListArray::new(
+            Arc::new(Field::new("item", DataType::Struct(EventBatch::event_fields()), true)),
+            OffsetBuffer::from_lengths([events.len()]),
+            Arc::new(events),
+            None,
+        );
+        let s = StructArray::new(Self::fields(), vec![Arc::new(spikes), Arc::new(list)], None);
+        (m, Arc::new(s))
+    }
+
+    fn from_arrow(m: &Meta, data: &ArrayRef) -> Result<Self, SchemaError> {
+        check_type(NAME, &Self::data_type(), data.data_type())?;
+        let incons = |what: String| SchemaError::Inconsistent { message: NAME, what };
+        let s = data
+            .as_any()
+            .downcast_ref::<StructArray>()
+            .ok_or_else(|| incons("payload is not a struct".into()))?;
+        if s.len() != 1 {
+            return Err(incons(format!("payload has {} rows, expected 1", s.len())));
+        }
+        let width = m.size(NAME, meta::WIDTH)?;
+        let height = m.size(NAME, meta::HEIGHT)?;
+        let n_planes = m.size(NAME, meta::N_PLANES)?;
+        let plane_period_ns = m.int(NAME, meta::PLANE_PERIOD_NS)?;
+        if plane_period_ns <= 0 || width == 0 || height == 0 || n_planes == 0 {
+            return Err(incons(format!(
+                "bad geometry: {n_planes} planes of {width}x{height} every {plane_period_ns} ns"
+            )));
+        }
+        let bin = s
+            .column(0)
+            .as_any()
+            .downcast_ref::<LargeBinaryArray>()
+            .ok_or_else(|| incons("column `spikes` is not LargeBinary".into()))?;
+        let bits = bin.value(0).to_vec();
+        let expected = n_planes.saturating_mul(bytes_per_plane(width, height));
+        if bits.len() != expected {
+            return Err(incons(format!(
+                "spikes hold {} bytes, header says {n_planes} planes of {width}x{height} = {expected}",
+                bits.len()
+            )));
+        }
+        let spikes = SpikeChunk {
+            width,
+            height,
+            first_plane: m.uint(NAME, meta::FIRST_PLANE)?,
+            n_planes,
+            t_first_ns: m.int(NAME, meta::T_FIRST_NS)?,
+            plane_period_ns,
+            seq: m.uint(NAME, meta::SEQ)?,
+            bits,
+            lum_per_rate: m.lum_per_rate(NAME)?,
+        };
+        let ref_plane = m.uint(NAME, meta::REF_PLANE)?;
+        if ref_plane < spikes.first_plane || ref_plane >= spikes.first_plane + n_planes as u64 {
+            return Err(incons(format!(
+                "ref_plane {ref_plane} outside the window's planes {}..{}",
+                spikes.first_plane,
+                spikes.first_plane + n_planes as u64
+            )));
+        }
+        let list = s
+            .column(1)
+            .as_any()
+            .downcast_ref::<LargeListArray>()
+            .ok_or_else(|| incons("column `events` is not a LargeList".into()))?;
+        let inner = list.value(0);
+        let ev = inner
+            .as_any()
+            .downcast_ref::<StructArray>()
+            .ok_or_else(|| incons("events are not structs".into()))?;
+        let mut events = EventBatch {
+            width: m.size(NAME, "event_width")?,
+            height: m.size(NAME, "event_height")?,
+            t_start_ns: m.int(NAME, meta::T_START_NS)?,
+            t_end_ns: m.int(NAME, meta::T_END_NS)?,
+            seq: spikes.seq,
+            ..Default::default()
+        };
+        events.fill_from_struct(NAME, ev)?;
+        Ok(AlignedWindow { t_ref_ns: m.int(NAME, meta::T_REF_NS)?, ref_plane, spikes, events })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::events::Event;
+
+    #[test]
+    fn round_trip() {
+        let spikes = SpikeChunk { width: 4, height: 2, first_plane: 10, n_planes: 3, t_first_ns: 500,
+            plane_period_ns: 50, seq: 7, bits: vec![1, 2, 3], lum_per_rate: Some(1.5) };
+        let mut events = EventBatch::empty(4, 2, 450, 650, 7);
+        events.push(Event { t_ns: 455, x: 3, y: 1, polarity: -1 });
+        let w = AlignedWindow { t_ref_ns: 550, ref_plane: 11, spikes, events };
+        let (m, a) = w.to_arrow();
+        assert_eq!(AlignedWindow::from_arrow(&m, &a).unwrap(), w);
+        assert_eq!(w.ref_index(), 1);
+        let mut bad = m.clone();
+        bad.set_int(meta::REF_PLANE, 13);
+        assert!(AlignedWindow::from_arrow(&bad, &a).unwrap_err().to_string().contains("ref_plane 13"));
+    }
+}

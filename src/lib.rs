@@ -1,0 +1,14 @@
+//! The `neuspike` program's library: running graphs on an embedded dora daemon.
+//!
+//! The binary (`src/main.rs`) is the command line; the end-to-end tests in `tests/` call
+//! [`graph::run`] directly.
+#![deny(missing_docs)]
+
+pub mod graph;
+
+use std::path::PathBuf;
+
+/// The default graph, shipped with the sources.
+pub fn demo_graph() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("graphs/demo.yml")
+}
