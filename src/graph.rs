@@ -6,8 +6,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use dora_daemon::{Daemon, LogDestination, RunDataflowOptions};
+use dora_daemon::{Daemon, LogDestination, RunDataflowOptions, flume};
 use dora_message::SessionId;
+use dora_message::common::{LogLevel, LogLevelOrStdout, LogMessage};
 use dora_message::coordinator_to_cli::DataflowResult;
 use dora_message::descriptor::Descriptor;
 use eyre::{WrapErr, bail, eyre};
@@ -24,11 +25,16 @@ pub fn parse_override(s: &str) -> eyre::Result<(String, String)> {
 fn read_graph(path: &Path) -> eyre::Result<Value> {
     let text = std::fs::read_to_string(path)
         .wrap_err_with(|| format!("cannot read the graph {}", path.display()))?;
-    serde_yaml::from_str(&text).wrap_err_with(|| format!("{}: not a valid YAML graph", path.display()))
+    serde_yaml::from_str(&text)
+        .wrap_err_with(|| format!("{}: not a valid YAML graph", path.display()))
 }
 
 fn nodes(graph: &Value) -> impl Iterator<Item = &Value> {
-    graph.get("nodes").and_then(Value::as_sequence).into_iter().flatten()
+    graph
+        .get("nodes")
+        .and_then(Value::as_sequence)
+        .into_iter()
+        .flatten()
 }
 
 /// Appends `extra` to the `args:` of node `id`; an unknown node is an error.
@@ -39,9 +45,16 @@ fn apply_override(graph: &mut Value, id: &str, extra: &str) -> eyre::Result<()> 
         .flatten()
         .find(|n| n.get("id").and_then(Value::as_str) == Some(id))
         .ok_or_else(|| eyre!("--set: the graph has no node `{id}`"))?;
-    let old = node.get("args").and_then(Value::as_str).unwrap_or("").to_string();
+    let old = node
+        .get("args")
+        .and_then(Value::as_str)
+        .unwrap_or("")
+        .to_string();
     if let Some(map) = node.as_mapping_mut() {
-        map.insert(Value::from("args"), Value::from(format!("{old} {extra}").trim().to_string()));
+        map.insert(
+            Value::from("args"),
+            Value::from(format!("{old} {extra}").trim().to_string()),
+        );
     }
     Ok(())
 }
@@ -50,7 +63,11 @@ fn apply_override(graph: &mut Value, id: &str, extra: &str) -> eyre::Result<()> 
 pub fn sink_out_dirs(graph_path: &Path, graph: &Value) -> Vec<PathBuf> {
     let dir = graph_path.parent().unwrap_or(Path::new("."));
     nodes(graph)
-        .filter(|n| n.get("path").and_then(Value::as_str).is_some_and(|p| p.ends_with("neuspike-sink")))
+        .filter(|n| {
+            n.get("path")
+                .and_then(Value::as_str)
+                .is_some_and(|p| p.ends_with("neuspike-sink"))
+        })
         .map(|n| {
             let args = n.get("args").and_then(Value::as_str).unwrap_or("");
             let words: Vec<&str> = args.split_whitespace().collect();
@@ -169,6 +186,12 @@ pub fn run(
         .enable_all()
         .build()
         .wrap_err("cannot start the async runtime")?;
+    let (log_tx, log_rx) = flume::bounded::<LogMessage>(1024);
+    let printer = std::thread::spawn(move || {
+        for m in log_rx {
+            print_log(&m);
+        }
+    });
     let done = Arc::new(AtomicBool::new(false));
     let spinner = progress.map(|dir| spawn_progress(dir.join("metrics.csv"), done.clone()));
     let path = graph_path.clone();
@@ -180,7 +203,7 @@ pub fn run(
             None,
             SessionId::generate(),
             false,
-            LogDestination::Tracing,
+            LogDestination::Channel { sender: log_tx },
             None,
             stop_after,
             false,
@@ -196,8 +219,23 @@ pub fn run(
         let _ = s.join();
     }
     rt.shutdown_timeout(Duration::from_secs(10));
+    let _ = printer.join();
     let result = result.wrap_err("the dataflow task panicked")??;
     Ok(Report { result, out_dirs })
+}
+
+/// Prints a node's log line as `node | message`; the daemon's own lines only when they warn.
+fn print_log(m: &LogMessage) {
+    let from_daemon = m.target.as_deref().is_some_and(|t| t.contains("daemon"));
+    match &m.node_id {
+        Some(node) if !from_daemon => {
+            eprintln!("{:>14} | {}", node.to_string(), m.message.trim_end())
+        }
+        _ if m.level.passes(&LogLevelOrStdout::LogLevel(LogLevel::Warn)) => {
+            eprintln!("{:>14} | {}", "dora", m.message.trim_end())
+        }
+        _ => {}
+    }
 }
 
 /// A spinner that counts the rows of a metrics CSV until `done`.
@@ -209,7 +247,9 @@ fn spawn_progress(csv: PathBuf, done: Arc<AtomicBool>) -> std::thread::JoinHandl
                 .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
         );
         while !done.load(Ordering::Relaxed) {
-            let rows = std::fs::read_to_string(&csv).map(|s| s.lines().count().saturating_sub(1)).unwrap_or(0);
+            let rows = std::fs::read_to_string(&csv)
+                .map(|s| s.lines().count().saturating_sub(1))
+                .unwrap_or(0);
             bar.set_message(format!("{rows} frames scored"));
             bar.tick();
             std::thread::sleep(Duration::from_millis(200));

@@ -48,11 +48,19 @@ enum Command {
 
 fn main() -> eyre::Result<()> {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,neuspike=info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
     let cli = Cli::parse();
     match cli.command {
-        Command::Run { graph, set, no_build, stop_after_s } => {
+        Command::Run {
+            graph,
+            set,
+            no_build,
+            stop_after_s,
+        } => {
             let overrides = set
                 .iter()
                 .map(|s| graph::parse_override(s))

@@ -21,8 +21,19 @@ fn read_metrics(dir: &Path) -> Vec<Row> {
     let text = std::fs::read_to_string(dir.join("metrics.csv")).expect("metrics.csv written");
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();
-    let col = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("column {name}"));
-    let (m, s, p, ss, f) = (col("method"), col("seq"), col("psnr_db"), col("ssim"), col("file"));
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("column {name}"))
+    };
+    let (m, s, p, ss, f) = (
+        col("method"),
+        col("seq"),
+        col("psnr_db"),
+        col("ssim"),
+        col("file"),
+    );
     lines
         .map(|l| {
             let v: Vec<&str> = l.split(',').collect();
@@ -45,14 +56,22 @@ fn read_metrics(dir: &Path) -> Vec<Row> {
 }
 
 fn graph(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("graphs").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("graphs")
+        .join(name)
 }
 
 fn run(name: &str, out: &Path, extra: &[(&str, &str)]) {
     let mut overrides = vec![("sink".to_string(), format!("--out {}", out.display()))];
     overrides.extend(extra.iter().map(|(n, a)| (n.to_string(), a.to_string())));
-    let report = neuspike::graph::run(&graph(name), &overrides, true, Some(Duration::from_secs(300)), None)
-        .expect("graph ran");
+    let report = neuspike::graph::run(
+        &graph(name),
+        &overrides,
+        true,
+        Some(Duration::from_secs(300)),
+        None,
+    )
+    .expect("graph ran");
     for (node, r) in &report.result.node_results {
         assert!(r.is_ok(), "node {node} failed: {r:?}");
     }
@@ -76,7 +95,12 @@ fn spike_tfp_static_scene_is_complete_and_accurate() {
         assert!(out.path().join(&r.file).is_file(), "{} missing", r.file);
         let p = r.psnr_db.expect("every frame has ground truth");
         assert!(p > 25.0, "frame {} PSNR {p:.2} dB", r.seq);
-        assert!(r.ssim.expect("ssim") > 0.7, "frame {} SSIM {:?}", r.seq, r.ssim);
+        assert!(
+            r.ssim.expect("ssim") > 0.7,
+            "frame {} SSIM {:?}",
+            r.seq,
+            r.ssim
+        );
     }
     let summary = std::fs::read_to_string(out.path().join("summary.md")).expect("summary");
     assert!(summary.contains("tfp"), "{summary}");
@@ -92,11 +116,17 @@ fn demo_graph_both_cameras_loses_nothing() {
     for r in &rows {
         per_method.entry(r.method.as_str()).or_default().push(r.seq);
     }
-    assert_eq!(per_method.keys().copied().collect::<Vec<_>>(), vec!["tfi", "tfp"]);
+    assert_eq!(
+        per_method.keys().copied().collect::<Vec<_>>(),
+        vec!["tfi", "tfp"]
+    );
     let n = per_method["tfp"].len();
     assert!(n >= 40, "only {n} frames");
     for (m, seqs) in &per_method {
         assert_eq!(*seqs, (0..n as u64).collect::<Vec<_>>(), "method {m}");
     }
-    assert!(rows.iter().all(|r| r.psnr_db.is_some()), "every frame scored");
+    assert!(
+        rows.iter().all(|r| r.psnr_db.is_some()),
+        "every frame scored"
+    );
 }

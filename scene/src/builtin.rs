@@ -1,11 +1,22 @@
 //! The scenes shipped in `graphs/scenes/`, embedded at build time.
 
 /// Builtin names, in the order documented.
-pub(crate) const NAMES: &[&str] = &["bright-static", "bright-slow", "bright-fast", "dark-slow", "hdr-pan"];
+pub(crate) const NAMES: &[&str] = &[
+    "bright-static",
+    "bright-slow",
+    "bright-fast",
+    "dark-slow",
+    "hdr-pan",
+];
 
 macro_rules! scene_file {
     ($name:literal) => {
-        include_str!(concat!(env!("CARGO_MANIFEST_DIR"), "/../graphs/scenes/", $name, ".yml"))
+        include_str!(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../graphs/scenes/",
+            $name,
+            ".yml"
+        ))
     };
 }
 

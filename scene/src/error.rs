@@ -46,9 +46,7 @@ pub enum SceneError {
         reason: String,
     },
     /// A texture parameter that the chosen kind does not use.
-    #[error(
-        "scene {origin}: field {field}: not used by texture.kind {kind} (only by {used_by})"
-    )]
+    #[error("scene {origin}: field {field}: not used by texture.kind {kind} (only by {used_by})")]
     Unused {
         /// Where the scene came from.
         origin: String,

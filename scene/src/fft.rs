@@ -21,7 +21,10 @@ impl Complex {
         Complex::new(self.re - o.re, self.im - o.im)
     }
     fn mul(self, o: Complex) -> Complex {
-        Complex::new(self.re * o.re - self.im * o.im, self.re * o.im + self.im * o.re)
+        Complex::new(
+            self.re * o.re - self.im * o.im,
+            self.re * o.im + self.im * o.re,
+        )
     }
     fn expi(angle: f64) -> Complex {
         Complex::new(angle.cos(), angle.sin())
@@ -37,11 +40,13 @@ pub(crate) fn dft(x: &[Complex], sign: f64) -> Vec<Complex> {
     if n % 2 == 1 {
         return (0..n)
             .map(|k| {
-                x.iter().enumerate().fold(Complex::default(), |acc, (j, &v)| {
-                    // (j * k) % n keeps the angle small, so the twiddles stay exact.
-                    let angle = sign * TAU * ((j * k) % n) as f64 / n as f64;
-                    acc.add(v.mul(Complex::expi(angle)))
-                })
+                x.iter()
+                    .enumerate()
+                    .fold(Complex::default(), |acc, (j, &v)| {
+                        // (j * k) % n keeps the angle small, so the twiddles stay exact.
+                        let angle = sign * TAU * ((j * k) % n) as f64 / n as f64;
+                        acc.add(v.mul(Complex::expi(angle)))
+                    })
             })
             .collect();
     }
@@ -87,9 +92,11 @@ mod tests {
         let n = x.len();
         (0..n)
             .map(|k| {
-                x.iter().enumerate().fold(Complex::default(), |acc, (j, &v)| {
-                    acc.add(v.mul(Complex::expi(sign * TAU * (j * k) as f64 / n as f64)))
-                })
+                x.iter()
+                    .enumerate()
+                    .fold(Complex::default(), |acc, (j, &v)| {
+                        acc.add(v.mul(Complex::expi(sign * TAU * (j * k) as f64 / n as f64)))
+                    })
             })
             .collect()
     }
@@ -103,7 +110,10 @@ mod tests {
             let fast = dft(&x, -1.0);
             let slow = naive(&x, -1.0);
             for (a, b) in fast.iter().zip(&slow) {
-                assert!((a.re - b.re).abs() < 1e-9 && (a.im - b.im).abs() < 1e-9, "n={n}");
+                assert!(
+                    (a.re - b.re).abs() < 1e-9 && (a.im - b.im).abs() < 1e-9,
+                    "n={n}"
+                );
             }
         }
     }
@@ -111,8 +121,9 @@ mod tests {
     #[test]
     fn inverse_undoes_forward() {
         let (rows, cols) = (6, 8);
-        let orig: Vec<Complex> =
-            (0..rows * cols).map(|i| Complex::new((i as f64).sqrt(), 0.0)).collect();
+        let orig: Vec<Complex> = (0..rows * cols)
+            .map(|i| Complex::new((i as f64).sqrt(), 0.0))
+            .collect();
         let mut g = orig.clone();
         dft2(&mut g, rows, cols, -1.0);
         dft2(&mut g, rows, cols, 1.0);

@@ -109,7 +109,9 @@ impl Scene {
     ) -> Result<Scene, SceneError> {
         let duration_ns = spec.validate(origin)?;
         let texture = Texture::from_spec(&spec.texture, spec.seed, base_dir, origin)?;
-        let gain = spec.gain_map().map(|g| GainMap::new(g, spec.width, spec.height));
+        let gain = spec
+            .gain_map()
+            .map(|g| GainMap::new(g, spec.width, spec.height));
         Ok(Scene {
             texture_min: spec.texture.min as f32,
             duration_ns,
@@ -128,7 +130,7 @@ impl Scene {
     ) -> Result<Scene, SceneError> {
         let spec: SceneSpec = serde_yaml::from_str(yaml).map_err(|e| SceneError::Parse {
             origin: origin.to_owned(),
-            message: e.to_string(),
+            message: field_prefixed(e.to_string()),
         })?;
         Scene::from_spec_at(spec, base_dir, origin)
     }
@@ -218,13 +220,25 @@ impl Scene {
     /// the distance from the view centre to a corner and `omega` is in rad/s.
     pub fn max_speed_px_per_s(&self) -> f64 {
         let m = &self.spec.motion;
-        let duration_s = self.duration_ns as f64 * 1e-9;
+        let duration_s = self.duration_ns as f64 / render::NS_PER_S;
         let max_log_scale = (m.zoom_per_s * duration_s).clamp(0.0, render::MAX_LOG_ZOOM);
         let corner = (self.width() as f64 / 2.0).hypot(self.height() as f64 / 2.0);
         let translation = m.vx_px_s.hypot(m.vy_px_s) * max_log_scale.exp();
         let rotation = m.rotation_deg_s.to_radians().abs() * corner;
         let zoom = m.zoom_per_s.abs() * corner;
         translation + rotation + zoom
+    }
+}
+
+/// serde_yaml starts a message with the field path (`texture.kind: ...`) when there is one;
+/// spell it `field texture.kind: ...` like the validation errors.
+fn field_prefixed(message: String) -> String {
+    let is_path_char = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '.' | '[' | ']');
+    match message.split_once(": ") {
+        Some((path, _)) if !path.is_empty() && path.chars().all(is_path_char) => {
+            format!("field {message}")
+        }
+        _ => message,
     }
 }
 

@@ -14,6 +14,8 @@ use crate::Scene;
 pub(crate) const PARALLEL_MIN_SAMPLES: usize = 1 << 15;
 /// Rows per rayon task.
 pub(crate) const ROWS_PER_TASK: usize = 8;
+/// Nanoseconds per second.
+pub(crate) const NS_PER_S: f64 = 1e9;
 /// `|log s(t)|` is clamped to this, so extreme zoom never produces infinities.
 pub(crate) const MAX_LOG_ZOOM: f64 = 30.0;
 
@@ -34,9 +36,13 @@ impl ViewMap {
     /// with the translation reduced modulo the texture period (exact, the texture is periodic).
     pub fn at(scene: &Scene, t_ns: i64) -> ViewMap {
         let m = &scene.spec().motion;
-        let t = t_ns as f64 * 1e-9;
+        let t = t_ns as f64 / NS_PER_S; // correctly rounded: 1 ms is exactly 0.001 s
         let theta = (m.rotation_deg_s * t).rem_euclid(360.0).to_radians();
-        let (sin, cos) = if theta == 0.0 { (0.0, 1.0) } else { theta.sin_cos() };
+        let (sin, cos) = if theta == 0.0 {
+            (0.0, 1.0)
+        } else {
+            theta.sin_cos()
+        };
         let inv_s = (-m.zoom_per_s * t).clamp(-MAX_LOG_ZOOM, MAX_LOG_ZOOM).exp();
         let period = |x: f64, p: usize| {
             let r = x.rem_euclid(p as f64);
@@ -121,7 +127,11 @@ struct ColumnTap {
 #[inline]
 fn wrap(i: i64, period: usize) -> usize {
     let p = period as i64;
-    if (0..p).contains(&i) { i as usize } else { i.rem_euclid(p) as usize }
+    if (0..p).contains(&i) {
+        i as usize
+    } else {
+        i.rem_euclid(p) as usize
+    }
 }
 
 /// Floor, fraction and the two wrapped texel indices of coordinate `u` (texel centres at +1/2).
@@ -175,7 +185,16 @@ impl<'a> Plan<'a> {
             Some(g) if g.is_horizontal() => xs.iter().map(|&x| g.gain_at(x, 0.0) as f32).collect(),
             _ => Vec::new(),
         };
-        Plan { scene, map, n, offsets, sy, xs, taps, column_gain }
+        Plan {
+            scene,
+            map,
+            n,
+            offsets,
+            sy,
+            xs,
+            taps,
+            column_gain,
+        }
     }
 
     /// Renders destination row `r` into `acc` (`cols` long): the sum over sub-samples.
@@ -191,7 +210,7 @@ impl<'a> Plan<'a> {
             // Same expression order as the reference, so coordinates agree bit for bit.
             let (u_y, v_y) = (self.map.a12 * y, self.map.a22 * y);
             if self.map.is_axis_aligned() {
-                let (r0, r1, wy1) = split(v_y + self.map.b2, th) // a21 * x is (-)0 here;
+                let (r0, r1, wy1) = split(v_y + self.map.b2, th); // a21 * x is (-)0 here
                 let wy0 = 1.0 - wy1;
                 let (row0, row1) = (&data[r0 * tw..(r0 + 1) * tw], &data[r1 * tw..(r1 + 1) * tw]);
                 for (c, (a, taps)) in acc.iter_mut().zip(self.taps.chunks_exact(n)).enumerate() {
@@ -254,7 +273,12 @@ impl<'a> Plan<'a> {
 }
 
 /// The fast path: per-frame tables, per-row invariants, rayon over row blocks when `parallel`.
-pub(crate) fn render_fast(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32>, parallel: bool) {
+pub(crate) fn render_fast(
+    scene: &Scene,
+    t_ns: i64,
+    mut dst: ArrayViewMut2<'_, f32>,
+    parallel: bool,
+) {
     let (rows, cols) = dst.dim();
     if rows == 0 || cols == 0 {
         return;

@@ -248,8 +248,19 @@ macro_rules! string_enum {
 
         impl<'de> Deserialize<'de> for $ty {
             fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-                let s = String::deserialize(deserializer)?;
-                s.parse().map_err(serde::de::Error::custom)
+                // Parsing inside the visitor (not after it) lets serde_yaml attach the
+                // field's own path ("texture.kind") to the error.
+                struct Visitor;
+                impl serde::de::Visitor<'_> for Visitor {
+                    type Value = $ty;
+                    fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                        write!(f, "one of {}", $ty::expected())
+                    }
+                    fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<$ty, E> {
+                        s.parse().map_err(E::custom)
+                    }
+                }
+                deserializer.deserialize_str(Visitor)
             }
         }
     };
@@ -270,7 +281,12 @@ string_enum!(GainMapKind {
 });
 
 /// Builds the "invalid value" error for `field`.
-fn invalid(origin: &str, field: &str, value: impl fmt::Display, reason: impl Into<String>) -> SceneError {
+fn invalid(
+    origin: &str,
+    field: &str,
+    value: impl fmt::Display,
+    reason: impl Into<String>,
+) -> SceneError {
     SceneError::Invalid {
         origin: origin.to_owned(),
         field: field.to_owned(),
@@ -305,23 +321,47 @@ impl TextureSpec {
         let kind = self.kind;
         // Parameters that belong to another kind are an error, not silently ignored.
         let params: [(&str, bool, &[TextureKind]); 7] = [
-            ("texture.size", self.size.is_some(), &[
-                TextureKind::Noise,
-                TextureKind::Shapes,
-                TextureKind::Grating,
-                TextureKind::Strokes,
-                TextureKind::Checkerboard,
-            ]),
+            (
+                "texture.size",
+                self.size.is_some(),
+                &[
+                    TextureKind::Noise,
+                    TextureKind::Shapes,
+                    TextureKind::Grating,
+                    TextureKind::Strokes,
+                    TextureKind::Checkerboard,
+                ],
+            ),
             ("texture.beta", self.beta.is_some(), &[TextureKind::Noise]),
-            ("texture.count", self.count.is_some(), &[TextureKind::Shapes]),
-            ("texture.period_px", self.period_px.is_some(), &[TextureKind::Grating]),
-            ("texture.angle_deg", self.angle_deg.is_some(), &[TextureKind::Grating]),
-            ("texture.square_px", self.square_px.is_some(), &[TextureKind::Checkerboard]),
+            (
+                "texture.count",
+                self.count.is_some(),
+                &[TextureKind::Shapes],
+            ),
+            (
+                "texture.period_px",
+                self.period_px.is_some(),
+                &[TextureKind::Grating],
+            ),
+            (
+                "texture.angle_deg",
+                self.angle_deg.is_some(),
+                &[TextureKind::Grating],
+            ),
+            (
+                "texture.square_px",
+                self.square_px.is_some(),
+                &[TextureKind::Checkerboard],
+            ),
             ("texture.path", self.path.is_some(), &[TextureKind::Png]),
         ];
         for (field, present, kinds) in params {
             if present && !kinds.contains(&kind) {
-                let used_by = kinds.iter().map(|k| k.as_str()).collect::<Vec<_>>().join(", ");
+                let used_by = kinds
+                    .iter()
+                    .map(|k| k.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ");
                 return Err(SceneError::Unused {
                     origin: origin.to_owned(),
                     field: field.to_owned(),
@@ -330,67 +370,82 @@ impl TextureSpec {
                 });
             }
         }
-        if let Some(size) = self.size {
-            if !(MIN_TEXTURE_SIZE..=MAX_TEXTURE_SIZE).contains(&size) {
-                return Err(invalid(
-                    origin,
-                    "texture.size",
-                    size,
-                    format!("must be in {MIN_TEXTURE_SIZE}..={MAX_TEXTURE_SIZE}"),
-                ));
-            }
+        if let Some(size) = self.size
+            && !(MIN_TEXTURE_SIZE..=MAX_TEXTURE_SIZE).contains(&size)
+        {
+            return Err(invalid(
+                origin,
+                "texture.size",
+                size,
+                format!("must be in {MIN_TEXTURE_SIZE}..={MAX_TEXTURE_SIZE}"),
+            ));
         }
         if !self.contrast.is_finite() {
-            return Err(invalid(origin, "texture.contrast", self.contrast, "must be finite"));
+            return Err(invalid(
+                origin,
+                "texture.contrast",
+                self.contrast,
+                "must be finite",
+            ));
         }
         if !(self.min.is_finite() && self.min > 0.0 && self.min < 1.0) {
-            return Err(invalid(origin, "texture.min", self.min, "must be > 0 and < 1"));
+            return Err(invalid(
+                origin,
+                "texture.min",
+                self.min,
+                "must be > 0 and < 1",
+            ));
         }
-        if let Some(beta) = self.beta {
-            if !(beta.is_finite() && (0.0..=MAX_NOISE_BETA).contains(&beta)) {
-                return Err(invalid(
-                    origin,
-                    "texture.beta",
-                    beta,
-                    format!("must be in [0, {MAX_NOISE_BETA}]"),
-                ));
-            }
+        if let Some(beta) = self.beta
+            && !(beta.is_finite() && (0.0..=MAX_NOISE_BETA).contains(&beta))
+        {
+            return Err(invalid(
+                origin,
+                "texture.beta",
+                beta,
+                format!("must be in [0, {MAX_NOISE_BETA}]"),
+            ));
         }
-        if let Some(count) = self.count {
-            if count > MAX_SHAPE_COUNT {
-                return Err(invalid(
-                    origin,
-                    "texture.count",
-                    count,
-                    format!("must be at most {MAX_SHAPE_COUNT}"),
-                ));
-            }
+        if let Some(count) = self.count
+            && count > MAX_SHAPE_COUNT
+        {
+            return Err(invalid(
+                origin,
+                "texture.count",
+                count,
+                format!("must be at most {MAX_SHAPE_COUNT}"),
+            ));
         }
         let size = self.size_or_default() as f64;
-        if let Some(period) = self.period_px {
-            if !(period.is_finite() && period >= 2.0 && period <= size) {
-                return Err(invalid(
-                    origin,
-                    "texture.period_px",
-                    period,
-                    format!("must be >= 2 and <= texture.size ({size})"),
-                ));
-            }
+        if let Some(period) = self.period_px
+            && !(period.is_finite() && period >= 2.0 && period <= size)
+        {
+            return Err(invalid(
+                origin,
+                "texture.period_px",
+                period,
+                format!("must be >= 2 and <= texture.size ({size})"),
+            ));
         }
-        if let Some(angle) = self.angle_deg {
-            if !angle.is_finite() {
-                return Err(invalid(origin, "texture.angle_deg", angle, "must be finite"));
-            }
+        if let Some(angle) = self.angle_deg
+            && !angle.is_finite()
+        {
+            return Err(invalid(
+                origin,
+                "texture.angle_deg",
+                angle,
+                "must be finite",
+            ));
         }
-        if let Some(square) = self.square_px {
-            if !(square.is_finite() && square >= 1.0 && square <= size / 2.0) {
-                return Err(invalid(
-                    origin,
-                    "texture.square_px",
-                    square,
-                    format!("must be >= 1 and <= texture.size / 2 ({})", size / 2.0),
-                ));
-            }
+        if let Some(square) = self.square_px
+            && !(square.is_finite() && square >= 1.0 && square <= size / 2.0)
+        {
+            return Err(invalid(
+                origin,
+                "texture.square_px",
+                square,
+                format!("must be >= 1 and <= texture.size / 2 ({})", size / 2.0),
+            ));
         }
         if kind == TextureKind::Png {
             match &self.path {
@@ -454,7 +509,12 @@ impl SceneSpec {
     pub fn validate(&self, origin: &str) -> Result<i64, SceneError> {
         for (field, value) in [("width", self.width), ("height", self.height)] {
             if !(1..=MAX_VIEW_SIDE).contains(&value) {
-                return Err(invalid(origin, field, value, format!("must be in 1..={MAX_VIEW_SIDE}")));
+                return Err(invalid(
+                    origin,
+                    field,
+                    value,
+                    format!("must be in 1..={MAX_VIEW_SIDE}"),
+                ));
             }
         }
         let duration_ns = match (self.duration_ms, self.duration_ns) {
@@ -469,7 +529,14 @@ impl SceneSpec {
                 .checked_mul(1_000_000)
                 .and_then(|ns| i64::try_from(ns).ok())
                 .filter(|&ns| ns > 0)
-                .ok_or_else(|| invalid(origin, "duration_ms", ms, "must be > 0 and fit in i64 nanoseconds"))?,
+                .ok_or_else(|| {
+                    invalid(
+                        origin,
+                        "duration_ms",
+                        ms,
+                        "must be > 0 and fit in i64 nanoseconds",
+                    )
+                })?,
             (None, Some(ns)) => i64::try_from(ns)
                 .ok()
                 .filter(|&ns| ns > 0)
@@ -477,7 +544,12 @@ impl SceneSpec {
             (None, None) => (DEFAULT_DURATION_MS * 1_000_000) as i64,
         };
         if !(self.light_scale.is_finite() && self.light_scale > 0.0) {
-            return Err(invalid(origin, "light_scale", self.light_scale, "must be finite and > 0"));
+            return Err(invalid(
+                origin,
+                "light_scale",
+                self.light_scale,
+                "must be finite and > 0",
+            ));
         }
         if !(1..=MAX_SAMPLES_PER_PIXEL).contains(&self.samples_per_pixel) {
             return Err(invalid(
@@ -489,15 +561,15 @@ impl SceneSpec {
         }
         self.texture.validate(origin)?;
         self.motion.validate(origin)?;
-        if let Some(gain) = self.gain_map() {
-            if !(gain.decades.is_finite() && gain.decades > 0.0 && gain.decades <= MAX_GAIN_DECADES) {
-                return Err(invalid(
-                    origin,
-                    "light.gain_map.decades",
-                    gain.decades,
-                    format!("must be > 0 and <= {MAX_GAIN_DECADES}"),
-                ));
-            }
+        if let Some(gain) = self.gain_map()
+            && !(gain.decades.is_finite() && gain.decades > 0.0 && gain.decades <= MAX_GAIN_DECADES)
+        {
+            return Err(invalid(
+                origin,
+                "light.gain_map.decades",
+                gain.decades,
+                format!("must be > 0 and <= {MAX_GAIN_DECADES}"),
+            ));
         }
         Ok(duration_ns)
     }

@@ -103,12 +103,16 @@ impl Texture {
         let size = spec.size_or_default();
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ SEED_SALT);
         let (width, height, raw) = match spec.kind {
-            TextureKind::Noise => {
-                (size, size, noise(size, spec.beta.unwrap_or(DEFAULT_NOISE_BETA), &mut rng))
-            }
-            TextureKind::Shapes => {
-                (size, size, shapes(size, spec.count.unwrap_or(DEFAULT_SHAPE_COUNT), &mut rng))
-            }
+            TextureKind::Noise => (
+                size,
+                size,
+                noise(size, spec.beta.unwrap_or(DEFAULT_NOISE_BETA), &mut rng),
+            ),
+            TextureKind::Shapes => (
+                size,
+                size,
+                shapes(size, spec.count.unwrap_or(DEFAULT_SHAPE_COUNT), &mut rng),
+            ),
             TextureKind::Grating => (
                 size,
                 size,
@@ -119,9 +123,11 @@ impl Texture {
                 ),
             ),
             TextureKind::Strokes => (size, size, strokes(size, &mut rng)),
-            TextureKind::Checkerboard => {
-                (size, size, checkerboard(size, spec.square_px.unwrap_or(DEFAULT_SQUARE_PX)))
-            }
+            TextureKind::Checkerboard => (
+                size,
+                size,
+                checkerboard(size, spec.square_px.unwrap_or(DEFAULT_SQUARE_PX)),
+            ),
             TextureKind::Png => {
                 let written = spec.path.as_deref().unwrap_or_default();
                 load_png_mirrored(written, base_dir, origin)?
@@ -132,13 +138,21 @@ impl Texture {
             .into_iter()
             .map(|t| (0.5 + contrast * (t - 0.5)).clamp(min, 1.0) as f32)
             .collect();
-        Ok(Texture { width, height, data })
+        Ok(Texture {
+            width,
+            height,
+            data,
+        })
     }
 }
 
 /// Signed frequency of DFT bin `k` of `n`.
 fn signed_frequency(k: usize, n: usize) -> f64 {
-    if k <= n / 2 { k as f64 } else { k as f64 - n as f64 }
+    if k <= n / 2 {
+        k as f64
+    } else {
+        k as f64 - n as f64
+    }
 }
 
 /// 1/f^beta Gaussian noise by spectral synthesis: periodic on the canvas by construction.
@@ -195,8 +209,12 @@ fn shapes(size: usize, count: usize, rng: &mut ChaCha8Rng) -> Vec<f64> {
             let b = radius(rng);
             (a, b, rng.random_range(0.0..std::f64::consts::PI))
         };
-        let bound = if is_disc { a } else { a.hypot(b).min(max_radius) };
-        let (sin, cos) = (angle as f64).sin_cos();
+        let bound = if is_disc {
+            a
+        } else {
+            a.hypot(b).min(max_radius)
+        };
+        let (sin, cos) = angle.sin_cos();
         let inside = |dx: f64, dy: f64| -> bool {
             if is_disc {
                 dx * dx + dy * dy <= a * a
@@ -247,7 +265,11 @@ fn grating(size: usize, period_px: f64, angle_deg: f64) -> Vec<f64> {
     let kx = (s * cos / period_px).round();
     let ky = (s * sin / period_px).round();
     // period <= size guarantees one of |kx|, |ky| rounds to >= 1; keep a fallback anyway.
-    let (kx, ky) = if kx == 0.0 && ky == 0.0 { (1.0, 0.0) } else { (kx, ky) };
+    let (kx, ky) = if kx == 0.0 && ky == 0.0 {
+        (1.0, 0.0)
+    } else {
+        (kx, ky)
+    };
     let mut out = Vec::with_capacity(size * size);
     for r in 0..size {
         for c in 0..size {
@@ -292,7 +314,11 @@ fn checkerboard(size: usize, square_px: f64) -> Vec<f64> {
 fn segment_distance(p: (f64, f64), a: (f64, f64), b: (f64, f64)) -> f64 {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
     let len2 = dx * dx + dy * dy;
-    let t = if len2 > 0.0 { (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    let t = if len2 > 0.0 {
+        (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     let (qx, qy) = (a.0 + t * dx, a.1 + t * dy);
     (p.0 - qx).hypot(p.1 - qy)
 }
@@ -436,10 +462,18 @@ mod tests {
     #[test]
     fn procedural_textures_are_seamless() {
         // (The checkerboard has an edge at the seam by design; its periodicity is tested below.)
-        for kind in [TextureKind::Noise, TextureKind::Grating, TextureKind::Shapes, TextureKind::Strokes] {
+        for kind in [
+            TextureKind::Noise,
+            TextureKind::Grating,
+            TextureKind::Shapes,
+            TextureKind::Strokes,
+        ] {
             let t = build(kind, 3);
             let ratio = seam_ratio(&t);
-            assert!(ratio < 3.0, "{kind}: seam jump {ratio} x the interior jumps");
+            assert!(
+                ratio < 3.0,
+                "{kind}: seam jump {ratio} x the interior jumps"
+            );
         }
     }
 

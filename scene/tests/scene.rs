@@ -23,7 +23,10 @@ fn error(yaml: &str) -> String {
 }
 
 fn max_abs_diff(a: &Array2<f32>, b: &Array2<f32>) -> f32 {
-    a.iter().zip(b.iter()).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.iter()
+        .zip(b.iter())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 /// A unique temporary directory for one test.
@@ -37,23 +40,33 @@ fn temp_dir(name: &str) -> PathBuf {
 fn same_seed_renders_identically_and_another_seed_differs() {
     for kind in ["noise", "shapes", "strokes"] {
         let yaml = |seed: u64| {
-            format!("seed: {seed}\ntexture: {{ kind: {kind}, size: 128 }}\nmotion: {{ vx_px_s: 300 }}")
+            format!(
+                "seed: {seed}\ntexture: {{ kind: {kind}, size: 128 }}\nmotion: {{ vx_px_s: 300 }}"
+            )
         };
         let a = scene(&yaml(5)).render(7_000_000, 50, 80);
         let b = scene(&yaml(5)).render(7_000_000, 50, 80);
         let c = scene(&yaml(6)).render(7_000_000, 50, 80);
         assert_eq!(a, b, "{kind}: same seed must render identically");
-        assert!(max_abs_diff(&a, &c) > 0.1, "{kind}: seeds 5 and 6 should give different textures");
+        assert!(
+            max_abs_diff(&a, &c) > 0.1,
+            "{kind}: seeds 5 and 6 should give different textures"
+        );
     }
 }
 
 #[test]
 fn still_scene_at_one_sample_per_pixel_equals_the_texels() {
-    let s = scene("width: 64\nheight: 48\nsamples_per_pixel: 1\ntexture: { kind: noise, size: 64 }");
+    let s =
+        scene("width: 64\nheight: 48\nsamples_per_pixel: 1\ntexture: { kind: noise, size: 64 }");
     let img = s.render(0, 48, 64);
     for r in 0..48 {
         for c in 0..64 {
-            assert_eq!(img[[r, c]], s.texture().texel(r as i64, c as i64), "({r}, {c})");
+            assert_eq!(
+                img[[r, c]],
+                s.texture().texel(r as i64, c as i64),
+                "({r}, {c})"
+            );
         }
     }
     // Without motion the time does not matter.
@@ -62,7 +75,8 @@ fn still_scene_at_one_sample_per_pixel_equals_the_texels() {
 
 #[test]
 fn still_scene_with_supersampling_averages_the_texture_at_sub_sample_points() {
-    let s = scene("width: 40\nheight: 30\nsamples_per_pixel: 3\ntexture: { kind: shapes, size: 64 }");
+    let s =
+        scene("width: 40\nheight: 30\nsamples_per_pixel: 3\ntexture: { kind: shapes, size: 64 }");
     let img = s.render(0, 30, 40);
     for r in 0..30 {
         for c in 0..40 {
@@ -85,7 +99,10 @@ fn one_pixel_translation_shifts_the_image_by_one_pixel() {
     let right = scene("texture: { kind: noise }\nmotion: { vx_px_s: 1000 }");
     let a = right.render(0, 250, 400);
     let b = right.render(1_000_000, 250, 400);
-    let d = max_abs_diff(&b.slice(s![.., 1..]).to_owned(), &a.slice(s![.., ..399]).to_owned());
+    let d = max_abs_diff(
+        &b.slice(s![.., 1..]).to_owned(),
+        &a.slice(s![.., ..399]).to_owned(),
+    );
     assert!(d < 1e-5, "right shift differs by {d}");
     // And it is not trivially equal unshifted.
     assert!(max_abs_diff(&a, &b) > 0.01);
@@ -93,7 +110,10 @@ fn one_pixel_translation_shifts_the_image_by_one_pixel() {
     let up = scene("texture: { kind: strokes }\nmotion: { vy_px_s: -2000 }");
     let a = up.render(0, 250, 400);
     let b = up.render(500_000, 250, 400);
-    let d = max_abs_diff(&b.slice(s![..249, ..]).to_owned(), &a.slice(s![1.., ..]).to_owned());
+    let d = max_abs_diff(
+        &b.slice(s![..249, ..]).to_owned(),
+        &a.slice(s![1.., ..]).to_owned(),
+    );
     assert!(d < 1e-5, "up shift differs by {d}");
 }
 
@@ -107,13 +127,18 @@ fn moving_by_a_texture_period_returns_the_same_image() {
     let b = s.render(100_000_000, 70, 100);
     assert!(max_abs_diff(&a, &b) < 1e-5);
     // The view is wider than the texture: the right part repeats the left part.
-    let d = max_abs_diff(&a.slice(s![.., 64..]).to_owned(), &a.slice(s![.., ..36]).to_owned());
+    let d = max_abs_diff(
+        &a.slice(s![.., 64..]).to_owned(),
+        &a.slice(s![.., ..36]).to_owned(),
+    );
     assert!(d < 1e-6, "tiling differs by {d}");
     // Half a period is a different image.
     assert!(max_abs_diff(&a, &s.render(50_000_000, 70, 100)) > 0.05);
 
     // A full turn returns the same image too.
-    let turn = scene("width: 80\nheight: 60\ntexture: { kind: grating, size: 64 }\nmotion: { rotation_deg_s: 3600 }");
+    let turn = scene(
+        "width: 80\nheight: 60\ntexture: { kind: grating, size: 64 }\nmotion: { rotation_deg_s: 3600 }",
+    );
     let d = max_abs_diff(&turn.render(0, 60, 80), &turn.render(100_000_000, 60, 80));
     assert!(d < 1e-4, "full turn differs by {d}");
 }
@@ -129,7 +154,10 @@ fn values_are_finite_and_within_min_and_one_without_gain_map() {
         for t in [0, 3_000_000, -9_000_000, 1 << 40, i64::MAX, i64::MIN] {
             let img = s.render(t, 60, 90);
             for &v in img.iter() {
-                assert!(v.is_finite() && (0.05..=1.0).contains(&v), "{kind} t={t}: {v}");
+                assert!(
+                    v.is_finite() && (0.05..=1.0).contains(&v),
+                    "{kind} t={t}: {v}"
+                );
             }
         }
     }
@@ -138,7 +166,11 @@ fn values_are_finite_and_within_min_and_one_without_gain_map() {
 #[test]
 fn contrast_zero_gives_a_uniform_mid_grey() {
     let s = scene("texture: { kind: noise, size: 32, contrast: 0.0 }\nmotion: { vx_px_s: 33 }");
-    assert!(s.render(5_000_000, 20, 30).iter().all(|&v| (v - 0.5).abs() < 1e-6));
+    assert!(
+        s.render(5_000_000, 20, 30)
+            .iter()
+            .all(|&v| (v - 0.5).abs() < 1e-6)
+    );
 }
 
 fn gain_scene(kind: &str, decades: f64) -> Scene {
@@ -151,13 +183,21 @@ fn gain_scene(kind: &str, decades: f64) -> Scene {
 
 #[test]
 fn gain_map_spans_the_requested_decades() {
-    for (kind, decades) in [("horizontal", 6.0), ("horizontal", 2.5), ("radial", 6.0), ("radial", 3.0)] {
+    for (kind, decades) in [
+        ("horizontal", 6.0),
+        ("horizontal", 2.5),
+        ("radial", 6.0),
+        ("radial", 3.0),
+    ] {
         let img = gain_scene(kind, decades).render(3_000_000, 250, 400);
         let hi = img.iter().copied().fold(f32::MIN, f32::max) as f64;
         let lo = img.iter().copied().fold(f32::MAX, f32::min) as f64;
         assert!(img.iter().all(|v| v.is_finite() && *v > 0.0));
         let span = (hi / lo).log10();
-        assert!((span - decades).abs() < 0.1, "{kind} {decades}: span {span} decades");
+        assert!(
+            (span - decades).abs() < 0.1,
+            "{kind} {decades}: span {span} decades"
+        );
         // Geometric mean gain 1 on mid-grey: the brightest exceeds 1 by about decades / 2.
         assert!(hi > 1.0, "{kind}: brightest {hi}");
     }
@@ -173,15 +213,26 @@ fn gain_map_spans_the_requested_decades() {
 
 #[test]
 fn any_destination_grid_sees_the_same_view() {
-    let s = scene("width: 400\nheight: 250\ntexture: { kind: checkerboard, square_px: 64 }\nsamples_per_pixel: 4");
+    let s = scene(
+        "width: 400\nheight: 250\ntexture: { kind: checkerboard, square_px: 64 }\nsamples_per_pixel: 4",
+    );
     // 64 px squares on a 400 x 250 view: the dark/bright pattern at view fractions agrees
     // between a 250 x 400 and a 260 x 346 camera, away from square edges.
     let a = s.render(0, 250, 400);
     let b = s.render(0, 260, 346);
-    for (fy, fx) in [(0.1, 0.1), (0.1, 0.3), (0.38, 0.05), (0.6, 0.7), (0.9, 0.95)] {
+    for (fy, fx) in [
+        (0.1, 0.1),
+        (0.1, 0.3),
+        (0.38, 0.05),
+        (0.6, 0.7),
+        (0.9, 0.95),
+    ] {
         let va = a[[(fy * 250.0) as usize, (fx * 400.0) as usize]];
         let vb = b[[(fy * 260.0) as usize, (fx * 346.0) as usize]];
-        assert!((va - vb).abs() < 1e-3, "view fraction ({fy}, {fx}): {va} vs {vb}");
+        assert!(
+            (va - vb).abs() < 1e-3,
+            "view fraction ({fy}, {fx}): {va} vs {vb}"
+        );
     }
 }
 
@@ -242,29 +293,44 @@ fn max_speed_bounds_the_motion() {
 #[test]
 fn yaml_errors_name_the_field_and_the_value() {
     let e = error("texture: { kind: noise }\ncolour: red");
-    assert!(e.contains("graphs/scenes/x.yml") && e.contains("colour"), "{e}");
+    assert!(
+        e.contains("graphs/scenes/x.yml") && e.contains("colour"),
+        "{e}"
+    );
 
     let e = error("texture: { kind: noise, betta: 2 }");
     assert!(e.contains("texture") && e.contains("betta"), "{e}");
 
     let e = error("texture: { kind: nosie }");
-    assert!(e.contains("texture.kind") && e.contains("\"nosie\"") && e.contains("checkerboard"), "{e}");
+    assert!(
+        e.contains("texture.kind") && e.contains("\"nosie\"") && e.contains("checkerboard"),
+        "{e}"
+    );
 
     for bad in ["0", "-1.5", ".nan", ".inf"] {
         let e = error(&format!("light_scale: {bad}\ntexture: {{ kind: noise }}"));
-        assert!(e.contains("field light_scale") && e.contains("must be finite and > 0"), "{e}");
+        assert!(
+            e.contains("field light_scale") && e.contains("must be finite and > 0"),
+            "{e}"
+        );
     }
     let e = error("light_scale: -1.5\ntexture: { kind: noise }");
     assert!(e.contains("-1.5"), "{e}");
 
     let e = error("texture: { kind: png, path: no/such/file.png }");
-    assert!(e.contains("texture.path") && e.contains("no/such/file.png"), "{e}");
+    assert!(
+        e.contains("texture.path") && e.contains("no/such/file.png"),
+        "{e}"
+    );
 
     let e = error("texture: { kind: png }");
     assert!(e.contains("texture.path") && e.contains("missing"), "{e}");
 
     let e = error("duration_ms: 5\nduration_ns: 7\ntexture: { kind: noise }");
-    assert!(e.contains("duration_ms") && e.contains("duration_ns"), "{e}");
+    assert!(
+        e.contains("duration_ms") && e.contains("duration_ns"),
+        "{e}"
+    );
 
     let e = error("texture: { kind: grating, beta: 1.0 }");
     assert!(e.contains("texture.beta") && e.contains("grating"), "{e}");
@@ -276,10 +342,16 @@ fn yaml_errors_name_the_field_and_the_value() {
     assert!(e.contains("texture.min") && e.contains('0'), "{e}");
 
     let e = error("texture: { kind: noise }\nlight: { gain_map: { kind: vertical, decades: 2 } }");
-    assert!(e.contains("light.gain_map.kind") && e.contains("\"vertical\""), "{e}");
+    assert!(
+        e.contains("light.gain_map.kind") && e.contains("\"vertical\""),
+        "{e}"
+    );
 
     let e = error("texture: { kind: noise }\nlight: { gain_map: { kind: radial, decades: -2 } }");
-    assert!(e.contains("light.gain_map.decades") && e.contains("-2"), "{e}");
+    assert!(
+        e.contains("light.gain_map.decades") && e.contains("-2"),
+        "{e}"
+    );
 
     let e = error("width: 0\ntexture: { kind: noise }");
     assert!(e.contains("field width") && e.contains('0'), "{e}");
@@ -308,7 +380,13 @@ fn yaml_errors_name_the_field_and_the_value() {
 fn every_builtin_loads_with_its_documented_settings() {
     assert_eq!(
         Scene::builtin_names(),
-        &["bright-static", "bright-slow", "bright-fast", "dark-slow", "hdr-pan"]
+        &[
+            "bright-static",
+            "bright-slow",
+            "bright-fast",
+            "dark-slow",
+            "hdr-pan"
+        ]
     );
     for name in Scene::builtin_names() {
         let s = Scene::load(name).unwrap_or_else(|e| panic!("{e}"));
@@ -325,19 +403,34 @@ fn every_builtin_loads_with_its_documented_settings() {
     assert_eq!(slow.spec().motion, dark.spec().motion);
     assert_eq!(dark.light_scale(), 0.05);
     // Same texture, only the light differs.
-    assert_eq!(slow.render(1_000_000, 50, 80), dark.render(1_000_000, 50, 80));
+    assert_eq!(
+        slow.render(1_000_000, 50, 80),
+        dark.render(1_000_000, 50, 80)
+    );
     let fast = Scene::builtin("bright-fast").expect("builtin");
     assert!(fast.max_speed_px_per_s() > 2000.0);
     let hdr = Scene::builtin("hdr-pan").expect("builtin");
-    let gain = hdr.spec().light.and_then(|l| l.gain_map).expect("hdr-pan has a gain map");
-    assert_eq!(gain, GainMapSpec { kind: GainMapKind::Horizontal, decades: 6.0 });
+    let gain = hdr
+        .spec()
+        .light
+        .and_then(|l| l.gain_map)
+        .expect("hdr-pan has a gain map");
+    assert_eq!(
+        gain,
+        GainMapSpec {
+            kind: GainMapKind::Horizontal,
+            decades: 6.0
+        }
+    );
 }
 
 #[test]
 fn scene_files_load_by_path_and_resolve_png_next_to_them() {
     let dir = temp_dir("png");
     // An 8-bit RGB gradient and a 16-bit grey image.
-    let rgb = image::RgbImage::from_fn(20, 10, |x, _| image::Rgb([(x * 12) as u8, (x * 12) as u8, (x * 12) as u8]));
+    let rgb = image::RgbImage::from_fn(20, 10, |x, _| {
+        image::Rgb([(x * 12) as u8, (x * 12) as u8, (x * 12) as u8])
+    });
     rgb.save(dir.join("ramp.png")).expect("save png");
     let grey16 = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(8, 8, |x, y| {
         image::Luma([if (x + y) % 2 == 0 { 65535 } else { 0 }])
@@ -350,12 +443,20 @@ fn scene_files_load_by_path_and_resolve_png_next_to_them() {
     )
     .expect("write yaml");
     let s = Scene::load(file.to_str().expect("utf-8 path")).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!((s.texture().width(), s.texture().height()), (40, 20), "mirror-tiled 2W x 2H");
+    assert_eq!(
+        (s.texture().width(), s.texture().height()),
+        (40, 20),
+        "mirror-tiled 2W x 2H"
+    );
     let img = s.render(0, 10, 40);
     // Left half is the ramp, right half its mirror image.
     for c in 0..20 {
         let expected = ((c * 12) as f32 / 255.0).max(0.01);
-        assert!((img[[3, c]] - expected).abs() < 1e-4, "col {c}: {}", img[[3, c]]);
+        assert!(
+            (img[[3, c]] - expected).abs() < 1e-4,
+            "col {c}: {}",
+            img[[3, c]]
+        );
         assert_eq!(img[[3, c]], img[[3, 39 - c]]);
     }
 
@@ -371,12 +472,23 @@ fn scene_files_load_by_path_and_resolve_png_next_to_them() {
 
     // A file that is not a PNG names the field and the path.
     std::fs::write(dir.join("fake.png"), b"not a png").expect("write");
-    let e = Scene::from_yaml_str("texture: { kind: png, path: fake.png }", "inline", Some(&dir))
-        .expect_err("not a png");
-    assert!(e.to_string().contains("texture.path") && e.to_string().contains("fake.png"), "{e}");
+    let e = Scene::from_yaml_str(
+        "texture: { kind: png, path: fake.png }",
+        "inline",
+        Some(&dir),
+    )
+    .expect_err("not a png");
+    assert!(
+        e.to_string().contains("texture.path") && e.to_string().contains("fake.png"),
+        "{e}"
+    );
     // size is not a png parameter.
-    let e = Scene::from_yaml_str("texture: { kind: png, path: ramp.png, size: 64 }", "inline", Some(&dir))
-        .expect_err("size on png");
+    let e = Scene::from_yaml_str(
+        "texture: { kind: png, path: ramp.png, size: 64 }",
+        "inline",
+        Some(&dir),
+    )
+    .expect_err("size on png");
     assert!(e.to_string().contains("texture.size"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -386,12 +498,18 @@ fn spec_round_trips_through_yaml_and_builds_programmatically() {
     for name in Scene::builtin_names() {
         let s = Scene::builtin(name).expect("builtin");
         let yaml = serde_yaml::to_string(s.spec()).expect("serialize");
-        let back = Scene::from_yaml_str(&yaml, "round-trip", None).unwrap_or_else(|e| panic!("{e}\n{yaml}"));
+        let back = Scene::from_yaml_str(&yaml, "round-trip", None)
+            .unwrap_or_else(|e| panic!("{e}\n{yaml}"));
         assert_eq!(back.spec(), s.spec());
     }
     let mut spec = SceneSpec::new(TextureSpec::new(TextureKind::Grating));
     spec.duration_ns = Some(1_000);
-    spec.light = Some(LightSpec { gain_map: Some(GainMapSpec { kind: GainMapKind::Radial, decades: 1.0 }) });
+    spec.light = Some(LightSpec {
+        gain_map: Some(GainMapSpec {
+            kind: GainMapKind::Radial,
+            decades: 1.0,
+        }),
+    });
     let s = Scene::from_spec(spec, None).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(s.duration_ns(), 1_000);
     spec = s.spec().clone();

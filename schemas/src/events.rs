@@ -5,8 +5,8 @@ use std::sync::Arc;
 use arrow::array::{Array, ArrayRef, Int8Array, Int64Array, StructArray, UInt16Array};
 use arrow::datatypes::{DataType, Field, Fields};
 
-use crate::meta::{self, Meta, MetaExt, SchemaError, check_type, int_of};
 use crate::Message;
+use crate::meta::{self, Meta, MetaExt, SchemaError, check_type, int_of};
 
 const NAME: &str = "event batch";
 
@@ -50,7 +50,14 @@ pub struct EventBatch {
 impl EventBatch {
     /// An empty batch covering `[t_start_ns, t_end_ns)`.
     pub fn empty(width: usize, height: usize, t_start_ns: i64, t_end_ns: i64, seq: u64) -> Self {
-        EventBatch { width, height, t_start_ns, t_end_ns, seq, ..Default::default() }
+        EventBatch {
+            width,
+            height,
+            t_start_ns,
+            t_end_ns,
+            seq,
+            ..Default::default()
+        }
     }
 
     /// Number of events.
@@ -73,7 +80,12 @@ impl EventBatch {
 
     /// Event `i`.
     pub fn get(&self, i: usize) -> Event {
-        Event { t_ns: self.t_ns[i], x: self.x[i], y: self.y[i], polarity: self.polarity[i] }
+        Event {
+            t_ns: self.t_ns[i],
+            x: self.x[i],
+            y: self.y[i],
+            polarity: self.polarity[i],
+        }
     }
 
     /// The Arrow fields of one event.
@@ -105,10 +117,11 @@ impl EventBatch {
         s: &StructArray,
     ) -> Result<(), SchemaError> {
         let col = |name: &str| {
-            s.column_by_name(name).ok_or_else(|| SchemaError::Inconsistent {
-                message,
-                what: format!("event column `{name}` is missing"),
-            })
+            s.column_by_name(name)
+                .ok_or_else(|| SchemaError::Inconsistent {
+                    message,
+                    what: format!("event column `{name}` is missing"),
+                })
         };
         let bad = |name: &str, found: &DataType| SchemaError::BadType {
             message,
@@ -116,15 +129,30 @@ impl EventBatch {
             found: found.to_string(),
         };
         let t = col("t_ns")?;
-        let t = t.as_any().downcast_ref::<Int64Array>().ok_or_else(|| bad("t_ns Int64", t.data_type()))?;
+        let t = t
+            .as_any()
+            .downcast_ref::<Int64Array>()
+            .ok_or_else(|| bad("t_ns Int64", t.data_type()))?;
         let x = col("x")?;
-        let x = x.as_any().downcast_ref::<UInt16Array>().ok_or_else(|| bad("x UInt16", x.data_type()))?;
+        let x = x
+            .as_any()
+            .downcast_ref::<UInt16Array>()
+            .ok_or_else(|| bad("x UInt16", x.data_type()))?;
         let y = col("y")?;
-        let y = y.as_any().downcast_ref::<UInt16Array>().ok_or_else(|| bad("y UInt16", y.data_type()))?;
+        let y = y
+            .as_any()
+            .downcast_ref::<UInt16Array>()
+            .ok_or_else(|| bad("y UInt16", y.data_type()))?;
         let p = col("polarity")?;
-        let p = p.as_any().downcast_ref::<Int8Array>().ok_or_else(|| bad("polarity Int8", p.data_type()))?;
+        let p = p
+            .as_any()
+            .downcast_ref::<Int8Array>()
+            .ok_or_else(|| bad("polarity Int8", p.data_type()))?;
         if s.null_count() + t.null_count() + x.null_count() + y.null_count() + p.null_count() != 0 {
-            return Err(SchemaError::Inconsistent { message, what: "events contain nulls".into() });
+            return Err(SchemaError::Inconsistent {
+                message,
+                what: "events contain nulls".into(),
+            });
         }
         self.t_ns = t.values().to_vec();
         self.x = x.values().to_vec();
@@ -156,10 +184,17 @@ impl EventBatch {
                 ));
             }
             if e.polarity != 1 && e.polarity != -1 {
-                return err(format!("event {i} has polarity {}, expected +1 or -1", e.polarity));
+                return err(format!(
+                    "event {i} has polarity {}, expected +1 or -1",
+                    e.polarity
+                ));
             }
             if e.t_ns < prev {
-                return err(format!("event {i} at t_ns {} is earlier than event {} at {prev}", e.t_ns, i - 1));
+                return err(format!(
+                    "event {i} at t_ns {} is earlier than event {} at {prev}",
+                    e.t_ns,
+                    i - 1
+                ));
             }
             if e.t_ns < self.t_start_ns || e.t_ns >= self.t_end_ns {
                 return err(format!(
@@ -200,11 +235,14 @@ impl Message for EventBatch {
             seq: m.uint(NAME, meta::SEQ)?,
             ..Default::default()
         };
-        let s = data.as_any().downcast_ref::<StructArray>().ok_or_else(|| SchemaError::BadType {
-            message: NAME,
-            expected: "Struct".into(),
-            found: data.data_type().to_string(),
-        })?;
+        let s =
+            data.as_any()
+                .downcast_ref::<StructArray>()
+                .ok_or_else(|| SchemaError::BadType {
+                    message: NAME,
+                    expected: "Struct".into(),
+                    found: data.data_type().to_string(),
+                })?;
         b.fill_from_struct(NAME, s)?;
         Ok(b)
     }
@@ -216,8 +254,18 @@ mod tests {
 
     fn batch() -> EventBatch {
         let mut b = EventBatch::empty(346, 260, 1_000, 2_000, 4);
-        b.push(Event { t_ns: 1_000, x: 0, y: 0, polarity: 1 });
-        b.push(Event { t_ns: 1_500, x: 345, y: 259, polarity: -1 });
+        b.push(Event {
+            t_ns: 1_000,
+            x: 0,
+            y: 0,
+            polarity: 1,
+        });
+        b.push(Event {
+            t_ns: 1_500,
+            x: 345,
+            y: 259,
+            polarity: -1,
+        });
         b
     }
 
@@ -235,15 +283,30 @@ mod tests {
     fn bad_events_are_named() {
         let mut b = batch();
         b.x[1] = 346;
-        assert!(b.validate(NAME).unwrap_err().to_string().contains("event 1 at (346, 259)"));
+        assert!(
+            b.validate(NAME)
+                .unwrap_err()
+                .to_string()
+                .contains("event 1 at (346, 259)")
+        );
         let mut b = batch();
         b.polarity[0] = 0;
-        assert!(b.validate(NAME).unwrap_err().to_string().contains("polarity 0"));
+        assert!(
+            b.validate(NAME)
+                .unwrap_err()
+                .to_string()
+                .contains("polarity 0")
+        );
         let mut b = batch();
         b.t_ns[1] = 999;
         assert!(b.validate(NAME).unwrap_err().to_string().contains("999"));
         let mut b = batch();
         b.t_ns[1] = 2_000;
-        assert!(b.validate(NAME).unwrap_err().to_string().contains("outside the batch interval"));
+        assert!(
+            b.validate(NAME)
+                .unwrap_err()
+                .to_string()
+                .contains("outside the batch interval")
+        );
     }
 }

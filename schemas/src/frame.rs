@@ -7,16 +7,19 @@ use arrow::array::{Array, ArrayRef, Float32Array};
 use arrow::datatypes::DataType;
 use ndarray::{Array2, Array3};
 
-use crate::meta::{self, Meta, MetaExt, Parameter, SchemaError, check_type, int_of};
 use crate::Message;
+use crate::meta::{self, Meta, MetaExt, Parameter, SchemaError, check_type, int_of};
 
 fn floats<'a>(message: &'static str, data: &'a ArrayRef) -> Result<&'a Float32Array, SchemaError> {
     check_type(message, &DataType::Float32, data.data_type())?;
-    let a = data.as_any().downcast_ref::<Float32Array>().ok_or_else(|| SchemaError::BadType {
-        message,
-        expected: "Float32".into(),
-        found: data.data_type().to_string(),
-    })?;
+    let a = data
+        .as_any()
+        .downcast_ref::<Float32Array>()
+        .ok_or_else(|| SchemaError::BadType {
+            message,
+            expected: "Float32".into(),
+            found: data.data_type().to_string(),
+        })?;
     if a.null_count() != 0 {
         return Err(SchemaError::Inconsistent {
             message,
@@ -31,7 +34,10 @@ fn non_finite(message: &'static str, values: &[f32]) -> Result<(), SchemaError> 
         None => Ok(()),
         Some(i) => Err(SchemaError::Inconsistent {
             message,
-            what: format!("value {i} is {} (NaN or infinite values never travel)", values[i]),
+            what: format!(
+                "value {i} is {} (NaN or infinite values never travel)",
+                values[i]
+            ),
         }),
     }
 }
@@ -89,7 +95,10 @@ impl Message for Representation {
         if a.len() != expected {
             return Err(SchemaError::Inconsistent {
                 message: NAME,
-                what: format!("payload has {} values, header says {c}x{h}x{w} = {expected}", a.len()),
+                what: format!(
+                    "payload has {} values, header says {c}x{h}x{w} = {expected}",
+                    a.len()
+                ),
             });
         }
         non_finite(NAME, a.values())?;
@@ -110,7 +119,10 @@ impl Message for Representation {
             }
         }
         let data = Array3::from_shape_vec((c, h, w), a.values().to_vec()).map_err(|e| {
-            SchemaError::Inconsistent { message: NAME, what: e.to_string() }
+            SchemaError::Inconsistent {
+                message: NAME,
+                what: e.to_string(),
+            }
         })?;
         Ok(Representation {
             kind: m.string(NAME, meta::KIND)?,
@@ -202,8 +214,12 @@ impl Message for Frame {
                 });
             }
         };
-        let data = Array2::from_shape_vec((h, w), a.values().to_vec())
-            .map_err(|e| SchemaError::Inconsistent { message: NAME, what: e.to_string() })?;
+        let data = Array2::from_shape_vec((h, w), a.values().to_vec()).map_err(|e| {
+            SchemaError::Inconsistent {
+                message: NAME,
+                what: e.to_string(),
+            }
+        })?;
         Ok(Frame {
             kind,
             method: m.string(NAME, meta::METHOD)?,

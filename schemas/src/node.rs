@@ -5,18 +5,26 @@ use dora_node_api::dora_core::config::DataId;
 use dora_node_api::{DoraArray, DoraNode};
 use eyre::WrapErr;
 
-use crate::stream::end_of_stream;
 use crate::Message;
+use crate::stream::end_of_stream;
 
-/// Logs to standard error through `tracing`, at the level `RUST_LOG` gives (default `info`).
+/// The log filter when `RUST_LOG` is unset: our nodes at `info`, dora's node API at `error` (its
+/// per-message transport diagnostics are warnings).
+pub const DEFAULT_LOG_FILTER: &str = "info,dora_node_api=error,zenoh=warn";
+
+/// Logs to standard error through `tracing`, at the level `RUST_LOG` gives (default
+/// [`DEFAULT_LOG_FILTER`]); colours only on a terminal (under dora, stderr is a pipe).
 pub fn init_logging() {
+    use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER));
     // A second call (tests) keeps the first subscriber.
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
         .with_target(false)
+        .without_time()
         .try_init();
 }
 

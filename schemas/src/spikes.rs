@@ -6,8 +6,8 @@ use arrow::array::{Array, ArrayRef, UInt8Array};
 use arrow::datatypes::DataType;
 use ndarray::{ArrayView3, ArrayViewMut3};
 
-use crate::meta::{self, Meta, MetaExt, SchemaError, check_type, int_of};
 use crate::Message;
+use crate::meta::{self, Meta, MetaExt, SchemaError, check_type, int_of};
 
 const NAME: &str = "spike chunk";
 
@@ -71,7 +71,10 @@ impl SpikeChunk {
         let mut total = 0u64;
         for plane in self.bits.chunks_exact(per.max(1)) {
             let full = valid_bits / 8;
-            total += plane[..full].iter().map(|b| u64::from(b.count_ones())).sum::<u64>();
+            total += plane[..full]
+                .iter()
+                .map(|b| u64::from(b.count_ones()))
+                .sum::<u64>();
             if valid_bits % 8 != 0 {
                 let mask = (1u8 << (valid_bits % 8)) - 1;
                 total += u64::from((plane[full] & mask).count_ones());
@@ -165,14 +168,14 @@ impl Message for SpikeChunk {
                 what: format!("payload has {} null bytes", data.null_count()),
             });
         }
-        let bytes = data
-            .as_any()
-            .downcast_ref::<UInt8Array>()
-            .ok_or_else(|| SchemaError::BadType {
-                message: NAME,
-                expected: "UInt8".into(),
-                found: data.data_type().to_string(),
-            })?;
+        let bytes =
+            data.as_any()
+                .downcast_ref::<UInt8Array>()
+                .ok_or_else(|| SchemaError::BadType {
+                    message: NAME,
+                    expected: "UInt8".into(),
+                    found: data.data_type().to_string(),
+                })?;
         if bytes.len() != expected {
             return Err(SchemaError::Inconsistent {
                 message: NAME,
@@ -236,8 +239,17 @@ mod tests {
 
     #[test]
     fn size_mismatch_is_named() {
-        let chunk = SpikeChunk { width: 4, height: 2, first_plane: 0, n_planes: 2, t_first_ns: 0,
-            plane_period_ns: 1, seq: 0, bits: vec![0; 2], lum_per_rate: None };
+        let chunk = SpikeChunk {
+            width: 4,
+            height: 2,
+            first_plane: 0,
+            n_planes: 2,
+            t_first_ns: 0,
+            plane_period_ns: 1,
+            seq: 0,
+            bits: vec![0; 2],
+            lum_per_rate: None,
+        };
         let (mut m, a) = chunk.to_arrow();
         m.set_int(meta::N_PLANES, 3);
         let e = SpikeChunk::from_arrow(&m, &a).unwrap_err().to_string();

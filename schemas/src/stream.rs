@@ -2,8 +2,8 @@
 
 use arrow::array::{ArrayRef, new_empty_array};
 
-use crate::meta::{self, Meta, MetaExt, Parameter};
 use crate::Message;
+use crate::meta::{self, Meta, MetaExt, Parameter};
 
 /// The end-of-stream marker of an output that sent `count` messages (sequence numbers
 /// `0..count`): an empty payload of the stream's type, `eos = true`, `count`.
@@ -110,7 +110,10 @@ mod tests {
         assert_eq!(t.observe(3), SeqStatus::Gap { missing: 2 });
         assert_eq!(t.observe(3), SeqStatus::Stale);
         assert_eq!(t.end(6), 2);
-        assert_eq!((t.received(), t.missing(), t.stale(), t.announced()), (2, 4, 1, Some(6)));
+        assert_eq!(
+            (t.received(), t.missing(), t.stale(), t.announced()),
+            (2, 4, 1, Some(6))
+        );
     }
 
     #[test]

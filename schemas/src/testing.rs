@@ -15,8 +15,8 @@ use dora_node_api::integration_testing::{
 use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;
 
-use crate::stream::end_of_stream;
 use crate::Message;
+use crate::stream::end_of_stream;
 
 /// A scripted sequence of input events; payloads are written as Arrow IPC files under `dir`.
 pub struct CannedInputs {
@@ -27,18 +27,31 @@ pub struct CannedInputs {
 impl CannedInputs {
     /// An empty script writing its payload files under `dir`.
     pub fn new(dir: &Path) -> Self {
-        CannedInputs { dir: dir.to_path_buf(), events: Vec::new() }
+        CannedInputs {
+            dir: dir.to_path_buf(),
+            events: Vec::new(),
+        }
     }
 
     fn time(&self) -> f64 {
         self.events.len() as f64 * 1e-3
     }
 
-    fn push_payload(&mut self, input: &str, meta: crate::Meta, data: arrow::array::ArrayRef) -> eyre::Result<()> {
+    fn push_payload(
+        &mut self,
+        input: &str,
+        meta: crate::Meta,
+        data: arrow::array::ArrayRef,
+    ) -> eyre::Result<()> {
         let path = self.dir.join(format!("input-{}.arrow", self.events.len()));
-        let schema = Arc::new(Schema::new(vec![Field::new("data", data.data_type().clone(), true)]));
+        let schema = Arc::new(Schema::new(vec![Field::new(
+            "data",
+            data.data_type().clone(),
+            true,
+        )]));
         let batch = RecordBatch::try_new(schema.clone(), vec![data])?;
-        let file = std::fs::File::create(&path).wrap_err_with(|| format!("cannot create {}", path.display()))?;
+        let file = std::fs::File::create(&path)
+            .wrap_err_with(|| format!("cannot create {}", path.display()))?;
         let mut w = arrow::ipc::writer::FileWriter::try_new(file, &schema)?;
         w.write(&batch)?;
         w.finish()?;
@@ -48,7 +61,11 @@ impl CannedInputs {
             event: IncomingEvent::Input {
                 id: input.to_string().into(),
                 metadata: Some(meta),
-                data: Some(Box::new(InputData::ArrowFile { path, batch_index: 0, column: Some("data".into()) })),
+                data: Some(Box::new(InputData::ArrowFile {
+                    path,
+                    batch_index: 0,
+                    column: Some("data".into()),
+                })),
             },
         });
         Ok(())
@@ -61,7 +78,12 @@ impl CannedInputs {
     }
 
     /// A raw payload with hand-made metadata (to test bad input).
-    pub fn raw(&mut self, input: &str, meta: crate::Meta, data: arrow::array::ArrayRef) -> eyre::Result<()> {
+    pub fn raw(
+        &mut self,
+        input: &str,
+        meta: crate::Meta,
+        data: arrow::array::ArrayRef,
+    ) -> eyre::Result<()> {
         self.push_payload(input, meta, data)
     }
 
@@ -76,7 +98,9 @@ impl CannedInputs {
         let time_offset_secs = self.time();
         self.events.push(TimedIncomingEvent {
             time_offset_secs,
-            event: IncomingEvent::InputClosed { id: input.to_string().into() },
+            event: IncomingEvent::InputClosed {
+                id: input.to_string().into(),
+            },
         });
     }
 
@@ -88,13 +112,18 @@ impl CannedInputs {
     {
         let mut events = self.events;
         let t = events.len() as f64 * 1e-3;
-        events.push(TimedIncomingEvent { time_offset_secs: t, event: IncomingEvent::AllInputsClosed });
+        events.push(TimedIncomingEvent {
+            time_offset_secs: t,
+            event: IncomingEvent::AllInputsClosed,
+        });
         let input = IntegrationTestInput::new("test-node".to_string().into(), events);
         let (tx, mut rx) = output_channel();
         let (node, stream) = DoraNode::init_testing(
             TestingInput::Input(input),
             TestingOutput::ToChannel(tx),
-            TestingOptions { skip_output_time_offsets: true },
+            TestingOptions {
+                skip_output_time_offsets: true,
+            },
         )?;
         f(node, stream)?;
         Ok(drain_outputs(&mut rx))
@@ -103,10 +132,21 @@ impl CannedInputs {
 
 /// The ids of the outputs, in order.
 pub fn output_ids(outputs: &[OutputJson]) -> Vec<String> {
-    outputs.iter().map(|o| o.get("id").and_then(|v| v.as_str()).unwrap_or("").to_string()).collect()
+    outputs
+        .iter()
+        .map(|o| {
+            o.get("id")
+                .and_then(|v| v.as_str())
+                .unwrap_or("")
+                .to_string()
+        })
+        .collect()
 }
 
 /// The number of values in an output's payload.
 pub fn payload_len(output: &OutputJson) -> usize {
-    output.get("data").and_then(|d| d.as_array()).map_or(0, |a| a.len())
+    output
+        .get("data")
+        .and_then(|d| d.as_array())
+        .map_or(0, |a| a.len())
 }

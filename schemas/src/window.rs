@@ -6,10 +6,10 @@ use arrow::array::{Array, ArrayRef, LargeBinaryArray, LargeListArray, StructArra
 use arrow::buffer::OffsetBuffer;
 use arrow::datatypes::{DataType, Field, Fields};
 
+use crate::Message;
 use crate::events::EventBatch;
 use crate::meta::{self, Meta, MetaExt, SchemaError, check_type, int_of};
 use crate::spikes::{SpikeChunk, bytes_per_plane};
-use crate::Message;
 
 const NAME: &str = "aligned window";
 
@@ -75,7 +75,11 @@ impl Message for AlignedWindow {
         let spikes = LargeBinaryArray::from_iter_values([self.spikes.bits.as_slice()]);
         let events = self.events.to_struct_array();
         let list = LargeListArray::new(
-            Arc::new(Field::new("item", DataType::Struct(EventBatch::event_fields()), true)),
+            Arc::new(Field::new(
+                "item",
+                DataType::Struct(EventBatch::event_fields()),
+                true,
+            )),
             OffsetBuffer::from_lengths([events.len()]),
             Arc::new(events),
             None,
@@ -86,7 +90,10 @@ impl Message for AlignedWindow {
 
     fn from_arrow(m: &Meta, data: &ArrayRef) -> Result<Self, SchemaError> {
         check_type(NAME, &Self::data_type(), data.data_type())?;
-        let incons = |what: String| SchemaError::Inconsistent { message: NAME, what };
+        let incons = |what: String| SchemaError::Inconsistent {
+            message: NAME,
+            what,
+        };
         let s = data
             .as_any()
             .downcast_ref::<StructArray>()
@@ -154,7 +161,12 @@ impl Message for AlignedWindow {
             ..Default::default()
         };
         events.fill_from_struct(NAME, ev)?;
-        Ok(AlignedWindow { t_ref_ns: m.int(NAME, meta::T_REF_NS)?, ref_plane, spikes, events })
+        Ok(AlignedWindow {
+            t_ref_ns: m.int(NAME, meta::T_REF_NS)?,
+            ref_plane,
+            spikes,
+            events,
+        })
     }
 }
 
@@ -165,16 +177,40 @@ mod tests {
 
     #[test]
     fn round_trip() {
-        let spikes = SpikeChunk { width: 4, height: 2, first_plane: 10, n_planes: 3, t_first_ns: 500,
-            plane_period_ns: 50, seq: 7, bits: vec![1, 2, 3], lum_per_rate: Some(1.5) };
+        let spikes = SpikeChunk {
+            width: 4,
+            height: 2,
+            first_plane: 10,
+            n_planes: 3,
+            t_first_ns: 500,
+            plane_period_ns: 50,
+            seq: 7,
+            bits: vec![1, 2, 3],
+            lum_per_rate: Some(1.5),
+        };
         let mut events = EventBatch::empty(4, 2, 450, 650, 7);
-        events.push(Event { t_ns: 455, x: 3, y: 1, polarity: -1 });
-        let w = AlignedWindow { t_ref_ns: 550, ref_plane: 11, spikes, events };
+        events.push(Event {
+            t_ns: 455,
+            x: 3,
+            y: 1,
+            polarity: -1,
+        });
+        let w = AlignedWindow {
+            t_ref_ns: 550,
+            ref_plane: 11,
+            spikes,
+            events,
+        };
         let (m, a) = w.to_arrow();
         assert_eq!(AlignedWindow::from_arrow(&m, &a).unwrap(), w);
         assert_eq!(w.ref_index(), 1);
         let mut bad = m.clone();
         bad.set_int(meta::REF_PLANE, 13);
-        assert!(AlignedWindow::from_arrow(&bad, &a).unwrap_err().to_string().contains("ref_plane 13"));
+        assert!(
+            AlignedWindow::from_arrow(&bad, &a)
+                .unwrap_err()
+                .to_string()
+                .contains("ref_plane 13")
+        );
     }
 }

@@ -33,7 +33,11 @@ pub struct AlignConfig {
 
 impl Default for AlignConfig {
     fn default() -> Self {
-        AlignConfig { window_planes: 33, stride_planes: 20, event_offset_ns: 0 }
+        AlignConfig {
+            window_planes: 33,
+            stride_planes: 20,
+            event_offset_ns: 0,
+        }
     }
 }
 
@@ -56,7 +60,6 @@ pub enum AlignError {
 #[derive(Debug)]
 pub struct Aligner {
     cfg: AlignConfig,
-    with_events: bool,
     before: u64,
     after: u64,
     /// Geometry of the spike stream, from the first chunk: width, height, period, t of plane 0.
@@ -84,7 +87,6 @@ impl Aligner {
         let next_ref = before.div_ceil(cfg.stride_planes) * cfg.stride_planes;
         Aligner {
             cfg,
-            with_events,
             before,
             after,
             geometry: None,
@@ -140,7 +142,11 @@ impl Aligner {
         }
         let end = self.first_buffered + self.planes.len() as u64;
         if chunk.first_plane > end {
-            tracing::warn!(from = end, to = chunk.first_plane, "spike planes missing; restarting the window buffer");
+            tracing::warn!(
+                from = end,
+                to = chunk.first_plane,
+                "spike planes missing; restarting the window buffer"
+            );
             self.planes.clear();
             self.first_buffered = chunk.first_plane;
             while self.next_ref.saturating_sub(self.before) < chunk.first_plane {
@@ -167,7 +173,9 @@ impl Aligner {
             e.t_ns = e.t_ns.saturating_add(off);
             self.events.push(e);
         }
-        self.events_cover_until_ns = self.events_cover_until_ns.max(batch.t_end_ns.saturating_add(off));
+        self.events_cover_until_ns = self
+            .events_cover_until_ns
+            .max(batch.t_end_ns.saturating_add(off));
     }
 
     /// No more spikes will come.
@@ -215,11 +223,19 @@ impl Aligner {
         }
         let lo = self.events.t_ns.partition_point(|&t| t < t_start);
         let hi = self.events.t_ns.partition_point(|&t| t < t_end);
-        let mut events = EventBatch::empty(self.event_size.0, self.event_size.1, t_start, t_end, self.emitted);
+        let mut events = EventBatch::empty(
+            self.event_size.0,
+            self.event_size.1,
+            t_start,
+            t_end,
+            self.emitted,
+        );
         events.t_ns.extend_from_slice(&self.events.t_ns[lo..hi]);
         events.x.extend_from_slice(&self.events.x[lo..hi]);
         events.y.extend_from_slice(&self.events.y[lo..hi]);
-        events.polarity.extend_from_slice(&self.events.polarity[lo..hi]);
+        events
+            .polarity
+            .extend_from_slice(&self.events.polarity[lo..hi]);
         let window = AlignedWindow {
             t_ref_ns: self.plane_time(c),
             ref_plane: c,
@@ -274,22 +290,42 @@ mod tests {
     fn chunk(first: u64, n: usize, seq: u64) -> SpikeChunk {
         // Plane k has all bits set to (k % 256) so tests can tell planes apart.
         let per = bytes_per_plane(4, 2);
-        let bits = (0..n).flat_map(|i| vec![((first + i as u64) % 256) as u8; per]).collect();
-        SpikeChunk { width: 4, height: 2, first_plane: first, n_planes: n, t_first_ns: first as i64 * P,
-            plane_period_ns: P, seq, bits, lum_per_rate: Some(1.0) }
+        let bits = (0..n)
+            .flat_map(|i| vec![((first + i as u64) % 256) as u8; per])
+            .collect();
+        SpikeChunk {
+            width: 4,
+            height: 2,
+            first_plane: first,
+            n_planes: n,
+            t_first_ns: first as i64 * P,
+            plane_period_ns: P,
+            seq,
+            bits,
+            lum_per_rate: Some(1.0),
+        }
     }
 
     fn events(t0: i64, t1: i64, at: &[i64]) -> EventBatch {
         let mut b = EventBatch::empty(4, 2, t0, t1, 0);
         for &t in at {
-            b.push(Event { t_ns: t, x: 1, y: 1, polarity: 1 });
+            b.push(Event {
+                t_ns: t,
+                x: 1,
+                y: 1,
+                polarity: 1,
+            });
         }
         b
     }
 
     #[test]
     fn windows_are_centred_on_stride_multiples() {
-        let cfg = AlignConfig { window_planes: 5, stride_planes: 4, event_offset_ns: 0 };
+        let cfg = AlignConfig {
+            window_planes: 5,
+            stride_planes: 4,
+            event_offset_ns: 0,
+        };
         let mut a = Aligner::new(cfg, false);
         a.push_spikes(chunk(0, 20, 0)).unwrap();
         let mut refs = vec![];
@@ -308,13 +344,24 @@ mod tests {
 
     #[test]
     fn waits_for_events_then_slices_them() {
-        let cfg = AlignConfig { window_planes: 3, stride_planes: 10, event_offset_ns: 1_000 };
+        let cfg = AlignConfig {
+            window_planes: 3,
+            stride_planes: 10,
+            event_offset_ns: 1_000,
+        };
         let mut a = Aligner::new(cfg, true);
         a.push_spikes(chunk(0, 12, 0)).unwrap();
         // Window c = 10 spans planes 9..=11: events [8P, 11P) on the spike clock.
         assert!(a.pop_ready().is_none(), "must wait for the events");
-        a.push_events(events(0, 10 * P, &[8 * P - 1_001, 8 * P - 1_000, 10 * P - 1]));
-        assert!(a.pop_ready().is_none(), "events cover only up to 10P + offset");
+        a.push_events(events(
+            0,
+            10 * P,
+            &[8 * P - 1_001, 8 * P - 1_000, 10 * P - 1],
+        ));
+        assert!(
+            a.pop_ready().is_none(),
+            "events cover only up to 10P + offset"
+        );
         a.push_events(events(10 * P, 12 * P, &[11 * P - 1_001, 11 * P - 1_000]));
         let w = a.pop_ready().expect("window");
         assert_eq!(w.ref_plane, 10);
@@ -324,7 +371,14 @@ mod tests {
 
     #[test]
     fn flushes_at_end_of_stream_without_events() {
-        let mut a = Aligner::new(AlignConfig { window_planes: 3, stride_planes: 2, event_offset_ns: 0 }, true);
+        let mut a = Aligner::new(
+            AlignConfig {
+                window_planes: 3,
+                stride_planes: 2,
+                event_offset_ns: 0,
+            },
+            true,
+        );
         a.push_spikes(chunk(0, 6, 0)).unwrap();
         assert!(a.pop_ready().is_none());
         a.close_events();
@@ -336,7 +390,14 @@ mod tests {
 
     #[test]
     fn gap_skips_windows_and_counts_them() {
-        let mut a = Aligner::new(AlignConfig { window_planes: 3, stride_planes: 2, event_offset_ns: 0 }, false);
+        let mut a = Aligner::new(
+            AlignConfig {
+                window_planes: 3,
+                stride_planes: 2,
+                event_offset_ns: 0,
+            },
+            false,
+        );
         let mut refs = vec![];
         for c in [chunk(0, 4, 0), chunk(10, 6, 2)] {
             a.push_spikes(c).unwrap();

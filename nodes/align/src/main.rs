@@ -10,7 +10,11 @@ use neuspike_schemas::{
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
-#[command(name = "neuspike-align", about = "Aligns spikes and events into windows", args_override_self = true)]
+#[command(
+    name = "neuspike-align",
+    about = "Aligns spikes and events into windows",
+    args_override_self = true
+)]
 struct Args {
     #[command(flatten)]
     align: AlignConfig,
@@ -20,14 +24,20 @@ fn main() -> eyre::Result<()> {
     node::init_logging();
     let args: Args = node::parse_config("align")?;
     let (node, events) = DoraNode::init_from_env()?;
-    let with_events = node.node_config().inputs.keys().any(|k| k.as_ref() == "events");
+    let with_events = node
+        .node_config()
+        .inputs
+        .keys()
+        .any(|k| AsRef::<str>::as_ref(k) == "events");
     run(node, events, Aligner::new(args.align, with_events))
 }
 
 fn observe(tracker: &mut SeqTracker, input: &str, seq: u64) {
     match tracker.observe(seq) {
         SeqStatus::InOrder => {}
-        SeqStatus::Gap { missing } => tracing::error!(input, seq, missing, "messages lost before this one"),
+        SeqStatus::Gap { missing } => {
+            tracing::error!(input, seq, missing, "messages lost before this one")
+        }
         SeqStatus::Stale => tracing::warn!(input, seq, "stale message"),
     }
 }
@@ -40,7 +50,7 @@ fn run(mut node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyr
             Event::Input { id, metadata, data } => {
                 let meta = &metadata.parameters;
                 let data = data.as_array();
-                match id.as_ref() {
+                match AsRef::<str>::as_ref(&id) {
                     "spikes" => {
                         if let Some(count) = is_end_of_stream(meta) {
                             let lost = spike_seq.end(count);
@@ -58,7 +68,10 @@ fn run(mut node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyr
                         if let Some(count) = is_end_of_stream(meta) {
                             let lost = event_seq.end(count);
                             if lost > 0 {
-                                tracing::error!(lost, "event batches lost at the end of the stream");
+                                tracing::error!(
+                                    lost,
+                                    "event batches lost at the end of the stream"
+                                );
                             }
                             aligner.close_events();
                         } else {
@@ -70,12 +83,10 @@ fn run(mut node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyr
                     other => tracing::warn!(input = other, "unknown input ignored"),
                 }
             }
-            Event::InputClosed { id } => match id.as_ref() {
-                "spikes" => aligner.close_spikes(),
-                "events" => aligner.close_events(),
-                _ => {}
-            },
-            Event::Stop(_) => break,
+            // dora's scheduler may yield `InputClosed` and `Stop` before the last inputs of a
+            // stream: the end-of-stream markers (or the end of the event stream) end a stream.
+            Event::InputClosed { id } => tracing::debug!(input = %id, "input closed"),
+            Event::Stop(cause) => tracing::debug!(?cause, "stop received; draining the inputs"),
             _ => {}
         }
         while let Some(window) = aligner.pop_ready() {
@@ -107,8 +118,17 @@ mod tests {
     use neuspike_schemas::testing::{CannedInputs, output_ids, payload_len};
 
     fn chunk(first: u64, n: usize, seq: u64) -> SpikeChunk {
-        SpikeChunk { width: 8, height: 2, first_plane: first, n_planes: n, t_first_ns: first as i64 * 50_000,
-            plane_period_ns: 50_000, seq, bits: vec![0b1010_0101; 2 * n], lum_per_rate: Some(1.0) }
+        SpikeChunk {
+            width: 8,
+            height: 2,
+            first_plane: first,
+            n_planes: n,
+            t_first_ns: first as i64 * 50_000,
+            plane_period_ns: 50_000,
+            seq,
+            bits: vec![0b1010_0101; 2 * n],
+            lum_per_rate: Some(1.0),
+        }
     }
 
     #[test]
@@ -120,12 +140,18 @@ mod tests {
         }
         c.end::<SpikeChunk>("spikes", 5).unwrap();
         c.end::<EventBatch>("events", 0).unwrap();
-        let cfg = AlignConfig { window_planes: 33, stride_planes: 20, event_offset_ns: 0 };
-        let out = c.run(|node, events| run(node, events, Aligner::new(cfg, true))).unwrap();
-        // 100 planes: references 20, 40, 60 (80 would need plane 96..=96+16 > 99).
-        assert_eq!(output_ids(&out), vec!["windows"; 4]);
+        let cfg = AlignConfig {
+            window_planes: 33,
+            stride_planes: 20,
+            event_offset_ns: 0,
+        };
+        let out = c
+            .run(|node, events| run(node, events, Aligner::new(cfg, true)))
+            .unwrap();
+        // 100 planes: references 20, 40, 60, 80 (80 + 16 = 96 <= 99; 100 would need plane 116).
+        assert_eq!(output_ids(&out), vec!["windows"; 5]);
         assert_eq!(payload_len(&out[0]), 1, "one row per window");
-        assert_eq!(payload_len(&out[3]), 0, "end-of-stream marker");
+        assert_eq!(payload_len(&out[4]), 0, "end-of-stream marker");
     }
 
     #[test]
@@ -135,10 +161,13 @@ mod tests {
         let mut bad = chunk(0, 4, 0);
         bad.bits.pop();
         let (meta, _) = bad.to_arrow();
-        let data: neuspike_schemas::arrow::array::ArrayRef =
-            std::sync::Arc::new(neuspike_schemas::arrow::array::UInt8Array::from(bad.bits.clone()));
+        let data: neuspike_schemas::arrow::array::ArrayRef = std::sync::Arc::new(
+            neuspike_schemas::arrow::array::UInt8Array::from(bad.bits.clone()),
+        );
         c.raw("spikes", meta, data).unwrap();
-        let err = c.run(|node, events| run(node, events, Aligner::new(AlignConfig::default(), false))).unwrap_err();
+        let err = c
+            .run(|node, events| run(node, events, Aligner::new(AlignConfig::default(), false)))
+            .unwrap_err();
         assert!(format!("{err:#}").contains("7 bytes"), "{err:#}");
     }
 }

@@ -111,16 +111,32 @@ impl DvsConfig {
             }
         }
         if !(self.theta_sigma.is_finite() && self.theta_sigma >= 0.0) {
-            return bad("theta-sigma", self.theta_sigma.to_string(), "must be finite and >= 0");
+            return bad(
+                "theta-sigma",
+                self.theta_sigma.to_string(),
+                "must be finite and >= 0",
+            );
         }
         if self.refractory_ns < 0 {
-            return bad("refractory-ns", self.refractory_ns.to_string(), "must be >= 0");
+            return bad(
+                "refractory-ns",
+                self.refractory_ns.to_string(),
+                "must be >= 0",
+            );
         }
         if !(self.log_floor.is_finite() && self.log_floor > 0.0) {
-            return bad("log-floor", self.log_floor.to_string(), "must be finite and > 0");
+            return bad(
+                "log-floor",
+                self.log_floor.to_string(),
+                "must be finite and > 0",
+            );
         }
         if !(self.max_shift_px.is_finite() && self.max_shift_px > 0.0) {
-            return bad("max-shift-px", self.max_shift_px.to_string(), "must be finite and > 0");
+            return bad(
+                "max-shift-px",
+                self.max_shift_px.to_string(),
+                "must be finite and > 0",
+            );
         }
         if self.max_step_ns <= 0 {
             return bad("max-step-ns", self.max_step_ns.to_string(), "must be > 0");
@@ -167,7 +183,9 @@ impl EventCamera {
         let scale = cfg.width as f64 / scene.width().max(1) as f64;
         let speed = scene.max_speed_px_per_s() * scale;
         let step_ns = if speed > 0.0 {
-            ((cfg.max_shift_px / speed) * 1e9).floor().clamp(1.0, cfg.max_step_ns as f64) as i64
+            ((cfg.max_shift_px / speed) * 1e9)
+                .floor()
+                .clamp(1.0, cfg.max_step_ns as f64) as i64
         } else {
             cfg.max_step_ns
         };
@@ -217,7 +235,8 @@ impl EventCamera {
 
     /// Simulates up to `t_end_ns` and returns the events of `[time_ns(), t_end_ns)` as a batch.
     pub fn advance_to(&mut self, t_end_ns: i64, seq: u64) -> EventBatch {
-        let mut batch = EventBatch::empty(self.cfg.width, self.cfg.height, self.t_ns, t_end_ns, seq);
+        let mut batch =
+            EventBatch::empty(self.cfg.width, self.cfg.height, self.t_ns, t_end_ns, seq);
         while self.t_ns < t_end_ns {
             let t_b = (self.t_ns + self.step_ns).min(t_end_ns);
             self.sample_log(t_b);
@@ -253,8 +272,14 @@ impl EventCamera {
                 };
                 // Time at which the linear path reaches `level`; a level already passed at t_a
                 // (left behind during a refractory period) fires at t_a.
-                let frac = if lb != la { ((level - la) / (lb - la)).clamp(0.0, 1.0) } else { 0.0 };
-                let mut t = t_a + (frac * dt).round() as i64;
+                let frac = if lb != la {
+                    ((level - la) / (lb - la)).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                // Events of this step stay inside [t_a, t_b): a crossing exactly at t_b is
+                // stamped one nanosecond earlier.
+                let mut t = (t_a + (frac * dt).round() as i64).min(t_b - 1);
                 let free_at = self.last_event_ns[i].saturating_add(refractory);
                 if t < free_at {
                     if free_at >= t_b {
@@ -265,7 +290,7 @@ impl EventCamera {
                 r = level;
                 self.last_event_ns[i] = t;
                 self.scratch.push(Event {
-                    t_ns: t.min(t_b - 1),
+                    t_ns: t,
                     x: (i % w) as u16,
                     y: (i / w) as u16,
                     polarity,
@@ -289,7 +314,12 @@ mod tests {
     }
 
     fn cfg() -> DvsConfig {
-        DvsConfig { width: 32, height: 16, theta_sigma: 0.0, ..Default::default() }
+        DvsConfig {
+            width: 32,
+            height: 16,
+            theta_sigma: 0.0,
+            ..Default::default()
+        }
     }
 
     #[test]
@@ -300,7 +330,8 @@ mod tests {
 
     #[test]
     fn moving_scene_fires_and_events_are_ordered_and_inside() {
-        let mut cam = EventCamera::new(scene("motion:\n  vx_px_s: 500.0\n", 1.0), cfg(), 0).unwrap();
+        let mut cam =
+            EventCamera::new(scene("motion:\n  vx_px_s: 500.0\n", 1.0), cfg(), 0).unwrap();
         let b = cam.advance_to(5_000_000, 3);
         assert!(b.len() > 100, "{} events", b.len());
         b.validate("test").unwrap();
@@ -324,8 +355,12 @@ mod tests {
             sum[[usize::from(e.y), usize::from(e.x)]] += f64::from(e.polarity) * c.theta_on;
         }
         for ((y, x), &s) in sum.indexed_iter() {
-            let dl = f64::from(end[[y, x]].max(1e-4)).ln() - f64::from(start[[y, x]].max(1e-4)).ln();
-            assert!((s - dl).abs() <= c.theta_on + 1e-3, "pixel ({x},{y}): events {s} vs dL {dl}");
+            let dl =
+                f64::from(end[[y, x]].max(1e-4)).ln() - f64::from(start[[y, x]].max(1e-4)).ln();
+            assert!(
+                (s - dl).abs() <= c.theta_on + 1e-3,
+                "pixel ({x},{y}): events {s} vs dL {dl}"
+            );
         }
     }
 
@@ -339,7 +374,13 @@ mod tests {
         for i in 0..b.len() {
             let e = b.get(i);
             if let Some(prev) = last.insert((e.x, e.y), e.t_ns) {
-                assert!(e.t_ns - prev >= 1_000_000, "pixel ({},{}) fired after {} ns", e.x, e.y, e.t_ns - prev);
+                assert!(
+                    e.t_ns - prev >= 1_000_000,
+                    "pixel ({},{}) fired after {} ns",
+                    e.x,
+                    e.y,
+                    e.t_ns - prev
+                );
             }
         }
     }
@@ -348,8 +389,13 @@ mod tests {
     fn deterministic_for_a_seed() {
         let mk = |seed| {
             let c = DvsConfig { seed, ..cfg() };
-            let c = DvsConfig { theta_sigma: 0.1, ..c };
-            EventCamera::new(scene("motion:\n  vx_px_s: 400.0\n", 1.0), c, 0).unwrap().advance_to(3_000_000, 0)
+            let c = DvsConfig {
+                theta_sigma: 0.1,
+                ..c
+            };
+            EventCamera::new(scene("motion:\n  vx_px_s: 400.0\n", 1.0), c, 0)
+                .unwrap()
+                .advance_to(3_000_000, 0)
         };
         assert_eq!(mk(1), mk(1));
         assert_ne!(mk(1), mk(2));
@@ -357,8 +403,14 @@ mod tests {
 
     #[test]
     fn bad_settings_name_the_key() {
-        let c = DvsConfig { theta_on: 0.0, ..cfg() };
-        let e = EventCamera::new(scene("", 1.0), c, 0).err().unwrap().to_string();
+        let c = DvsConfig {
+            theta_on: 0.0,
+            ..cfg()
+        };
+        let e = EventCamera::new(scene("", 1.0), c, 0)
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("theta-on") && e.contains('0'), "{e}");
     }
 }

@@ -1,7 +1,7 @@
 //! dora node: the simulated DVS event camera. Output `events` (EventBatch), one batch per
 //! `--batch-ns` interval, empty batches included, so a receiver always knows how far time went.
 
-use dora_node_api::{DoraNode, Event, EventStream};
+use dora_node_api::{DoraNode, Event, EventStream, StopCause};
 use eyre::WrapErr;
 use neuspike_event_source::{DvsConfig, EventCamera};
 use neuspike_scene::Scene;
@@ -10,7 +10,11 @@ use neuspike_schemas::node::{self, output, send, send_end};
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
-#[command(name = "neuspike-event-source", about = "Simulated DVS event camera", args_override_self = true)]
+#[command(
+    name = "neuspike-event-source",
+    about = "Simulated DVS event camera",
+    args_override_self = true
+)]
 struct Args {
     /// Built-in scene name or path of a scene YAML file.
     #[arg(long, default_value = "bright-slow")]
@@ -34,14 +38,19 @@ fn main() -> eyre::Result<()> {
     run(node, events, camera, &args)
 }
 
-fn run(mut node: DoraNode, mut events: EventStream, mut cam: EventCamera, args: &Args) -> eyre::Result<()> {
+fn run(
+    mut node: DoraNode,
+    mut events: EventStream,
+    mut cam: EventCamera,
+    args: &Args,
+) -> eyre::Result<()> {
     let out = output("events");
     let end_ns = args.end_ns.unwrap_or_else(|| cam.scene().duration_ns());
     tracing::info!(end_ns, step_ns = cam.step_ns(), "event camera started");
     let mut seq = 0u64;
     let mut total = 0usize;
     while cam.time_ns() < end_ns {
-        if let Ok(Event::Stop(_)) = events.try_recv() {
+        if let Ok(Event::Stop(StopCause::Manual)) = events.try_recv() {
             tracing::info!("stop requested");
             break;
         }
@@ -65,16 +74,31 @@ mod tests {
     #[test]
     fn batches_cover_time_and_end() {
         let args = Args::try_parse_from([
-            "event-source", "--scene", "bright-fast", "--width", "34", "--height", "26",
-            "--batch-ns", "1000000", "--end-ns", "3500000",
+            "event-source",
+            "--scene",
+            "bright-fast",
+            "--width",
+            "34",
+            "--height",
+            "26",
+            "--batch-ns",
+            "1000000",
+            "--end-ns",
+            "3500000",
         ])
         .unwrap();
-        let cam = EventCamera::new(Scene::load(&args.scene).unwrap(), args.camera.clone(), 0).unwrap();
+        let cam =
+            EventCamera::new(Scene::load(&args.scene).unwrap(), args.camera.clone(), 0).unwrap();
         let dir = tempfile::tempdir().unwrap();
-        let out = CannedInputs::new(dir.path()).run(|node, events| run(node, events, cam, &args)).unwrap();
+        let out = CannedInputs::new(dir.path())
+            .run(|node, events| run(node, events, cam, &args))
+            .unwrap();
         // 3.5 ms in 1 ms batches: 4 batches and the marker.
         assert_eq!(output_ids(&out), vec!["events"; 5]);
-        assert!(out[..4].iter().map(payload_len).sum::<usize>() > 0, "a fast scene makes events");
+        assert!(
+            out[..4].iter().map(payload_len).sum::<usize>() > 0,
+            "a fast scene makes events"
+        );
         assert_eq!(payload_len(&out[4]), 0);
     }
 }

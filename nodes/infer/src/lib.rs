@@ -83,12 +83,12 @@ impl Method {
     }
 
     /// The representation (as named by the `represent` node) this method consumes: `"tfp"` (a
-    /// firing-rate image) for [`Method::Tfp`], `"tfi"` (the ISI image it is derived from) for
+    /// firing-rate image) for [`Method::Tfp`], `"isi"` (the inter-spike-interval map, in ticks, with its validity channel) for
     /// [`Method::Tfi`].
     pub fn required_representation(&self) -> &'static str {
         match self {
             Method::Tfp => "tfp",
-            Method::Tfi => "tfi",
+            Method::Tfi => "isi",
         }
     }
 }
@@ -403,7 +403,7 @@ mod tests {
         assert_eq!("tfp".parse::<Method>().expect("tfp"), Method::Tfp);
         assert_eq!("tfi".parse::<Method>().expect("tfi"), Method::Tfi);
         assert_eq!(Method::Tfp.required_representation(), "tfp");
-        assert_eq!(Method::Tfi.required_representation(), "tfi");
+        assert_eq!(Method::Tfi.required_representation(), "isi");
         let e = "TFP".parse::<Method>().expect_err("case");
         assert_eq!(
             e.to_string(),

@@ -13,7 +13,11 @@ use neuspike_schemas::{
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
-#[command(name = "neuspike-infer", about = "Reconstructs frames from a representation", args_override_self = true)]
+#[command(
+    name = "neuspike-infer",
+    about = "Reconstructs frames from a representation",
+    args_override_self = true
+)]
 struct Args {
     /// Reconstruction method: tfp or tfi.
     #[arg(long, default_value = "tfp")]
@@ -48,8 +52,12 @@ fn reconstruct(method: Method, r: &Representation, gain: f64) -> eyre::Result<Ar
     let mut dst = Array2::<f32>::zeros((h, w));
     // The luminance formulas take phi and the light scale; lum_per_rate = phi / light_scale.
     match method {
-        Method::Tfp => luminance_from_rate_into(r.data.index_axis(Axis(0), 0), gain, 1.0, dst.view_mut())?,
-        Method::Tfi => luminance_from_isi_into(r.data.index_axis(Axis(0), 0), gain, 1.0, dst.view_mut())?,
+        Method::Tfp => {
+            luminance_from_rate_into(r.data.index_axis(Axis(0), 0), gain, 1.0, dst.view_mut())?
+        }
+        Method::Tfi => {
+            luminance_from_isi_into(r.data.index_axis(Axis(0), 0), gain, 1.0, dst.view_mut())?
+        }
     }
     Ok(dst)
 }
@@ -60,7 +68,9 @@ fn run(mut node: DoraNode, mut events: EventStream, args: &Args) -> eyre::Result
     let mut count = 0u64;
     while let Some(event) = events.recv() {
         match event {
-            Event::Input { id, metadata, data } if id.as_ref() == "representation" => {
+            Event::Input { id, metadata, data }
+                if AsRef::<str>::as_ref(&id) == "representation" =>
+            {
                 let meta = &metadata.parameters;
                 if let Some(n) = is_end_of_stream(meta) {
                     let lost = seq.end(n);
@@ -74,7 +84,10 @@ fn run(mut node: DoraNode, mut events: EventStream, args: &Args) -> eyre::Result
                 if let SeqStatus::Gap { missing } = seq.observe(r.seq) {
                     tracing::error!(seq = r.seq, missing, "representations lost before this one");
                 }
-                let gain = match args.lum_per_rate.or_else(|| r.params.get("lum_per_rate").copied()) {
+                let gain = match args
+                    .lum_per_rate
+                    .or_else(|| r.params.get("lum_per_rate").copied())
+                {
                     Some(g) => g,
                     None => eyre::bail!(
                         "infer: no calibration: the representation carries no `lum_per_rate` and the graph sets no `--lum-per-rate`"
@@ -94,7 +107,10 @@ fn run(mut node: DoraNode, mut events: EventStream, args: &Args) -> eyre::Result
                 count = r.seq + 1;
             }
             Event::Input { id, .. } => tracing::warn!(input = %id, "unknown input ignored"),
-            Event::InputClosed { .. } | Event::Stop(_) => break,
+            // dora's scheduler may yield `InputClosed` and `Stop` before the last inputs: only the
+            // end-of-stream marker, or the end of the event stream, ends the loop.
+            Event::InputClosed { id } => tracing::debug!(input = %id, "input closed"),
+            Event::Stop(cause) => tracing::debug!(?cause, "stop received; draining the input"),
             _ => {}
         }
     }
@@ -126,12 +142,20 @@ mod tests {
         c.message("representation", &rep("tfp", 0.25, 0)).unwrap();
         c.message("representation", &rep("tfp", 0.25, 1)).unwrap();
         c.end::<Representation>("representation", 2).unwrap();
-        let args = Args { method: Method::Tfp, lum_per_rate: None };
+        let args = Args {
+            method: Method::Tfp,
+            lum_per_rate: None,
+        };
         let out = c.run(|node, events| run(node, events, &args)).unwrap();
         assert_eq!(output_ids(&out), vec!["frames"; 3]);
         let values = out[0]["data"].as_array().unwrap();
         assert_eq!(values.len(), 12);
-        assert!(values.iter().all(|v| (v.as_f64().unwrap() - 0.5).abs() < 1e-6), "{values:?}");
+        assert!(
+            values
+                .iter()
+                .all(|v| (v.as_f64().unwrap() - 0.5).abs() < 1e-6),
+            "{values:?}"
+        );
     }
 
     #[test]
@@ -139,8 +163,17 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut c = CannedInputs::new(dir.path());
         c.message("representation", &rep("tfp", 0.25, 0)).unwrap();
-        let args = Args { method: Method::Tfi, lum_per_rate: None };
-        let err = c.run(|node, events| run(node, events, &args)).unwrap_err().to_string();
-        assert!(err.contains("`tfi` needs the `isi`") && err.contains("got `tfp`"), "{err}");
+        let args = Args {
+            method: Method::Tfi,
+            lum_per_rate: None,
+        };
+        let err = c
+            .run(|node, events| run(node, events, &args))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("`tfi` needs the `isi`") && err.contains("got `tfp`"),
+            "{err}"
+        );
     }
 }

@@ -149,7 +149,7 @@ fn run(
     let mut planes = Array3::<u8>::zeros((0, 0, 0));
     while let Some(event) = events.recv() {
         match event {
-            Event::Input { id, metadata, data } if id.as_ref() == "windows" => {
+            Event::Input { id, metadata, data } if AsRef::<str>::as_ref(&id) == "windows" => {
                 let meta = &metadata.parameters;
                 if let Some(count) = is_end_of_stream(meta) {
                     let lost = seq.end(count);
@@ -175,7 +175,10 @@ fn run(
                 sent = w.seq() + 1;
             }
             Event::Input { id, .. } => tracing::warn!(input = %id, "unknown input ignored"),
-            Event::InputClosed { .. } | Event::Stop(_) => break,
+            // dora's scheduler may yield `InputClosed` and `Stop` before the last inputs: only the
+            // end-of-stream marker, or the end of the event stream, ends the loop.
+            Event::InputClosed { id } => tracing::debug!(input = %id, "input closed"),
+            Event::Stop(cause) => tracing::debug!(?cause, "stop received; draining the input"),
             _ => {}
         }
     }

@@ -10,15 +10,19 @@ use std::path::PathBuf;
 
 use dora_node_api::{DoraNode, Event, EventStream};
 use eyre::WrapErr;
-use neuspike_schemas::{Frame, Message, SeqStatus, SeqTracker, is_end_of_stream};
 use neuspike_schemas::node;
+use neuspike_schemas::{Frame, Message, SeqStatus, SeqTracker, is_end_of_stream};
 use neuspike_sink::metrics::{check_same_shape, entropy_2d, psnr, psnr_after_gain, ssim};
 use neuspike_sink::png_out::{BitDepth, write_frame_png};
 use neuspike_sink::report::{FrameMetrics, MetricsCsv, Summary};
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
-#[command(name = "neuspike-sink", about = "Writes and scores frames", args_override_self = true)]
+#[command(
+    name = "neuspike-sink",
+    about = "Writes and scores frames",
+    args_override_self = true
+)]
 struct Args {
     /// Output folder (relative paths are relative to the graph's folder).
     #[arg(long, default_value = "out")]
@@ -35,7 +39,11 @@ fn main() -> eyre::Result<()> {
     node::init_logging();
     let args: Args = node::parse_config("sink")?;
     let (node, events) = DoraNode::init_from_env()?;
-    let has_gt = node.node_config().inputs.keys().any(|k| k.as_ref() == "ground_truth");
+    let has_gt = node
+        .node_config()
+        .inputs
+        .keys()
+        .any(|k| AsRef::<str>::as_ref(k) == "ground_truth");
     run(node, events, &args, has_gt)
 }
 
@@ -65,8 +73,12 @@ struct Sink {
 
 impl Sink {
     fn new(args: &Args, has_gt: bool) -> eyre::Result<Self> {
-        std::fs::create_dir_all(&args.out)
-            .wrap_err_with(|| format!("sink: cannot create the output folder {}", args.out.display()))?;
+        std::fs::create_dir_all(&args.out).wrap_err_with(|| {
+            format!(
+                "sink: cannot create the output folder {}",
+                args.out.display()
+            )
+        })?;
         let csv = MetricsCsv::create(&args.out.join("metrics.csv"))?;
         Ok(Sink {
             out: args.out.clone(),
@@ -96,6 +108,10 @@ impl Sink {
             let (path, _) = self.frame_path("ground-truth", f.seq)?;
             write_frame_png(&path, f.data.view(), self.depth)?;
         }
+        self.inputs
+            .entry("ground_truth".to_string())
+            .or_default()
+            .written += 1;
         self.truth_until_ns = self.truth_until_ns.max(f.t_ref_ns);
         self.truth.insert(f.t_ref_ns, f);
         self.drain_pending()
@@ -159,7 +175,12 @@ impl Sink {
 
     /// Forgets ground truth older than every frame still to come.
     fn evict_truth(&mut self) {
-        let oldest_pending = self.pending.iter().map(|(_, f)| f.t_ref_ns).min().unwrap_or(i64::MAX);
+        let oldest_pending = self
+            .pending
+            .iter()
+            .map(|(_, f)| f.t_ref_ns)
+            .min()
+            .unwrap_or(i64::MAX);
         let keep_from = oldest_pending.min(self.truth_until_ns.saturating_sub(TRUTH_HISTORY_NS));
         self.truth = self.truth.split_off(&keep_from);
     }
@@ -183,7 +204,8 @@ impl Sink {
         let table = self.summary.to_markdown_table();
         let path = self.out.join("summary.md");
         self.summary.write(&path)?;
-        tracing::info!("summary written to {}\n{table}", path.display());
+        tracing::info!("summary written to {}", path.display());
+        tracing::debug!("\n{table}");
         Ok(())
     }
 }
@@ -222,13 +244,10 @@ fn run(_node: DoraNode, mut events: EventStream, args: &Args, has_gt: bool) -> e
                     }
                 }
             }
-            Event::InputClosed { id } => {
-                if id.as_ref() == "ground_truth" {
-                    sink.truth_closed = true;
-                    sink.drain_pending()?;
-                }
-            }
-            Event::Stop(_) => break,
+            // dora's scheduler may yield `InputClosed` and `Stop` before the last inputs: only the
+            // end-of-stream markers, or the end of the event stream, end an input.
+            Event::InputClosed { id } => tracing::debug!(input = %id, "input closed"),
+            Event::Stop(cause) => tracing::debug!(?cause, "stop received; draining the inputs"),
             _ => {}
         }
     }
@@ -243,8 +262,14 @@ mod tests {
     use neuspike_schemas::testing::CannedInputs;
 
     fn frame(kind: FrameKind, method: &str, seq: u64, value: f32) -> Frame {
-        Frame { kind, method: method.into(), t_ref_ns: 1_000 * seq as i64, compute_ns: 5, seq,
-            data: Array2::from_shape_fn((16, 16), |(y, x)| value * (x + y) as f32 / 30.0) }
+        Frame {
+            kind,
+            method: method.into(),
+            t_ref_ns: 1_000 * seq as i64,
+            compute_ns: 5,
+            seq,
+            data: Array2::from_shape_fn((16, 16), |(y, x)| value * (x + y) as f32 / 30.0),
+        }
     }
 
     #[test]
@@ -253,19 +278,38 @@ mod tests {
         let out = dir.path().join("out");
         let mut c = CannedInputs::new(dir.path());
         // Frames arrive before their ground truth: the sink must wait for it.
-        c.message("tfp", &frame(FrameKind::Reconstruction, "tfp", 0, 1.0)).unwrap();
-        c.message("ground_truth", &frame(FrameKind::GroundTruth, "ground-truth", 0, 1.0)).unwrap();
-        c.message("ground_truth", &frame(FrameKind::GroundTruth, "ground-truth", 1, 1.0)).unwrap();
+        c.message("tfp", &frame(FrameKind::Reconstruction, "tfp", 0, 1.0))
+            .unwrap();
+        c.message(
+            "ground_truth",
+            &frame(FrameKind::GroundTruth, "ground-truth", 0, 1.0),
+        )
+        .unwrap();
+        c.message(
+            "ground_truth",
+            &frame(FrameKind::GroundTruth, "ground-truth", 1, 1.0),
+        )
+        .unwrap();
         // seq 1 of tfp is lost; seq 2 has no truth.
-        c.message("tfp", &frame(FrameKind::Reconstruction, "tfp", 2, 0.9)).unwrap();
+        c.message("tfp", &frame(FrameKind::Reconstruction, "tfp", 2, 0.9))
+            .unwrap();
         c.end::<Frame>("tfp", 3).unwrap();
         c.end::<Frame>("ground_truth", 2).unwrap();
-        let args = Args { out: out.clone(), bit_depth: BitDepth::Eight, write_ground_truth: true };
-        c.run(|node, events| run(node, events, &args, true)).unwrap();
+        let args = Args {
+            out: out.clone(),
+            bit_depth: BitDepth::Eight,
+            write_ground_truth: true,
+        };
+        c.run(|node, events| run(node, events, &args, true))
+            .unwrap();
         let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
         let rows: Vec<&str> = csv.lines().skip(1).collect();
         assert_eq!(rows.len(), 2, "{csv}");
-        assert!(rows[0].contains(",inf,"), "identical frame is exact: {}", rows[0]);
+        assert!(
+            rows[0].contains(",inf,"),
+            "identical frame is exact: {}",
+            rows[0]
+        );
         assert!(out.join("tfp/000000.png").is_file() && out.join("tfp/000002.png").is_file());
         assert!(out.join("ground-truth/000001.png").is_file());
         let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();

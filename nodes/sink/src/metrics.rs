@@ -518,9 +518,24 @@ mod tests {
         let a = pattern(32, 40);
         let s = pattern(17, 23);
         let cases = [
-            ("pattern_vs_noisy_32x40", a.clone(), noisy(&a, 12345), 0.877_330_377_374_263),
-            ("pattern_vs_affine_32x40", a.clone(), affine(&a), 0.974_591_557_031_474_2),
-            ("pattern_vs_noisy_17x23", s.clone(), noisy(&s, 2024), 0.865_572_455_716_934_6),
+            (
+                "pattern_vs_noisy_32x40",
+                a.clone(),
+                noisy(&a, 12345),
+                0.877_330_377_374_263,
+            ),
+            (
+                "pattern_vs_affine_32x40",
+                a.clone(),
+                affine(&a),
+                0.974_591_557_031_474_2,
+            ),
+            (
+                "pattern_vs_noisy_17x23",
+                s.clone(),
+                noisy(&s, 2024),
+                0.865_572_455_716_934_6,
+            ),
             (
                 "uniform_vs_uniform_11x13",
                 uniform(11, 13, 7),
@@ -544,7 +559,10 @@ mod tests {
         let direct = ssim_direct(&x, &y);
         for parallel in [false, true] {
             let fast = ssim_with(x.view(), y.view(), parallel);
-            assert!((fast - direct).abs() < 1e-12, "{parallel}: {fast} vs {direct}");
+            assert!(
+                (fast - direct).abs() < 1e-12,
+                "{parallel}: {fast} vs {direct}"
+            );
         }
     }
 
@@ -638,6 +656,30 @@ mod tests {
         assert!((entropy_2d(x.view()) - expected).abs() < 1e-12);
     }
 
+    /// Figures from an independent numpy implementation, with `pattern` and `noisy` as in the SSIM
+    /// snippet above:
+    ///
+    /// ```python
+    /// def entropy2d(x):
+    ///     q = np.floor(np.clip(x.astype(np.float64), 0, 1) * 255 + 0.5).astype(np.int64)
+    ///     p = np.pad(q, 1, mode='edge')
+    ///     s = sum(p[1+dr:1+dr+q.shape[0], 1+dc:1+dc+q.shape[1]] for dr in (-1,0,1) for dc in (-1,0,1))
+    ///     j = np.floor(s / 9 + 0.5).astype(np.int64)
+    ///     _, counts = np.unique(q * 256 + j, return_counts=True)
+    ///     pr = counts / q.size
+    ///     return float(-(pr * np.log2(pr)).sum())
+    /// a = pattern(32, 40)
+    /// print(entropy2d(a), entropy2d(noisy(a, 12345)))
+    /// ```
+    #[test]
+    fn entropy_matches_numpy_reference_figures() {
+        let a = pattern(32, 40);
+        let h = entropy_2d(a.view());
+        assert!((h - 9.289_603_403_557_257).abs() < 1e-12, "{h}");
+        let h = entropy_2d(noisy(&a, 12345).view());
+        assert!((h - 10.186_756_571_443_1).abs() < 1e-12, "{h}");
+    }
+
     #[test]
     fn entropy_of_uniform_noise_is_high() {
         let x = uniform(256, 256, 1);
@@ -647,8 +689,14 @@ mod tests {
 
     #[test]
     fn entropy_quantises_out_of_range_values_by_clamping() {
-        let a = Array2::from_shape_fn((6, 6), |(r, c)| if (r * 6 + c) % 3 == 0 { 2.0 } else { -1.0 });
-        let b = Array2::from_shape_fn((6, 6), |(r, c)| if (r * 6 + c) % 3 == 0 { 1.0 } else { 0.0 });
+        let a = Array2::from_shape_fn(
+            (6, 6),
+            |(r, c)| if (r * 6 + c) % 3 == 0 { 2.0 } else { -1.0 },
+        );
+        let b = Array2::from_shape_fn(
+            (6, 6),
+            |(r, c)| if (r * 6 + c) % 3 == 0 { 1.0 } else { 0.0 },
+        );
         assert_eq!(entropy_2d(a.view()), entropy_2d(b.view()));
     }
 

@@ -114,7 +114,11 @@ pub(crate) fn write_atomically(
 /// then renamed over `path` (no fsync: this guards readers, not power loss). A frame with no
 /// pixels, or a side above `u32::MAX`, is a [`SinkError::BadShape`]; a missing folder is a
 /// [`SinkError::Io`] naming the `.tmp` file.
-pub fn write_frame_png(path: &Path, frame: ArrayView2<f32>, depth: BitDepth) -> Result<(), SinkError> {
+pub fn write_frame_png(
+    path: &Path,
+    frame: ArrayView2<f32>,
+    depth: BitDepth,
+) -> Result<(), SinkError> {
     let (rows, cols) = frame.dim();
     let bad_shape = || SinkError::BadShape {
         path: path.to_owned(),
@@ -137,11 +141,13 @@ pub fn write_frame_png(path: &Path, frame: ArrayView2<f32>, depth: BitDepth) -> 
             BitDepth::Eight => {
                 // level() is at most max_level() = 255 here
                 let img = ImageBuffer::from_fn(width, height, |x, y| Luma([at(x, y) as u8]));
-                img.write_with_encoder(PngEncoder::new(out)).map_err(png_error)
+                img.write_with_encoder(PngEncoder::new(out))
+                    .map_err(png_error)
             }
             BitDepth::Sixteen => {
                 let img = ImageBuffer::from_fn(width, height, |x, y| Luma([at(x, y)]));
-                img.write_with_encoder(PngEncoder::new(out)).map_err(png_error)
+                img.write_with_encoder(PngEncoder::new(out))
+                    .map_err(png_error)
             }
         }
     })
@@ -220,7 +226,10 @@ mod tests {
                 .map(|(a, b)| (a - b).abs())
                 .fold(0.0f32, f32::max);
             // rounding to the nearest level: half a level, plus f32 slack
-            assert!(worst <= 0.5 / max + 1e-7, "{depth} bit: worst error {worst}");
+            assert!(
+                worst <= 0.5 / max + 1e-7,
+                "{depth} bit: worst error {worst}"
+            );
             // and the quantisation is really that coarse (not a lossless float store)
             assert!(worst > 0.1 / max, "{depth} bit: worst error {worst}");
         }
@@ -234,7 +243,10 @@ mod tests {
         let frame = Array2::from_shape_fn((2, 128), |(r, c)| (r * 128 + c) as f32 / 255.0);
         write_frame_png(&path, frame.view(), BitDepth::Eight).expect("write");
         let back = read_frame_png(&path).expect("read");
-        assert_eq!(back, frame.mapv(|v| ((f64::from(v) * 255.0).round() / 255.0) as f32));
+        assert_eq!(
+            back,
+            frame.mapv(|v| ((f64::from(v) * 255.0).round() / 255.0) as f32)
+        );
     }
 
     #[test]
@@ -258,7 +270,10 @@ mod tests {
         let path = dir.path().join("same.png");
         write_frame_png(&path, Array2::zeros((4, 4)).view(), BitDepth::Eight).expect("first");
         write_frame_png(&path, Array2::ones((4, 5)).view(), BitDepth::Eight).expect("second");
-        assert_eq!(read_frame_png(&path).expect("read"), Array2::<f32>::ones((4, 5)));
+        assert_eq!(
+            read_frame_png(&path).expect("read"),
+            Array2::<f32>::ones((4, 5))
+        );
         assert!(leftovers(dir.path()).is_empty());
     }
 
@@ -266,10 +281,14 @@ mod tests {
     fn missing_folder_is_an_error_naming_the_path() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("no_such_folder").join("f.png");
-        let err = write_frame_png(&path, ramp(3, 3).view(), BitDepth::Eight).expect_err("no folder");
+        let err =
+            write_frame_png(&path, ramp(3, 3).view(), BitDepth::Eight).expect_err("no folder");
         assert!(matches!(err, SinkError::Io { .. }), "{err:?}");
         let msg = err.to_string();
-        assert!(msg.contains("no_such_folder") && msg.contains("f.png"), "{msg}");
+        assert!(
+            msg.contains("no_such_folder") && msg.contains("f.png"),
+            "{msg}"
+        );
         assert!(!path.exists());
     }
 
@@ -279,7 +298,17 @@ mod tests {
         let path = dir.path().join("empty.png");
         let err = write_frame_png(&path, Array2::zeros((0, 5)).view(), BitDepth::Eight)
             .expect_err("empty");
-        assert!(matches!(err, SinkError::BadShape { rows: 0, cols: 5, .. }), "{err:?}");
+        assert!(
+            matches!(
+                err,
+                SinkError::BadShape {
+                    rows: 0,
+                    cols: 5,
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
         assert!(err.to_string().contains("empty.png"));
         assert!(leftovers(dir.path()).is_empty() && !path.exists());
     }

@@ -14,7 +14,8 @@ use crate::SinkError;
 use crate::png_out::write_atomically;
 
 /// Header line of `metrics.csv` (without the newline).
-pub const CSV_HEADER: &str = "seq,t_ref_ns,method,compute_ns,psnr_db,psnr_gain_db,ssim,entropy_2d,file";
+pub const CSV_HEADER: &str =
+    "seq,t_ref_ns,method,compute_ns,psnr_db,psnr_gain_db,ssim,entropy_2d,file";
 
 /// One row of `metrics.csv`: the figures of one reconstructed frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -162,14 +163,22 @@ impl MethodAccumulator {
     fn add(&mut self, row: &FrameMetrics) {
         self.frames += 1;
         self.compute_ns.add(row.compute_ns as f64);
-        Self::add_psnr(row.psnr_db, &mut self.psnr, &mut self.psnr_exact, &mut self.nan_values);
+        Self::add_psnr(
+            row.psnr_db,
+            &mut self.psnr,
+            &mut self.psnr_exact,
+            &mut self.nan_values,
+        );
         Self::add_psnr(
             row.psnr_gain_db,
             &mut self.psnr_gain,
             &mut self.psnr_gain_exact,
             &mut self.nan_values,
         );
-        for (value, mean) in [(row.ssim, &mut self.ssim), (Some(row.entropy_2d), &mut self.entropy)] {
+        for (value, mean) in [
+            (row.ssim, &mut self.ssim),
+            (Some(row.entropy_2d), &mut self.entropy),
+        ] {
             match value {
                 Some(v) if v.is_finite() => mean.add(v),
                 Some(_) => self.nan_values += 1,
@@ -232,22 +241,27 @@ pub struct MethodSummary {
     pub nan_values: u64,
 }
 
-/// How many frames the run expected, wrote and missed (set by the node).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct FrameCounts {
-    /// Frames the run should have produced.
+/// How many frames one input was expected to carry, and what became of them (set by the node).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct InputCounts {
+    /// The input's id.
+    pub input: String,
+    /// Frames the input should have carried.
     pub expected: u64,
-    /// Frames written to disk.
+    /// Frames from it written to disk.
     pub written: u64,
     /// Frames that never arrived.
     pub missing: u64,
+    /// Whether the input closed with its end-of-stream marker.
+    pub ended: bool,
 }
 
-/// Per-method summary of a run, built row by row from what goes into `metrics.csv`.
+/// Per-method summary of a run, built row by row from what goes into `metrics.csv`, plus the frame
+/// counts of every input.
 #[derive(Clone, Debug, Default)]
 pub struct Summary {
     methods: BTreeMap<String, MethodAccumulator>,
-    counts: FrameCounts,
+    counts: BTreeMap<String, InputCounts>,
 }
 
 impl Summary {
@@ -261,18 +275,32 @@ impl Summary {
         self.methods.entry(row.method.clone()).or_default().add(row);
     }
 
-    /// Records how many frames were expected, written and missing.
-    pub fn set_counts(&mut self, expected: u64, written: u64, missing: u64) {
-        self.counts = FrameCounts {
-            expected,
-            written,
-            missing,
-        };
+    /// Records how many frames `input` was expected to carry, how many were written and how many
+    /// are missing, and whether it ended with its end-of-stream marker. A second call for the same
+    /// input replaces the first.
+    pub fn set_counts(
+        &mut self,
+        input: &str,
+        expected: u64,
+        written: u64,
+        missing: u64,
+        ended: bool,
+    ) {
+        self.counts.insert(
+            input.to_owned(),
+            InputCounts {
+                input: input.to_owned(),
+                expected,
+                written,
+                missing,
+                ended,
+            },
+        );
     }
 
-    /// The counts last set with [`Summary::set_counts`] (all 0 before).
-    pub fn counts(&self) -> FrameCounts {
-        self.counts
+    /// The counts set with [`Summary::set_counts`], sorted by input.
+    pub fn counts(&self) -> Vec<InputCounts> {
+        self.counts.values().cloned().collect()
     }
 
     /// One summary a method, sorted by method name.
@@ -314,30 +342,51 @@ impl Summary {
         table
     }
 
-    /// The whole summary as Markdown: the table, the frame counts and how to read them.
+    /// The frame counts as a Markdown table, one row an input sorted by input.
+    pub fn to_markdown_counts(&self) -> String {
+        let mut table = String::from(
+            "| input | expected | written | missing | ended |\n|---|---:|---:|---:|---|\n",
+        );
+        for c in self.counts.values() {
+            let _ = writeln!(
+                table,
+                "| {} | {} | {} | {} | {} |",
+                c.input.replace('|', "\\|"),
+                c.expected,
+                c.written,
+                c.missing,
+                if c.ended {
+                    "yes"
+                } else {
+                    "no (no end-of-stream marker)"
+                },
+            );
+        }
+        table
+    }
+
+    /// The whole summary as Markdown: the metrics table, the frame counts and how to read them.
     pub fn to_markdown(&self) -> String {
-        let c = self.counts;
         format!(
-            "# neuspike run summary\n\n{}\nframes expected: {}, written: {}, missing: {}\n\n\
+            "# neuspike run summary\n\n## Metrics per method\n\n{}\n\
              PSNR dB: mean over frames with a finite PSNR; exact: frames with MSE 0 (PSNR inf), \
              counted, never averaged. PSNR after gain: least-squares gain, clipped to [0, 1]. \
-             NaN: figures that were NaN, left out of the means.\n",
+             NaN: figures that were NaN, left out of the means.\n\n## Frames per input\n\n{}",
             self.to_markdown_table(),
-            c.expected,
-            c.written,
-            c.missing,
+            self.to_markdown_counts(),
         )
     }
 
     /// Writes [`Summary::to_markdown`] to `path` (e.g. `summary.md`) atomically, through
     /// `<path>.tmp` and a rename.
-    pub fn write_markdown(&self, path: &Path) -> Result<(), SinkError> {
+    pub fn write(&self, path: &Path) -> Result<(), SinkError> {
         let text = self.to_markdown();
         write_atomically(path, |out, tmp| {
-            out.write_all(text.as_bytes()).map_err(|source| SinkError::Io {
-                path: tmp.to_owned(),
-                source,
-            })
+            out.write_all(text.as_bytes())
+                .map_err(|source| SinkError::Io {
+                    path: tmp.to_owned(),
+                    source,
+                })
         })
     }
 }
@@ -365,7 +414,8 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("metrics.csv");
         let mut csv = MetricsCsv::create(&path).expect("create");
-        csv.append(&row(0, "tfp", Some(25.5), Some(0.75))).expect("row 0");
+        csv.append(&row(0, "tfp", Some(25.5), Some(0.75)))
+            .expect("row 0");
         // Read while the writer is still open: each row is already flushed.
         let text = std::fs::read_to_string(&path).expect("read");
         assert_eq!(
@@ -373,13 +423,20 @@ mod tests {
             "seq,t_ref_ns,method,compute_ns,psnr_db,psnr_gain_db,ssim,entropy_2d,file\n\
              0,0,tfp,2000000,25.5,26.5,0.75,7.5,frames/tfp_000000.png\n"
         );
-        csv.append(&row(1, "tfi", Some(f64::INFINITY), Some(1.0))).expect("row 1");
+        csv.append(&row(1, "tfi", Some(f64::INFINITY), Some(1.0)))
+            .expect("row 1");
         csv.append(&row(2, "neuspike", None, None)).expect("row 2");
         let text = std::fs::read_to_string(&path).expect("read");
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 4);
-        assert_eq!(lines[2], "1,1000000,tfi,2000000,inf,inf,1,7.5,frames/tfi_000001.png");
-        assert_eq!(lines[3], "2,2000000,neuspike,2000000,,,,7.5,frames/neuspike_000002.png");
+        assert_eq!(
+            lines[2],
+            "1,1000000,tfi,2000000,inf,inf,1,7.5,frames/tfi_000001.png"
+        );
+        assert_eq!(
+            lines[3],
+            "2,2000000,neuspike,2000000,,,,7.5,frames/neuspike_000002.png"
+        );
         assert_eq!(csv.path(), path);
     }
 
@@ -417,7 +474,8 @@ mod tests {
         s.add(&row(2, "tfp", Some(30.0), Some(0.9)));
         s.add(&row(0, "neuspike", None, None));
         s.add(&row(1, "neuspike", Some(f64::NAN), Some(0.8)));
-        s.set_counts(4, 3, 1);
+        s.set_counts("tfp", 4, 3, 1, true);
+        s.set_counts("neuspike", 2, 1, 0, false);
 
         let methods = s.methods();
         assert_eq!(methods.len(), 2);
@@ -451,15 +509,29 @@ mod tests {
             lines[3],
             "| tfp | 3 | 25.00 | 1 | 26.00 | 1 | 0.8000 | 7.500 | 2.000 | 0 |"
         );
+        let counts = s.counts();
+        assert_eq!(counts.len(), 2);
         assert_eq!(
-            s.counts(),
-            FrameCounts {
+            counts[1],
+            InputCounts {
+                input: "tfp".to_owned(),
                 expected: 4,
                 written: 3,
-                missing: 1
+                missing: 1,
+                ended: true,
             }
         );
-        assert!(s.to_markdown().contains("frames expected: 4, written: 3, missing: 1"));
+        let md = s.to_markdown();
+        assert!(md.contains("| tfp | 4 | 3 | 1 | yes |"), "{md}");
+        assert!(
+            md.contains("| neuspike | 2 | 1 | 0 | no (no end-of-stream marker) |"),
+            "{md}"
+        );
+        assert!(md.contains(&table), "{md}");
+        // a second call replaces the first
+        s.set_counts("tfp", 5, 5, 0, true);
+        assert_eq!(s.counts()[1].expected, 5);
+        assert_eq!(s.counts().len(), 2);
     }
 
     #[test]
@@ -468,12 +540,15 @@ mod tests {
         let path = dir.path().join("summary.md");
         let mut s = Summary::new();
         s.add(&row(0, "tfi", Some(31.0), Some(0.9)));
-        s.set_counts(1, 1, 0);
-        s.write_markdown(&path).expect("write");
-        assert_eq!(std::fs::read_to_string(&path).expect("read"), s.to_markdown());
+        s.set_counts("tfi", 1, 1, 0, true);
+        s.write(&path).expect("write");
+        assert_eq!(
+            std::fs::read_to_string(&path).expect("read"),
+            s.to_markdown()
+        );
         assert!(!dir.path().join("summary.md.tmp").exists());
         let bad = dir.path().join("absent").join("summary.md");
-        let err = s.write_markdown(&bad).expect_err("missing folder");
+        let err = s.write(&bad).expect_err("missing folder");
         assert!(err.to_string().contains("absent"), "{err}");
     }
 }

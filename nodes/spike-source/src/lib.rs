@@ -18,7 +18,7 @@
 //! interpolated in time between them (1 = render every tick).
 #![deny(missing_docs)]
 
-use ndarray::{Array2, ArrayViewMut2, Zip};
+use ndarray::{Array2, Zip};
 use neuspike_scene::Scene;
 use neuspike_schemas::{SpikeChunk, bytes_per_plane};
 use rand::{Rng, SeedableRng};
@@ -120,10 +120,18 @@ impl CameraConfig {
             return bad("phi", self.phi.to_string(), "must be finite and > 0");
         }
         if !(self.fpn_mu.is_finite() && self.fpn_mu >= 1.0) {
-            return bad("fpn-mu", self.fpn_mu.to_string(), "must be finite and >= 1 tick");
+            return bad(
+                "fpn-mu",
+                self.fpn_mu.to_string(),
+                "must be finite and >= 1 tick",
+            );
         }
         if !(self.fpn_sigma.is_finite() && self.fpn_sigma >= 0.0) {
-            return bad("fpn-sigma", self.fpn_sigma.to_string(), "must be finite and >= 0");
+            return bad(
+                "fpn-sigma",
+                self.fpn_sigma.to_string(),
+                "must be finite and >= 0",
+            );
         }
         Ok((1e9 / self.rate_hz).round().max(1.0) as i64)
     }
@@ -259,9 +267,12 @@ impl SpikeCamera {
             self.render_key(key);
         }
         let w = ((self.tick - key) as f32) / (self.render_step as f32);
-        Zip::from(dst).and(&self.key_a).and(&self.key_b).for_each(|d, &a, &b| {
-            *d = a + (b - a) * w;
-        });
+        Zip::from(dst)
+            .and(&self.key_a)
+            .and(&self.key_b)
+            .for_each(|d, &a, &b| {
+                *d = a + (b - a) * w;
+            });
     }
 
     /// Simulates the next `n` planes into a spike chunk with sequence number `seq`.
@@ -305,7 +316,9 @@ impl SpikeCamera {
 
     /// The ground-truth luminance at plane `k`'s time stamp, clipped to [0, 1].
     pub fn ground_truth(&self, k: u64) -> Array2<f32> {
-        let mut gt = self.scene.render(self.plane_time_ns(k), self.cfg.height, self.cfg.width);
+        let mut gt = self
+            .scene
+            .render(self.plane_time_ns(k), self.cfg.height, self.cfg.width);
         gt.mapv_inplace(|v| v.clamp(0.0, 1.0));
         gt
     }
@@ -338,9 +351,19 @@ pub fn integrate_tick(
     cap: &[u32],
     plane: &mut [u8],
 ) {
-    for (k, (((&l, a), s), &c)) in lum.iter().zip(acc.iter_mut()).zip(since.iter_mut()).zip(cap).enumerate() {
+    for (k, (((&l, a), s), &c)) in lum
+        .iter()
+        .zip(acc.iter_mut())
+        .zip(since.iter_mut())
+        .zip(cap)
+        .enumerate()
+    {
         // Negative or non-finite luminance never comes from the scene; treat it as darkness.
-        let gain = if l.is_finite() { (light_scale * l).max(0.0) } else { 0.0 };
+        let gain = if l.is_finite() {
+            (light_scale * l).max(0.0)
+        } else {
+            0.0
+        };
         *a += gain;
         *s = s.saturating_add(1);
         let fired = if *a >= phi {
@@ -372,16 +395,25 @@ mod tests {
         // A checkerboard with huge squares is one flat grey level over a small view.
         let yaml = format!(
             "width: 8\nheight: 4\nduration_ms: 10\nlight_scale: {light_scale}\nsamples_per_pixel: 1\n\
-             texture:\n  kind: checkerboard\n  square_px: 1000\n  contrast: 0.0\n  min: 0.0\n"
+             texture:\n  kind: checkerboard\n  square_px: 64\n  contrast: 0.0\n  min: 0.01\n"
         );
         let s = Scene::from_yaml_str(&yaml, "test", None).expect("scene");
         let v = s.render(0, 1, 1)[[0, 0]];
-        assert!((v - 0.5).abs() < 1e-6 || lum < 0.0, "flat scene renders {v}");
+        assert!(
+            (v - 0.5).abs() < 1e-6 || lum < 0.0,
+            "flat scene renders {v}"
+        );
         s
     }
 
     fn quiet(w: usize, h: usize) -> CameraConfig {
-        CameraConfig { width: w, height: h, random_init: false, fpn_cap: false, ..Default::default() }
+        CameraConfig {
+            width: w,
+            height: h,
+            random_init: false,
+            fpn_cap: false,
+            ..Default::default()
+        }
     }
 
     fn planes(chunk: &SpikeChunk) -> Array3<u8> {
@@ -410,7 +442,10 @@ mod tests {
         let p = planes(&cam.next_chunk(4000, 0));
         let rate = p.iter().map(|&v| f64::from(v)).sum::<f64>() / p.len() as f64;
         // rate * phi / light_scale == luminance
-        assert!((rate * cam.lum_per_rate() - 0.5).abs() < 0.01, "rate {rate}");
+        assert!(
+            (rate * cam.lum_per_rate() - 0.5).abs() < 0.01,
+            "rate {rate}"
+        );
     }
 
     #[test]
@@ -436,9 +471,18 @@ mod tests {
 
     #[test]
     fn deterministic_for_a_seed() {
-        let cfg = CameraConfig { width: 8, height: 4, seed: 3, ..Default::default() };
-        let a = SpikeCamera::new(flat_scene(0.5, 0.3), cfg.clone()).unwrap().next_chunk(50, 0);
-        let b = SpikeCamera::new(flat_scene(0.5, 0.3), cfg.clone()).unwrap().next_chunk(50, 0);
+        let cfg = CameraConfig {
+            width: 8,
+            height: 4,
+            seed: 3,
+            ..Default::default()
+        };
+        let a = SpikeCamera::new(flat_scene(0.5, 0.3), cfg.clone())
+            .unwrap()
+            .next_chunk(50, 0);
+        let b = SpikeCamera::new(flat_scene(0.5, 0.3), cfg.clone())
+            .unwrap()
+            .next_chunk(50, 0);
         assert_eq!(a, b);
         let c = SpikeCamera::new(flat_scene(0.5, 0.3), CameraConfig { seed: 4, ..cfg })
             .unwrap()
@@ -448,8 +492,14 @@ mod tests {
 
     #[test]
     fn bad_settings_name_the_key() {
-        let cfg = CameraConfig { rate_hz: -1.0, ..Default::default() };
-        let e = SpikeCamera::new(flat_scene(0.5, 1.0), cfg).err().unwrap().to_string();
+        let cfg = CameraConfig {
+            rate_hz: -1.0,
+            ..Default::default()
+        };
+        let e = SpikeCamera::new(flat_scene(0.5, 1.0), cfg)
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("rate-hz") && e.contains("-1"), "{e}");
     }
 

@@ -1,7 +1,7 @@
 //! dora node: the simulated spike camera. Outputs `spikes` (SpikeChunk) and, when asked,
 //! `ground_truth` (Frame) at every `--gt-every-planes`-th plane.
 
-use dora_node_api::{DoraNode, Event, EventStream};
+use dora_node_api::{DoraNode, Event, EventStream, StopCause};
 use eyre::WrapErr;
 use neuspike_scene::Scene;
 use neuspike_schemas::node::{self, output, send, send_end};
@@ -10,7 +10,11 @@ use neuspike_spike_source::{CameraConfig, SpikeCamera};
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
-#[command(name = "neuspike-spike-source", about = "Simulated spike camera", args_override_self = true)]
+#[command(
+    name = "neuspike-spike-source",
+    about = "Simulated spike camera",
+    args_override_self = true
+)]
 struct Args {
     /// Built-in scene name or path of a scene YAML file.
     #[arg(long, default_value = "bright-slow")]
@@ -37,7 +41,12 @@ fn main() -> eyre::Result<()> {
     run(node, events, camera, &args)
 }
 
-fn run(mut node: DoraNode, mut events: EventStream, mut cam: SpikeCamera, args: &Args) -> eyre::Result<()> {
+fn run(
+    mut node: DoraNode,
+    mut events: EventStream,
+    mut cam: SpikeCamera,
+    args: &Args,
+) -> eyre::Result<()> {
     let spikes = output("spikes");
     let gt_out = output("ground_truth");
     let total = args.max_planes.unwrap_or_else(|| cam.total_planes());
@@ -50,7 +59,7 @@ fn run(mut node: DoraNode, mut events: EventStream, mut cam: SpikeCamera, args: 
     let (mut seq, mut gt_seq) = (0u64, 0u64);
     while cam.tick() < total {
         match events.try_recv() {
-            Ok(Event::Stop(_)) => {
+            Ok(Event::Stop(StopCause::Manual)) => {
                 tracing::info!("stop requested");
                 break;
             }
@@ -97,27 +106,48 @@ mod tests {
     #[test]
     fn chunks_ground_truth_and_end_markers() {
         let args = Args::try_parse_from([
-            "spike-source", "--scene", "bright-static", "--width", "40", "--height", "25",
-            "--chunk-planes", "20", "--gt-every-planes", "20", "--max-planes", "50",
+            "spike-source",
+            "--scene",
+            "bright-static",
+            "--width",
+            "40",
+            "--height",
+            "25",
+            "--chunk-planes",
+            "20",
+            "--gt-every-planes",
+            "20",
+            "--max-planes",
+            "50",
         ])
         .unwrap();
         let cam = SpikeCamera::new(Scene::load(&args.scene).unwrap(), args.camera.clone()).unwrap();
         let dir = tempfile::tempdir().unwrap();
-        let out = CannedInputs::new(dir.path()).run(|node, events| run(node, events, cam, &args)).unwrap();
+        let out = CannedInputs::new(dir.path())
+            .run(|node, events| run(node, events, cam, &args))
+            .unwrap();
         let ids = output_ids(&out);
         // 50 planes: chunks of 20, 20, 10; truth at planes 0, 20, 40.
         assert_eq!(ids.iter().filter(|i| *i == "spikes").count(), 4);
         assert_eq!(ids.iter().filter(|i| *i == "ground_truth").count(), 4);
-        let spikes: Vec<usize> = out.iter().filter(|o| o["id"] == "spikes").map(payload_len).collect();
+        let spikes: Vec<usize> = out
+            .iter()
+            .filter(|o| o["id"] == "spikes")
+            .map(payload_len)
+            .collect();
         let per = neuspike_schemas::bytes_per_plane(40, 25);
         assert_eq!(spikes, vec![20 * per, 20 * per, 10 * per, 0]);
     }
 
     #[test]
     fn a_wrong_key_is_named() {
-        let e = Args::try_parse_from(["spike-source", "--rate-hz", "fast"]).unwrap_err().to_string();
+        let e = Args::try_parse_from(["spike-source", "--rate-hz", "fast"])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("rate-hz") && e.contains("fast"), "{e}");
-        let e = Args::try_parse_from(["spike-source", "--sceen", "x"]).unwrap_err().to_string();
+        let e = Args::try_parse_from(["spike-source", "--sceen", "x"])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("--sceen"), "{e}");
     }
 }
