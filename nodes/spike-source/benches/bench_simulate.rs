@@ -1,0 +1,68 @@
+//! Spike-camera simulation speed at 400x250 with noise on, against a memory-copy baseline of the
+//! same per-plane data (the figure to read is the ratio, measured in the same run).
+//!
+//! `cargo bench -p neuspike-spike-source --bench bench_simulate`
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use neuspike_scene::Scene;
+use neuspike_spike_source::{CameraConfig, Reset, SpikeCamera, integrate_tick};
+use std::hint::black_box;
+
+const PLANES: usize = 200;
+
+fn bench(c: &mut Criterion) {
+    let (w, h) = (400usize, 250usize);
+    let n = w * h;
+    let mut g = c.benchmark_group("spike_source_400x250");
+    g.throughput(Throughput::Elements(PLANES as u64));
+
+    // Baseline: copy one plane of f32 luminance per tick (what any simulator must at least read).
+    let src = vec![0.5f32; n];
+    let mut dst = vec![0.0f32; n];
+    g.bench_function("baseline_copy_luminance", |b| {
+        b.iter(|| {
+            for _ in 0..PLANES {
+                dst.copy_from_slice(black_box(&src));
+            }
+            black_box(&dst);
+        })
+    });
+
+    // The per-tick kernel alone (integrate, fire, reset, cap, pack).
+    let lum: Vec<f32> = (0..n).map(|i| (i % 255) as f32 / 255.0).collect();
+    let mut acc = vec![0.0f32; n];
+    let mut since = vec![0u32; n];
+    let cap = vec![180u32; n];
+    let mut plane = vec![0u8; n / 8];
+    g.bench_function("integrate_tick_kernel", |b| {
+        b.iter(|| {
+            for _ in 0..PLANES {
+                plane.fill(0);
+                integrate_tick(
+                    &lum,
+                    1.0,
+                    1.0,
+                    Reset::Subtract,
+                    &mut acc,
+                    &mut since,
+                    &cap,
+                    &mut plane,
+                );
+            }
+            black_box(&plane);
+        })
+    });
+
+    // The whole camera on a moving scene, rendering included.
+    for scene in ["bright-static", "bright-slow", "bright-fast"] {
+        let s = Scene::load(scene).expect("builtin scene");
+        let mut cam = SpikeCamera::new(s, CameraConfig::default()).expect("camera");
+        g.bench_function(format!("camera_{scene}"), |b| {
+            b.iter(|| black_box(cam.next_chunk(PLANES, 0)))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
