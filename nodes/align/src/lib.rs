@@ -4,6 +4,8 @@
 //! `c - N/2 ..= c + (N - 1 - N/2)` (33 planes: 16 either side; 32 planes: 16 before, 15 after).
 //! Reference planes are the multiples of the stride `K` whose window starts at or after plane 0,
 //! so a simulator that emits ground truth at every `K`-th plane has a truth for every window.
+//! With `--fps F` instead, the reference instants are `i / F` seconds after plane 0, each snapped
+//! to the nearest plane (`F` may not exceed the plane rate).
 //! Plane `k` carries the light of `(t_k - T, t_k]`, so the window's events are those of
 //! `[t_first - T, t_last)` on the spike clock, where an event's spike-clock time is its own
 //! time plus `event_offset_ns`.
@@ -26,6 +28,9 @@ pub struct AlignConfig {
     /// Planes between two reference planes (K): one window every K planes.
     #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..))]
     pub stride_planes: u64,
+    /// Emit windows at this frame rate (Hz) instead of every `stride-planes` planes.
+    #[arg(long)]
+    pub fps: Option<f64>,
     /// Added to event timestamps to put them on the spike clock, nanoseconds.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub event_offset_ns: i64,
@@ -36,6 +41,7 @@ impl Default for AlignConfig {
         AlignConfig {
             window_planes: 33,
             stride_planes: 20,
+            fps: None,
             event_offset_ns: 0,
         }
     }
@@ -44,6 +50,14 @@ impl Default for AlignConfig {
 /// An input that cannot be aligned; the message names what and the values.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum AlignError {
+    /// The requested frame rate cannot be served by the stream.
+    #[error("align: `fps` = {fps} is invalid: {why}")]
+    FrameRate {
+        /// The requested rate.
+        fps: f64,
+        /// What is wrong.
+        why: String,
+    },
     /// A chunk's geometry differs from the stream's.
     #[error("spike chunk {seq}: geometry {got} differs from the stream's {expected}")]
     Geometry {
@@ -68,6 +82,8 @@ pub struct Aligner {
     /// Buffered planes, contiguous from `first_buffered`.
     planes: VecDeque<Vec<u8>>,
     first_buffered: u64,
+    /// Index of the next window in the sequence of reference instants (skipped ones included).
+    ref_index: u64,
     next_ref: u64,
     events: EventBatch,
     events_cover_until_ns: i64,
@@ -86,6 +102,7 @@ impl Aligner {
         let after = n - 1 - before;
         let next_ref = before.div_ceil(cfg.stride_planes) * cfg.stride_planes;
         Aligner {
+            ref_index: 0,
             cfg,
             before,
             after,
@@ -102,6 +119,24 @@ impl Aligner {
             emitted: 0,
             skipped_windows: 0,
         }
+    }
+
+    /// The reference plane of window `i` of the sequence, given the plane period.
+    fn ref_plane(&self, i: u64, period_ns: i64) -> u64 {
+        match self.cfg.fps {
+            Some(fps) => ((i as f64) * 1e9 / fps / period_ns as f64).round() as u64,
+            None => {
+                let k = self.cfg.stride_planes;
+                self.before.div_ceil(k) * k + i * k
+            }
+        }
+    }
+
+    /// Moves to the next reference plane whose window starts at or after `first_plane`.
+    fn advance(&mut self) {
+        let period = self.geometry.map_or(1, |g| g.2);
+        self.ref_index += 1;
+        self.next_ref = self.ref_plane(self.ref_index, period);
     }
 
     /// Windows emitted so far.
@@ -126,10 +161,23 @@ impl Aligner {
         let geo = (chunk.width, chunk.height, chunk.plane_period_ns);
         match self.geometry {
             None => {
+                if let Some(fps) = self.cfg.fps {
+                    let rate = 1e9 / chunk.plane_period_ns as f64;
+                    if !(fps.is_finite() && fps > 0.0 && fps <= rate) {
+                        return Err(AlignError::FrameRate {
+                            fps,
+                            why: format!("must be > 0 and at most the plane rate {rate} Hz"),
+                        });
+                    }
+                }
                 let t0 = chunk.t_first_ns - (chunk.first_plane as i64) * chunk.plane_period_ns;
                 self.geometry = Some((geo.0, geo.1, geo.2, t0));
                 self.first_buffered = chunk.first_plane;
                 self.lum_per_rate = chunk.lum_per_rate;
+                self.next_ref = self.ref_plane(0, chunk.plane_period_ns);
+                while self.next_ref < self.before {
+                    self.advance();
+                }
             }
             Some((w, h, p, _)) if (w, h, p) != geo => {
                 return Err(AlignError::Geometry {
@@ -150,7 +198,7 @@ impl Aligner {
             self.planes.clear();
             self.first_buffered = chunk.first_plane;
             while self.next_ref.saturating_sub(self.before) < chunk.first_plane {
-                self.next_ref += self.cfg.stride_planes;
+                self.advance();
                 self.skipped_windows += 1;
             }
         }
@@ -253,7 +301,7 @@ impl Aligner {
             events,
         };
         self.emitted += 1;
-        self.next_ref += self.cfg.stride_planes;
+        self.advance();
         self.drop_consumed();
         Some(window)
     }
@@ -324,6 +372,7 @@ mod tests {
         let cfg = AlignConfig {
             window_planes: 5,
             stride_planes: 4,
+            fps: None,
             event_offset_ns: 0,
         };
         let mut a = Aligner::new(cfg, false);
@@ -347,6 +396,7 @@ mod tests {
         let cfg = AlignConfig {
             window_planes: 3,
             stride_planes: 10,
+            fps: None,
             event_offset_ns: 1_000,
         };
         let mut a = Aligner::new(cfg, true);
@@ -375,6 +425,7 @@ mod tests {
             AlignConfig {
                 window_planes: 3,
                 stride_planes: 2,
+                fps: None,
                 event_offset_ns: 0,
             },
             true,
@@ -394,6 +445,7 @@ mod tests {
             AlignConfig {
                 window_planes: 3,
                 stride_planes: 2,
+                fps: None,
                 event_offset_ns: 0,
             },
             false,
@@ -405,6 +457,36 @@ mod tests {
         }
         assert_eq!(refs, vec![(2, 0), (12, 1), (14, 2)]);
         assert_eq!(a.skipped_windows(), 4); // 4, 6, 8, 10
+    }
+
+    #[test]
+    fn frame_rate_mode_snaps_to_the_nearest_plane() {
+        // 20 kHz planes (P = 50 us), 3 kHz frames: instants 0, 333.3, 666.7, 1000 us, ... ->
+        // planes 0, 7, 13, 20, 27, 33; windows of 5 need 2 planes before: the first is plane 7.
+        let cfg = AlignConfig {
+            window_planes: 5,
+            stride_planes: 1,
+            fps: Some(3000.0),
+            event_offset_ns: 0,
+        };
+        let mut a = Aligner::new(cfg, false);
+        a.push_spikes(chunk(0, 36, 0)).unwrap();
+        let refs: Vec<u64> = std::iter::from_fn(|| a.pop_ready())
+            .map(|w| w.ref_plane)
+            .collect();
+        assert_eq!(refs, vec![7, 13, 20, 27, 33]);
+        let cfg = AlignConfig {
+            fps: Some(30_000.0),
+            ..AlignConfig::default()
+        };
+        let e = Aligner::new(cfg, false)
+            .push_spikes(chunk(0, 2, 0))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("fps") && e.contains("30000") && e.contains("20000"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -143,6 +143,7 @@ mod tests {
         let cfg = AlignConfig {
             window_planes: 33,
             stride_planes: 20,
+            fps: None,
             event_offset_ns: 0,
         };
         let out = c
