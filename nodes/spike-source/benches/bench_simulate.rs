@@ -5,7 +5,10 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use neuspike_scene::Scene;
-use neuspike_spike_source::{CameraConfig, Reset, SpikeCamera, integrate_tick};
+use neuspike_spike_source::{
+    CameraConfig, PixelState, Reset, SpikeCamera, TickLight, integrate_tick,
+    integrate_tick_reference,
+};
 use std::hint::black_box;
 
 const PLANES: usize = 200;
@@ -28,30 +31,41 @@ fn bench(c: &mut Criterion) {
         })
     });
 
-    // The per-tick kernel alone (integrate, fire, reset, cap, pack).
-    let lum: Vec<f32> = (0..n).map(|i| (i % 255) as f32 / 255.0).collect();
+    // The per-tick kernel alone (integrate, fire, reset, cap, pack): scalar reference and fast path.
+    let base: Vec<f32> = (0..n).map(|i| (i % 255) as f32 / 255.0).collect();
+    let slope = vec![0.0f32; n];
     let mut acc = vec![0.0f32; n];
     let mut since = vec![0u32; n];
     let cap = vec![180u32; n];
     let mut plane = vec![0u8; n / 8];
-    g.bench_function("integrate_tick_kernel", |b| {
-        b.iter(|| {
-            for _ in 0..PLANES {
-                plane.fill(0);
-                integrate_tick(
-                    &lum,
-                    1.0,
-                    1.0,
-                    Reset::Subtract,
-                    &mut acc,
-                    &mut since,
-                    &cap,
-                    &mut plane,
-                );
-            }
-            black_box(&plane);
-        })
-    });
+    for (name, fast) in [
+        ("integrate_tick_reference", false),
+        ("integrate_tick_fast", true),
+    ] {
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                for _ in 0..PLANES {
+                    plane.fill(0);
+                    let light = TickLight {
+                        base: &base,
+                        slope: &slope,
+                        k: 0.0,
+                    };
+                    let px = PixelState {
+                        acc: &mut acc,
+                        since: &mut since,
+                        cap: &cap,
+                    };
+                    if fast {
+                        integrate_tick(light, 1.0, Reset::Subtract, px, &mut plane);
+                    } else {
+                        integrate_tick_reference(light, 1.0, Reset::Subtract, px, &mut plane);
+                    }
+                }
+                black_box(&plane);
+            })
+        });
+    }
 
     // The whole camera on a moving scene, rendering included.
     for scene in ["bright-static", "bright-slow", "bright-fast"] {

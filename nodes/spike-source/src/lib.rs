@@ -18,7 +18,7 @@
 //! interpolated in time between them (1 = render every tick).
 #![deny(missing_docs)]
 
-use ndarray::{Array2, Zip};
+use ndarray::Array2;
 use neuspike_scene::Scene;
 use neuspike_schemas::{SpikeChunk, bytes_per_plane};
 use rand::{Rng, SeedableRng};
@@ -151,6 +151,9 @@ pub struct SpikeCamera {
     /// Luminance at the previous and next key instants.
     key_a: Array2<f32>,
     key_b: Array2<f32>,
+    /// Light per tick over the current key interval: `base + slope * (tick - key_tick)`.
+    base: Vec<f32>,
+    slope: Vec<f32>,
     key_tick: u64,
     tick: u64,
 }
@@ -197,6 +200,8 @@ impl SpikeCamera {
             cap,
             key_a: Array2::zeros(shape),
             key_b: Array2::zeros(shape),
+            base: vec![0.0; n],
+            slope: vec![0.0; n],
             key_tick: 0,
             tick: 0,
             cfg,
@@ -241,7 +246,7 @@ impl SpikeCamera {
     }
 
     /// Renders the key instants around `key_tick` (the middle of ticks `key_tick` and
-    /// `key_tick + render_step`).
+    /// `key_tick + render_step`) and the per-tick light between them.
     fn render_key(&mut self, key_tick: u64) {
         let t = |k: u64| self.mid_tick_ns(k);
         let (ta, tb) = (t(key_tick), t(key_tick + self.render_step));
@@ -252,6 +257,30 @@ impl SpikeCamera {
         }
         self.scene.render_into(tb, self.key_b.view_mut());
         self.key_tick = key_tick;
+        // Light per tick, clamped to >= 0 (NaN -> 0) at both ends, so the linear path between
+        // them stays >= 0 up to rounding.
+        let ls = self.light_scale;
+        let inv_step = 1.0 / self.render_step as f32;
+        let light = |l: f32| {
+            if l.is_finite() {
+                (ls * l).max(0.0)
+            } else {
+                0.0
+            }
+        };
+        let (a, b) = (self.key_a.as_slice(), self.key_b.as_slice());
+        if let (Some(a), Some(b)) = (a, b) {
+            for (((base, slope), &la), &lb) in self
+                .base
+                .iter_mut()
+                .zip(self.slope.iter_mut())
+                .zip(a)
+                .zip(b)
+            {
+                *base = light(la);
+                *slope = (light(lb) - *base) * inv_step;
+            }
+        }
     }
 
     /// Middle of tick `k`, which covers `((k - 1) T, k T]`: plane `k` carries the light of the tick
@@ -260,31 +289,32 @@ impl SpikeCamera {
         (k as i64).saturating_mul(self.period_ns) - self.period_ns / 2
     }
 
-    /// The luminance this tick integrates, into `dst`.
-    fn luminance_of_tick(&mut self, dst: &mut Array2<f32>) {
-        let key = self.tick - self.tick % self.render_step;
-        if key != self.key_tick {
-            self.render_key(key);
-        }
-        let w = ((self.tick - key) as f32) / (self.render_step as f32);
-        Zip::from(dst)
-            .and(&self.key_a)
-            .and(&self.key_b)
-            .for_each(|d, &a, &b| {
-                *d = a + (b - a) * w;
-            });
-    }
-
     /// Simulates the next `n` planes into a spike chunk with sequence number `seq`.
     pub fn next_chunk(&mut self, n: usize, seq: u64) -> SpikeChunk {
         let per = bytes_per_plane(self.cfg.width, self.cfg.height);
         let mut bits = vec![0u8; n * per];
-        let mut lum = Array2::<f32>::zeros((self.cfg.height, self.cfg.width));
         let first = self.tick;
         for plane in bits.chunks_exact_mut(per.max(1)) {
-            self.luminance_of_tick(&mut lum);
-            let lum = lum.as_slice().unwrap_or(&[]);
-            self.integrate_tick(lum, plane);
+            let key = self.tick - self.tick % self.render_step;
+            if key != self.key_tick {
+                self.render_key(key);
+            }
+            let k = (self.tick - key) as f32;
+            integrate_tick(
+                TickLight {
+                    base: &self.base,
+                    slope: &self.slope,
+                    k,
+                },
+                self.phi,
+                self.cfg.reset,
+                PixelState {
+                    acc: &mut self.acc,
+                    since: &mut self.since,
+                    cap: &self.cap,
+                },
+                plane,
+            );
             self.tick += 1;
         }
         SpikeChunk {
@@ -298,20 +328,6 @@ impl SpikeCamera {
             bits,
             lum_per_rate: Some(self.lum_per_rate()),
         }
-    }
-
-    /// One tick of every pixel: integrate `lum`, fire, reset; set the fired pixels' bits in `plane`.
-    fn integrate_tick(&mut self, lum: &[f32], plane: &mut [u8]) {
-        integrate_tick(
-            lum,
-            self.light_scale,
-            self.phi,
-            self.cfg.reset,
-            &mut self.acc,
-            &mut self.since,
-            &self.cap,
-            plane,
-        );
     }
 
     /// The ground-truth luminance at plane `k`'s time stamp, clipped to [0, 1].
@@ -338,50 +354,149 @@ fn auto_render_step(scene: &Scene, period_ns: i64, width: usize) -> u64 {
     (ticks.floor() as u64).clamp(1, MAX_STEP)
 }
 
-/// One tick of every pixel (the kernel). `lum`, `acc`, `since`, `cap` have one entry per pixel,
-/// row-major; `plane` is the packed output plane (zeroed by the caller).
-#[allow(clippy::too_many_arguments)]
-pub fn integrate_tick(
-    lum: &[f32],
-    light_scale: f32,
+/// The light every pixel receives in one tick: `base[i] + slope[i] * k` (light scale applied,
+/// >= 0), one entry per pixel, row-major.
+#[derive(Clone, Copy, Debug)]
+pub struct TickLight<'a> {
+    /// Light at the start of the key interval.
+    pub base: &'a [f32],
+    /// Change of light per tick over the key interval.
+    pub slope: &'a [f32],
+    /// Ticks since the start of the key interval.
+    pub k: f32,
+}
+
+/// The state of every pixel, one entry per pixel, row-major.
+#[derive(Debug)]
+pub struct PixelState<'a> {
+    /// Accumulators.
+    pub acc: &'a mut [f32],
+    /// Ticks since the last spike.
+    pub since: &'a mut [u32],
+    /// Fixed-pattern ISI cap (`u32::MAX` when off).
+    pub cap: &'a [u32],
+}
+
+/// One tick of every pixel, the plain loop (the oracle of [`integrate_tick`]): integrate, fire at
+/// `acc >= phi` or when the ISI cap is reached, reset, and set the fired pixels' bits in `plane`
+/// (zeroed by the caller).
+pub fn integrate_tick_reference(
+    light: TickLight,
     phi: f32,
     reset: Reset,
-    acc: &mut [f32],
-    since: &mut [u32],
-    cap: &[u32],
+    px: PixelState,
     plane: &mut [u8],
 ) {
-    for (k, (((&l, a), s), &c)) in lum
-        .iter()
-        .zip(acc.iter_mut())
-        .zip(since.iter_mut())
-        .zip(cap)
-        .enumerate()
-    {
-        // Negative or non-finite luminance never comes from the scene; treat it as darkness.
-        let gain = if l.is_finite() {
-            (light_scale * l).max(0.0)
-        } else {
-            0.0
-        };
-        *a += gain;
-        *s = s.saturating_add(1);
-        let fired = if *a >= phi {
-            *a = match reset {
-                Reset::Subtract => (*a - phi).min(phi),
+    let n = px.acc.len();
+    for i in 0..n {
+        let gain = light.base[i] + light.slope[i] * light.k;
+        let a = px.acc[i] + gain;
+        let s = px.since[i].saturating_add(1);
+        let fired = if a >= phi {
+            px.acc[i] = match reset {
+                Reset::Subtract => (a - phi).min(phi),
                 Reset::Zero => 0.0,
             };
             true
-        } else if *s >= c {
-            *a = 0.0;
+        } else if s >= px.cap[i] {
+            px.acc[i] = 0.0;
             true
         } else {
+            px.acc[i] = a;
             false
         };
+        px.since[i] = if fired { 0 } else { s };
         if fired {
-            *s = 0;
-            plane[k >> 3] |= 1 << (k & 7);
+            plane[i >> 3] |= 1 << (i & 7);
         }
+    }
+}
+
+/// One tick of every pixel, in blocks of pixels without branches (so the compiler vectorises it); equal to
+/// [`integrate_tick_reference`] bit for bit (tested). `plane` is zeroed by the caller.
+pub fn integrate_tick(light: TickLight, phi: f32, reset: Reset, px: PixelState, plane: &mut [u8]) {
+    match reset {
+        Reset::Subtract => integrate_bytes::<true>(light, phi, px, plane),
+        Reset::Zero => integrate_bytes::<false>(light, phi, px, plane),
+    }
+}
+
+/// Pixels per block of the fast path: the fire flags of a block are packed with one multiply per
+/// eight pixels.
+const BLOCK: usize = 256;
+
+/// Packs eight 0/1 bytes (pixel `j` in byte `j`) into one byte with pixel `j` at bit `j`.
+#[inline]
+fn pack8(flags: [u8; 8]) -> u8 {
+    const GATHER: u64 = 0x0102_0408_1020_4080;
+    (u64::from_le_bytes(flags).wrapping_mul(GATHER) >> 56) as u8
+}
+
+fn integrate_bytes<const SUBTRACT: bool>(
+    light: TickLight,
+    phi: f32,
+    px: PixelState,
+    plane: &mut [u8],
+) {
+    let n = px.acc.len();
+    let whole = n / BLOCK * BLOCK;
+    let k = light.k;
+    let mut flags = [0u8; BLOCK];
+    let (acc, acc_tail) = px.acc.split_at_mut(whole);
+    let (since, since_tail) = px.since.split_at_mut(whole);
+    let blocks = light.base[..whole]
+        .chunks_exact(BLOCK)
+        .zip(light.slope[..whole].chunks_exact(BLOCK))
+        .zip(acc.chunks_exact_mut(BLOCK))
+        .zip(since.chunks_exact_mut(BLOCK))
+        .zip(px.cap[..whole].chunks_exact(BLOCK))
+        .zip(plane.chunks_exact_mut(BLOCK / 8));
+    for (((((base, slope), acc), since), cap), out) in blocks {
+        // Element-wise pass (vectorises): integrate, decide, reset, remember the flag.
+        for j in 0..BLOCK {
+            let a = acc[j] + (base[j] + slope[j] * k);
+            let s = since[j].saturating_add(1);
+            let over = a >= phi;
+            let fire = over | (s >= cap[j]);
+            let reset_to = if SUBTRACT { (a - phi).min(phi) } else { 0.0 };
+            acc[j] = if over {
+                reset_to
+            } else if fire {
+                0.0
+            } else {
+                a
+            };
+            since[j] = if fire { 0 } else { s };
+            flags[j] = u8::from(fire);
+        }
+        // Pack eight flags per output byte.
+        for (o, f) in out.iter_mut().zip(flags.chunks_exact(8)) {
+            let mut eight = [0u8; 8];
+            eight.copy_from_slice(f);
+            *o = pack8(eight);
+        }
+    }
+    if whole < n {
+        let reset = if SUBTRACT {
+            Reset::Subtract
+        } else {
+            Reset::Zero
+        };
+        integrate_tick_reference(
+            TickLight {
+                base: &light.base[whole..],
+                slope: &light.slope[whole..],
+                k,
+            },
+            phi,
+            reset,
+            PixelState {
+                acc: acc_tail,
+                since: since_tail,
+                cap: &px.cap[whole..],
+            },
+            &mut plane[whole / 8..],
+        );
     }
 }
 
@@ -501,6 +616,32 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("rate-hz") && e.contains("-1"), "{e}");
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn fast_kernel_equals_reference(
+            n in 1usize..700,
+            seed in proptest::prelude::any::<u64>(),
+            k in 0.0f32..16.0,
+            subtract in proptest::prelude::any::<bool>(),
+        ) {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let base: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
+            let slope: Vec<f32> = (0..n).map(|_| (rng.random::<f32>() - 0.5) * 0.05).collect();
+            let acc0: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 2.0).collect();
+            let since0: Vec<u32> = (0..n).map(|_| rng.random_range(0..20)).collect();
+            let cap: Vec<u32> = (0..n).map(|_| rng.random_range(1..25)).collect();
+            let reset = if subtract { Reset::Subtract } else { Reset::Zero };
+            let light = TickLight { base: &base, slope: &slope, k };
+            let (mut a1, mut s1, mut p1) = (acc0.clone(), since0.clone(), vec![0u8; n.div_ceil(8)]);
+            let (mut a2, mut s2, mut p2) = (acc0, since0, vec![0u8; n.div_ceil(8)]);
+            integrate_tick_reference(light, 1.0, reset, PixelState { acc: &mut a1, since: &mut s1, cap: &cap }, &mut p1);
+            integrate_tick(light, 1.0, reset, PixelState { acc: &mut a2, since: &mut s2, cap: &cap }, &mut p2);
+            proptest::prop_assert_eq!(p1, p2);
+            proptest::prop_assert_eq!(s1, s2);
+            proptest::prop_assert_eq!(a1.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), a2.iter().map(|v| v.to_bits()).collect::<Vec<_>>());
+        }
     }
 
     #[test]
