@@ -58,8 +58,9 @@ pub struct DvsConfig {
     /// Largest image motion between two samples, pixels.
     #[arg(long, default_value_t = 0.25)]
     pub max_shift_px: f64,
-    /// Longest sampling step, nanoseconds.
-    #[arg(long, default_value_t = 100_000)]
+    /// Longest sampling step, nanoseconds (the scene is also sampled at least this often when it
+    /// does not move).
+    #[arg(long, default_value_t = 1_000_000)]
     pub max_step_ns: i64,
     /// Seed of the mismatch draws.
     #[arg(long, default_value_t = 0)]
@@ -77,7 +78,7 @@ impl Default for DvsConfig {
             refractory_ns: 0,
             log_floor: 1e-4,
             max_shift_px: 0.25,
-            max_step_ns: 100_000,
+            max_step_ns: 1_000_000,
             seed: 0,
         }
     }
