@@ -257,3 +257,37 @@ fn spawn_progress(csv: PathBuf, done: Arc<AtomicBool>) -> std::thread::JoinHandl
         bar.finish_and_clear();
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GRAPH: &str = "nodes:\n  - id: src\n    path: ../target/release/neuspike-spike-source\n    args: --scene a\n  - id: sink\n    path: ../target/release/neuspike-sink\n    args: --bit-depth 8 --out ../out/x\n";
+
+    #[test]
+    fn overrides_append_to_args_and_name_unknown_nodes() {
+        let mut g: Value = serde_yaml::from_str(GRAPH).unwrap();
+        apply_override(&mut g, "src", "--scene b").unwrap();
+        let args = nodes(&g)
+            .next()
+            .and_then(|n| n.get("args"))
+            .and_then(Value::as_str);
+        assert_eq!(args, Some("--scene a --scene b"));
+        let e = apply_override(&mut g, "nope", "--x")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`nope`"), "{e}");
+        assert_eq!(
+            parse_override("src=--scene c").unwrap(),
+            ("src".into(), "--scene c".into())
+        );
+        assert!(parse_override("--scene c").is_err());
+    }
+
+    #[test]
+    fn sink_out_dirs_resolve_against_the_graph_folder() {
+        let g: Value = serde_yaml::from_str(GRAPH).unwrap();
+        let dirs = sink_out_dirs(Path::new("/g/graphs/demo.yml"), &g);
+        assert_eq!(dirs, vec![PathBuf::from("/g/graphs/../out/x")]);
+    }
+}
