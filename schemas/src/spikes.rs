@@ -75,7 +75,7 @@ impl SpikeChunk {
                 .iter()
                 .map(|b| u64::from(b.count_ones()))
                 .sum::<u64>();
-            if valid_bits % 8 != 0 {
+            if !valid_bits.is_multiple_of(8) {
                 let mask = (1u8 << (valid_bits % 8)) - 1;
                 total += u64::from((plane[full] & mask).count_ones());
             }
