@@ -119,6 +119,17 @@ impl Message for SpikeChunk {
     }
 
     fn to_arrow(&self) -> (Meta, ArrayRef) {
+        (self.header(), Arc::new(UInt8Array::from(self.bits.clone())))
+    }
+
+    fn from_arrow(m: &Meta, data: &ArrayRef) -> Result<Self, SchemaError> {
+        Self::decode(m, data)
+    }
+}
+
+impl SpikeChunk {
+    /// The metadata header alone (the aligned window reuses it without encoding the planes).
+    pub fn header(&self) -> Meta {
         let mut m = Meta::new();
         m.set_int(meta::WIDTH, int_of(self.width));
         m.set_int(meta::HEIGHT, int_of(self.height));
@@ -130,10 +141,10 @@ impl Message for SpikeChunk {
         if let Some(g) = self.lum_per_rate {
             m.insert(meta::LUM_PER_RATE.to_string(), meta::Parameter::Float(g));
         }
-        (m, Arc::new(UInt8Array::from(self.bits.clone())))
+        m
     }
 
-    fn from_arrow(m: &Meta, data: &ArrayRef) -> Result<Self, SchemaError> {
+    fn decode(m: &Meta, data: &ArrayRef) -> Result<Self, SchemaError> {
         check_type(NAME, &Self::data_type(), data.data_type())?;
         let width = m.size(NAME, meta::WIDTH)?;
         let height = m.size(NAME, meta::HEIGHT)?;

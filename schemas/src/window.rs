@@ -65,7 +65,7 @@ impl Message for AlignedWindow {
     }
 
     fn to_arrow(&self) -> (Meta, ArrayRef) {
-        let (mut m, _) = self.spikes.to_arrow();
+        let mut m = self.spikes.header();
         m.set_int(meta::T_REF_NS, self.t_ref_ns);
         m.set_int(meta::REF_PLANE, self.ref_plane as i64);
         m.set_int(meta::T_START_NS, self.events.t_start_ns);

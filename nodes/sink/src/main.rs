@@ -5,7 +5,7 @@
 //! goes) and, at the end, `<out>/summary.md` with the mean metrics per method and the frames
 //! expected, written and missing on every input.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::PathBuf;
 
 use dora_node_api::{DoraNode, Event, EventStream};
@@ -69,6 +69,8 @@ struct Sink {
     truth_closed: bool,
     /// Frames waiting for their ground truth.
     pending: VecDeque<(String, Frame)>,
+    /// Per-method folders already created.
+    made_dirs: BTreeSet<String>,
 }
 
 impl Sink {
@@ -92,13 +94,17 @@ impl Sink {
             truth_until_ns: i64::MIN,
             truth_closed: !has_gt,
             pending: VecDeque::new(),
+            made_dirs: BTreeSet::new(),
         })
     }
 
-    fn frame_path(&self, method: &str, seq: u64) -> eyre::Result<(PathBuf, String)> {
-        let dir = self.out.join(method);
-        std::fs::create_dir_all(&dir)
-            .wrap_err_with(|| format!("sink: cannot create {}", dir.display()))?;
+    fn frame_path(&mut self, method: &str, seq: u64) -> eyre::Result<(PathBuf, String)> {
+        if !self.made_dirs.contains(method) {
+            let dir = self.out.join(method);
+            std::fs::create_dir_all(&dir)
+                .wrap_err_with(|| format!("sink: cannot create {}", dir.display()))?;
+            self.made_dirs.insert(method.to_string());
+        }
         let name = format!("{method}/{seq:06}.png");
         Ok((self.out.join(&name), name))
     }
