@@ -215,6 +215,13 @@ impl Scene {
         out
     }
 
+    /// Whether the image never changes: no translation, rotation or zoom (nothing else in a scene
+    /// depends on time).
+    pub fn is_static(&self) -> bool {
+        let m = &self.spec.motion;
+        m.vx_px_s == 0.0 && m.vy_px_s == 0.0 && m.rotation_deg_s == 0.0 && m.zoom_per_s == 0.0
+    }
+
     /// Upper bound of the speed of any image point over the scene's duration, in scene pixels
     /// per second: `|v| * max s(t) + (|omega| + |zoom_per_s|) * r_corner`, where `r_corner` is
     /// the distance from the view centre to a corner and `omega` is in rad/s.

@@ -1,6 +1,7 @@
 //! The DVS event-camera model (DAVIS346-like) on the same scenes as the spike camera.
 //!
-//! Each pixel compares its log intensity `L = ln(max(I, log_floor))` against a reference level.
+//! Each pixel compares its log intensity `L = ln(max(I, log_floor))` (computed by [`ln_fast`])
+//! against a reference level.
 //! Whenever `L` rises by the pixel's ON threshold above the reference it emits an ON event and
 //! moves the reference up by that threshold; likewise for OFF. Thresholds are
 //! `theta * (1 + sigma * n)` with `n ~ N(0, 1)` drawn once per pixel (mismatch), clamped to at least
@@ -52,7 +53,7 @@ pub struct DvsConfig {
     /// Refractory period, nanoseconds.
     #[arg(long, default_value_t = 0)]
     pub refractory_ns: i64,
-    /// Intensity floor before the log: `L = ln(max(I * light_scale, log_floor))`.
+    /// Intensity floor before the log: `L = ln(max(I * light_scale, log_floor))`, at least 1e-30.
     #[arg(long, default_value_t = 1e-4)]
     pub log_floor: f64,
     /// Largest image motion between two samples, pixels.
@@ -108,13 +109,13 @@ impl DvsConfig {
         }
         for (key, v) in [("theta-on", self.theta_on), ("theta-off", self.theta_off)] {
             if !(v.is_finite() && v >= MIN_THRESHOLD) {
-                return bad(key, v.to_string(), "must be finite and >= 0.01");
+                return bad(key, format!("{:?}", v), "must be finite and >= 0.01");
             }
         }
         if !(self.theta_sigma.is_finite() && self.theta_sigma >= 0.0) {
             return bad(
                 "theta-sigma",
-                self.theta_sigma.to_string(),
+                format!("{:?}", self.theta_sigma),
                 "must be finite and >= 0",
             );
         }
@@ -125,17 +126,17 @@ impl DvsConfig {
                 "must be >= 0",
             );
         }
-        if !(self.log_floor.is_finite() && self.log_floor > 0.0) {
+        if !(self.log_floor.is_finite() && self.log_floor >= 1e-30) {
             return bad(
                 "log-floor",
-                self.log_floor.to_string(),
-                "must be finite and > 0",
+                format!("{:?}", self.log_floor),
+                "must be finite and >= 1e-30 (a normal single-precision number)",
             );
         }
         if !(self.max_shift_px.is_finite() && self.max_shift_px > 0.0) {
             return bad(
                 "max-shift-px",
-                self.max_shift_px.to_string(),
+                format!("{:?}", self.max_shift_px),
                 "must be finite and > 0",
             );
         }
@@ -146,28 +147,100 @@ impl DvsConfig {
     }
 }
 
-/// The event camera looking at a scene.
-pub struct EventCamera {
-    scene: Scene,
-    cfg: DvsConfig,
-    step_ns: i64,
+/// Natural logarithm in single precision without branches or divisions, so loops over it
+/// vectorise; within `2e-6 * max(1, |ln x|)` of the exact value (tested). Defined everywhere: the
+/// input is first clamped to `[f32::MIN_POSITIVE, f32::MAX]` (NaN becomes `MIN_POSITIVE`).
+///
+/// `x = m 2^e` with `m` in `[sqrt(1/2), sqrt(2))`; `ln m = f q(f)` with `f = m - 1` and `q` a
+/// degree-8 polynomial fitted (least squares, reweighted towards minimax) to `ln(1 + f) / f` on
+/// that interval: its error there is below `4e-8`.
+#[inline(always)]
+pub fn ln_fast(x: f32) -> f32 {
+    const LN_2: f32 = std::f32::consts::LN_2;
+    const Q: [f32; 9] = [
+        0.999_999_9,
+        -0.499_999_73,
+        0.333_350_1,
+        -0.250_032_87,
+        0.199_388_41,
+        -0.165_329_08,
+        0.150_675_92,
+        -0.145_771_15,
+        0.086_929_22,
+    ];
+    // Not `clamp`: it would keep a NaN, `max` replaces it.
+    #[allow(clippy::manual_clamp)]
+    let x = x.max(f32::MIN_POSITIVE).min(f32::MAX);
+    let bits = x.to_bits();
+    let e = ((bits >> 23) & 0xff) as i32 - 127;
+    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000); // [1, 2)
+    let big = m > std::f32::consts::SQRT_2;
+    let m = if big { m * 0.5 } else { m };
+    let e = (e + i32::from(big)) as f32;
+    let f = m - 1.0;
+    let mut q = Q[8];
+    for &c in Q[..8].iter().rev() {
+        q = q * f + c;
+    }
+    e * LN_2 + f * q
+}
+
+/// Log intensity of a frame: `dst[i] = ln_fast(max(frame[i] * light_scale, floor))`, on the
+/// widest vector unit the CPU has.
+pub fn log_intensity_into(frame: &[f32], light_scale: f32, floor: f32, dst: &mut [f32]) {
+    neuspike_simd::dispatch(
+        #[inline(always)]
+        || {
+            for (l, &i) in dst.iter_mut().zip(frame) {
+                *l = ln_fast((i * light_scale).max(floor));
+            }
+        },
+    );
+}
+
+/// The pixel array of a DVS: per-pixel thresholds, reference levels and refractory clocks. It
+/// turns a sequence of log-intensity frames into events, like v2e does with video frames; the
+/// scene sampling lives in [`EventCamera`].
+pub struct DvsPixels {
+    width: usize,
+    refractory_ns: i64,
     theta_on: Vec<f32>,
     theta_off: Vec<f32>,
     reference: Vec<f32>,
     last_event_ns: Vec<i64>,
-    /// Log intensity at `t_ns`.
-    log_now: Vec<f32>,
-    log_next: Vec<f32>,
-    frame: Array2<f32>,
-    t_ns: i64,
-    scratch: Vec<Event>,
+    /// `reference + theta_on` rounded down and `reference - theta_off` rounded up to single
+    /// precision: the pre-check levels of [`DvsPixels::step`].
+    upper: Vec<f32>,
+    lower: Vec<f32>,
+    /// Scratch of [`DvsPixels::step`]: pixels that may cross.
+    candidates: Vec<u8>,
 }
 
-impl EventCamera {
-    /// A camera whose reference levels are the scene at `t_start_ns`.
-    pub fn new(scene: Scene, cfg: DvsConfig, t_start_ns: i64) -> Result<Self, ConfigError> {
+/// The largest `f32` at or below `y`.
+fn f32_at_or_below(y: f64) -> f32 {
+    let f = y as f32;
+    if f64::from(f) > y { f.next_down() } else { f }
+}
+
+/// The smallest `f32` at or above `y`.
+fn f32_at_or_above(y: f64) -> f32 {
+    let f = y as f32;
+    if f64::from(f) < y { f.next_up() } else { f }
+}
+
+impl DvsPixels {
+    /// A pixel array whose reference levels and last frame are `log_start` (row-major, `width`
+    /// columns), with mismatch drawn from `cfg.seed`.
+    pub fn new(cfg: &DvsConfig, log_start: &[f32]) -> Result<Self, ConfigError> {
         cfg.validate()?;
         let n = cfg.width * cfg.height;
+        if log_start.len() != n {
+            return Err(ConfigError {
+                key: "width",
+                value: format!("{}x{}", cfg.width, cfg.height),
+                why: "does not match the size of the first frame",
+            });
+        }
         let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
         let normal = Normal::new(0.0, cfg.theta_sigma).map_err(|_| ConfigError {
             key: "theta-sigma",
@@ -181,6 +254,172 @@ impl EventCamera {
         };
         let theta_on = draw(cfg.theta_on);
         let theta_off = draw(cfg.theta_off);
+        let mut px = DvsPixels {
+            width: cfg.width,
+            refractory_ns: cfg.refractory_ns,
+            theta_on,
+            theta_off,
+            reference: log_start.to_vec(),
+            last_event_ns: vec![i64::MIN; n],
+            upper: vec![0.0; n],
+            lower: vec![0.0; n],
+            candidates: Vec::new(),
+        };
+        for (i, &l) in log_start.iter().enumerate() {
+            px.set_reference(i, f64::from(l));
+        }
+        Ok(px)
+    }
+
+    /// Appends to `out` every crossing of the linear log-intensity path from `log_a` (the frame
+    /// of the previous step, at `t_a_ns`) to `log_b` (at `t_b_ns`), pixel by pixel, each inside
+    /// `[t_a_ns, t_b_ns)`. Fast: a vectorised pass finds the pixels that may cross and only
+    /// those take the scalar path; equal to
+    /// [`DvsPixels::step_reference`] event for event (tested).
+    pub fn step(
+        &mut self,
+        log_a: &[f32],
+        log_b: &[f32],
+        t_a_ns: i64,
+        t_b_ns: i64,
+        out: &mut Vec<Event>,
+    ) {
+        self.step_with(neuspike_simd::detect(), log_a, log_b, t_a_ns, t_b_ns, out);
+    }
+
+    /// [`DvsPixels::step`] compiled for a chosen instruction set (tests and benchmarks).
+    pub fn step_with(
+        &mut self,
+        isa: neuspike_simd::Isa,
+        log_a: &[f32],
+        log_b: &[f32],
+        t_a_ns: i64,
+        t_b_ns: i64,
+        out: &mut Vec<Event>,
+    ) {
+        let n = self.reference.len();
+        assert!(log_a.len() == n && log_b.len() == n, "frame size");
+        // Pass 1, vectorised: which pixels may cross (`lb >= upper` or `lb <= lower`; the levels
+        // are rounded outwards, so a pixel that fails has no crossing and `emit_pixel` would
+        // leave it as it is).
+        let mut cand = std::mem::take(&mut self.candidates);
+        cand.clear();
+        cand.resize(n, 0);
+        neuspike_simd::with_isa(
+            isa,
+            #[inline(always)]
+            || {
+                for (((c, &lb), &up), &lo) in
+                    cand.iter_mut().zip(log_b).zip(&self.upper).zip(&self.lower)
+                {
+                    *c = u8::from(lb >= up) | u8::from(lb <= lo);
+                }
+            },
+        );
+        // Pass 2, scalar: the candidates, found eight at a time.
+        for (k, eight) in cand.chunks(8).enumerate() {
+            let mut word = [0u8; 8];
+            word[..eight.len()].copy_from_slice(eight);
+            if u64::from_ne_bytes(word) != 0 {
+                for (j, &c) in eight.iter().enumerate() {
+                    if c != 0 {
+                        let i = k * 8 + j;
+                        self.emit_pixel(i, log_a[i], log_b[i], t_a_ns, t_b_ns, out);
+                    }
+                }
+            }
+        }
+        self.candidates = cand;
+    }
+
+    /// [`DvsPixels::step`] as the plain loop over every pixel (the oracle).
+    pub fn step_reference(
+        &mut self,
+        log_a: &[f32],
+        log_b: &[f32],
+        t_a_ns: i64,
+        t_b_ns: i64,
+        out: &mut Vec<Event>,
+    ) {
+        for (i, (&la, &lb)) in log_a.iter().zip(log_b).enumerate() {
+            self.emit_pixel(i, la, lb, t_a_ns, t_b_ns, out);
+        }
+    }
+
+    /// Emits every crossing of pixel `i` between `t_a` and `t_b`.
+    #[inline(always)]
+    fn emit_pixel(&mut self, i: usize, la: f32, lb: f32, t_a: i64, t_b: i64, out: &mut Vec<Event>) {
+        let dt = (t_b - t_a) as f64;
+        let (la, lb) = (f64::from(la), f64::from(lb));
+        let mut r = f64::from(self.reference[i]);
+        let (on, off) = (f64::from(self.theta_on[i]), f64::from(self.theta_off[i]));
+        loop {
+            let (level, polarity) = if lb >= r + on {
+                (r + on, 1i8)
+            } else if lb <= r - off {
+                (r - off, -1i8)
+            } else {
+                break;
+            };
+            // Time at which the linear path reaches `level`; a level already passed at t_a
+            // (left behind during a refractory period) fires at t_a.
+            let frac = if lb != la {
+                ((level - la) / (lb - la)).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            // Events of this step stay inside [t_a, t_b): a crossing exactly at t_b is
+            // stamped one nanosecond earlier.
+            let mut t = (t_a + (frac * dt).round() as i64).min(t_b - 1);
+            let free_at = self.last_event_ns[i].saturating_add(self.refractory_ns);
+            if t < free_at {
+                if free_at >= t_b {
+                    break; // still in reset at the end of the step: the reference waits
+                }
+                t = free_at;
+            }
+            r = level;
+            self.last_event_ns[i] = t;
+            out.push(Event {
+                t_ns: t,
+                x: (i % self.width) as u16,
+                y: (i / self.width) as u16,
+                polarity,
+            });
+        }
+        self.set_reference(i, r);
+    }
+
+    /// Moves pixel `i`'s reference level to `r` (rounded to single precision) and its
+    /// pre-check levels with it.
+    #[inline(always)]
+    fn set_reference(&mut self, i: usize, r: f64) {
+        let r = r as f32;
+        self.reference[i] = r;
+        let r = f64::from(r);
+        self.upper[i] = f32_at_or_below(r + f64::from(self.theta_on[i]));
+        self.lower[i] = f32_at_or_above(r - f64::from(self.theta_off[i]));
+    }
+}
+
+/// The event camera looking at a scene.
+pub struct EventCamera {
+    scene: Scene,
+    cfg: DvsConfig,
+    step_ns: i64,
+    pixels: DvsPixels,
+    /// Log intensity at `t_ns` and at the end of the step being simulated.
+    log_now: Vec<f32>,
+    log_next: Vec<f32>,
+    frame: Array2<f32>,
+    t_ns: i64,
+    scratch: Vec<Event>,
+}
+
+impl EventCamera {
+    /// A camera whose reference levels are the scene at `t_start_ns`.
+    pub fn new(scene: Scene, cfg: DvsConfig, t_start_ns: i64) -> Result<Self, ConfigError> {
+        cfg.validate()?;
         let scale = cfg.width as f64 / scene.width().max(1) as f64;
         let speed = scene.max_speed_px_per_s() * scale;
         let step_ns = if speed > 0.0 {
@@ -190,24 +429,21 @@ impl EventCamera {
         } else {
             cfg.max_step_ns
         };
-        let mut cam = EventCamera {
-            frame: Array2::zeros((cfg.height, cfg.width)),
+        let mut frame = Array2::zeros((cfg.height, cfg.width));
+        let mut log_next = vec![0.0; cfg.width * cfg.height];
+        sample_log(&scene, &cfg, t_start_ns, &mut frame, &mut log_next);
+        let pixels = DvsPixels::new(&cfg, &log_next)?;
+        Ok(EventCamera {
+            frame,
             scene,
             step_ns,
-            theta_on,
-            theta_off,
-            reference: vec![0.0; n],
-            last_event_ns: vec![i64::MIN; n],
-            log_now: vec![0.0; n],
-            log_next: vec![0.0; n],
+            pixels,
+            log_now: log_next.clone(),
+            log_next,
             t_ns: t_start_ns,
             scratch: Vec::new(),
             cfg,
-        };
-        cam.sample_log(t_start_ns);
-        cam.log_now.copy_from_slice(&cam.log_next);
-        cam.reference.copy_from_slice(&cam.log_now);
-        Ok(cam)
+        })
     }
 
     /// The sampling step, nanoseconds.
@@ -225,80 +461,48 @@ impl EventCamera {
         &self.scene
     }
 
-    fn sample_log(&mut self, t_ns: i64) {
-        self.scene.render_into(t_ns, self.frame.view_mut());
-        let ls = self.scene.light_scale() as f32;
-        let floor = self.cfg.log_floor as f32;
-        for (l, &i) in self.log_next.iter_mut().zip(self.frame.iter()) {
-            *l = (i * ls).max(floor).ln();
-        }
-    }
-
     /// Simulates up to `t_end_ns` and returns the events of `[time_ns(), t_end_ns)` as a batch.
     pub fn advance_to(&mut self, t_end_ns: i64, seq: u64) -> EventBatch {
         let mut batch =
             EventBatch::empty(self.cfg.width, self.cfg.height, self.t_ns, t_end_ns, seq);
         while self.t_ns < t_end_ns {
             let t_b = (self.t_ns + self.step_ns).min(t_end_ns);
-            self.sample_log(t_b);
+            if !self.scene.is_static() {
+                sample_log(
+                    &self.scene,
+                    &self.cfg,
+                    t_b,
+                    &mut self.frame,
+                    &mut self.log_next,
+                );
+            }
             self.scratch.clear();
-            self.emit_step(self.t_ns, t_b);
+            self.pixels.step(
+                &self.log_now,
+                &self.log_next,
+                self.t_ns,
+                t_b,
+                &mut self.scratch,
+            );
+            std::mem::swap(&mut self.log_now, &mut self.log_next);
             // Events of one step come pixel by pixel; the batch is in time order.
             self.scratch.sort_by_key(|e| e.t_ns);
             for e in &self.scratch {
                 batch.push(*e);
             }
-            std::mem::swap(&mut self.log_now, &mut self.log_next);
             self.t_ns = t_b;
         }
         batch
     }
+}
 
-    /// Emits every crossing of the linear log-intensity path between `t_a` and `t_b`.
-    fn emit_step(&mut self, t_a: i64, t_b: i64) {
-        let w = self.cfg.width;
-        let refractory = self.cfg.refractory_ns;
-        let dt = (t_b - t_a) as f64;
-        for i in 0..self.reference.len() {
-            let (la, lb) = (f64::from(self.log_now[i]), f64::from(self.log_next[i]));
-            let mut r = f64::from(self.reference[i]);
-            let (on, off) = (f64::from(self.theta_on[i]), f64::from(self.theta_off[i]));
-            loop {
-                let (level, polarity) = if lb >= r + on {
-                    (r + on, 1i8)
-                } else if lb <= r - off {
-                    (r - off, -1i8)
-                } else {
-                    break;
-                };
-                // Time at which the linear path reaches `level`; a level already passed at t_a
-                // (left behind during a refractory period) fires at t_a.
-                let frac = if lb != la {
-                    ((level - la) / (lb - la)).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                // Events of this step stay inside [t_a, t_b): a crossing exactly at t_b is
-                // stamped one nanosecond earlier.
-                let mut t = (t_a + (frac * dt).round() as i64).min(t_b - 1);
-                let free_at = self.last_event_ns[i].saturating_add(refractory);
-                if t < free_at {
-                    if free_at >= t_b {
-                        break; // still in reset at the end of the step: the reference waits
-                    }
-                    t = free_at;
-                }
-                r = level;
-                self.last_event_ns[i] = t;
-                self.scratch.push(Event {
-                    t_ns: t,
-                    x: (i % w) as u16,
-                    y: (i / w) as u16,
-                    polarity,
-                });
-            }
-            self.reference[i] = r as f32;
-        }
+/// Renders the scene at `t_ns` into `frame` and its log intensity into `log`.
+fn sample_log(scene: &Scene, cfg: &DvsConfig, t_ns: i64, frame: &mut Array2<f32>, log: &mut [f32]) {
+    scene.render_into(t_ns, frame.view_mut());
+    let ls = scene.light_scale() as f32;
+    let floor = cfg.log_floor as f32;
+    if let Some(frame) = frame.as_slice() {
+        log_intensity_into(frame, ls, floor, log);
     }
 }
 
@@ -336,7 +540,7 @@ mod tests {
         let b = cam.advance_to(5_000_000, 3);
         assert!(b.len() > 100, "{} events", b.len());
         b.validate("test").unwrap();
-        assert!(b.polarity.iter().any(|&p| p == 1) && b.polarity.iter().any(|&p| p == -1));
+        assert!(b.polarity.contains(&1) && b.polarity.contains(&-1));
         assert_eq!((b.t_start_ns, b.t_end_ns, b.seq), (0, 5_000_000, 3));
     }
 
@@ -413,5 +617,105 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("theta-on") && e.contains('0'), "{e}");
+    }
+
+    #[test]
+    fn ln_fast_is_close_everywhere_and_finite_at_the_edges() {
+        let mut worst = 0.0f64;
+        let mut check = |x: f32| {
+            let exact = f64::from(x).ln();
+            let err = (f64::from(ln_fast(x)) - exact).abs() / exact.abs().max(1.0);
+            worst = worst.max(err);
+        };
+        for k in -37_000..38_000 {
+            check(10f32.powf(k as f32 / 1000.0));
+        }
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..200_000 {
+            let bits = rand::Rng::random_range(&mut rng, 0x0080_0000u32..0x7f80_0000);
+            check(f32::from_bits(bits));
+        }
+        assert!(worst <= 2e-6, "worst relative error {worst}");
+        let lo = f64::from(f32::MIN_POSITIVE).ln();
+        for x in [0.0, -1.0, f32::NAN, f32::NEG_INFINITY] {
+            assert!((f64::from(ln_fast(x)) - lo).abs() < 1e-4, "{x}");
+        }
+        assert!((f64::from(ln_fast(f32::INFINITY)) - f64::from(f32::MAX).ln()).abs() < 1e-4);
+        assert_eq!(ln_fast(1.0), 0.0);
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn fast_step_equals_reference(
+            w in 1usize..40,
+            h in 1usize..12,
+            seed in proptest::prelude::any::<u64>(),
+            refractory_ns in 0i64..300,
+            steps in 1usize..6,
+            isa in 0usize..3,
+        ) {
+            let isa = neuspike_simd::Isa::ALL[isa];
+            let c = DvsConfig { width: w, height: h, refractory_ns, theta_sigma: 0.1, seed, ..Default::default() };
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            // Small changes (most pixels stay below a threshold) with an occasional jump.
+            let mut prev: Vec<f32> = (0..w * h).map(|_| rand::Rng::random_range(&mut rng, -3.0f32..1.0)).collect();
+            let mut frame = || -> Vec<f32> {
+                for v in prev.iter_mut() {
+                    let jump = rand::Rng::random_bool(&mut rng, 0.05);
+                    *v += if jump { rand::Rng::random_range(&mut rng, -1.0f32..1.0) } else { rand::Rng::random_range(&mut rng, -0.1f32..0.1) };
+                }
+                prev.clone()
+            };
+            let start = frame();
+            let mut fast = DvsPixels::new(&c, &start).unwrap();
+            let mut slow = DvsPixels::new(&c, &start).unwrap();
+            let (mut e1, mut e2) = (Vec::new(), Vec::new());
+            let mut last = start.clone();
+            for k in 0..steps as i64 {
+                let next = frame();
+                fast.step_with(isa, &last, &next, k * 100, (k + 1) * 100, &mut e1);
+                slow.step_reference(&last, &next, k * 100, (k + 1) * 100, &mut e2);
+                last = next;
+            }
+            proptest::prop_assert_eq!(e1, e2);
+            proptest::prop_assert_eq!(&fast.reference, &slow.reference);
+            proptest::prop_assert_eq!(fast.last_event_ns, slow.last_event_ns);
+            // The pre-check never misses a pixel the exact test would take, at the levels
+            // themselves and their neighbours.
+            for i in 0..w * h {
+                let r = f64::from(fast.reference[i]);
+                let (up, lo) = (fast.upper[i], fast.lower[i]);
+                for lb in [up, up.next_up(), up.next_down(), lo, lo.next_up(), lo.next_down()] {
+                    let exact = f64::from(lb) >= r + f64::from(fast.theta_on[i])
+                        || f64::from(lb) <= r - f64::from(fast.theta_off[i]);
+                    proptest::prop_assert!(!exact || lb >= up || lb <= lo);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn vectorised_log_equals_scalar_ln_fast() {
+        let frame: Vec<f32> = (0..10_007)
+            .map(|i| (i as f32 * 0.731).sin().abs() * 3.0)
+            .collect();
+        let mut log = vec![0.0; frame.len()];
+        log_intensity_into(&frame, 0.7, 1e-4, &mut log);
+        for (l, f) in log.iter().zip(&frame) {
+            assert_eq!(l.to_bits(), ln_fast((f * 0.7).max(1e-4)).to_bits());
+        }
+    }
+
+    #[test]
+    fn tiny_log_floor_is_refused_by_name() {
+        let c = DvsConfig {
+            log_floor: 1e-300,
+            ..cfg()
+        };
+        let e = EventCamera::new(scene("", 1.0), c, 0)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("log-floor") && e.contains("1e-300"), "{e}");
     }
 }

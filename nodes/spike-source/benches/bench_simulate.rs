@@ -6,8 +6,8 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use neuspike_scene::Scene;
 use neuspike_spike_source::{
-    CameraConfig, PixelState, Reset, SpikeCamera, TickLight, integrate_tick,
-    integrate_tick_reference,
+    CameraConfig, Isa, KeyLight, PixelState, Reset, SpikeCamera, integrate_ticks_reference,
+    integrate_ticks_with,
 };
 use std::hint::black_box;
 
@@ -31,38 +31,54 @@ fn bench(c: &mut Criterion) {
         })
     });
 
-    // The per-tick kernel alone (integrate, fire, reset, cap, pack): scalar reference and fast path.
+    // The kernel alone (integrate, fire, reset, cap, pack) over 20-tick key intervals: the scalar
+    // reference and the fast path on each instruction set this CPU has.
+    const KEY_TICKS: usize = 20;
     let base: Vec<f32> = (0..n).map(|i| (i % 255) as f32 / 255.0).collect();
     let slope = vec![0.0f32; n];
     let mut acc = vec![0.0f32; n];
     let mut since = vec![0u32; n];
     let cap = vec![180u32; n];
-    let mut plane = vec![0u8; n / 8];
-    for (name, fast) in [
-        ("integrate_tick_reference", false),
-        ("integrate_tick_fast", true),
-    ] {
+    let mut planes = vec![0u8; n / 8 * KEY_TICKS];
+    let light = KeyLight {
+        base: &base,
+        slope: &slope,
+    };
+    let mut variants = vec![("kernel_reference".to_string(), None)];
+    for isa in Isa::ALL.into_iter().filter(|isa| isa.is_supported()) {
+        variants.push((format!("kernel_fast_{}", isa.name()), Some(isa)));
+    }
+    for (name, isa) in variants {
         g.bench_function(name, |b| {
             b.iter(|| {
-                for _ in 0..PLANES {
-                    plane.fill(0);
-                    let light = TickLight {
-                        base: &base,
-                        slope: &slope,
-                        k: 0.0,
-                    };
+                for _ in 0..PLANES / KEY_TICKS {
+                    planes.fill(0);
                     let px = PixelState {
                         acc: &mut acc,
                         since: &mut since,
                         cap: &cap,
                     };
-                    if fast {
-                        integrate_tick(light, 1.0, Reset::Subtract, px, &mut plane);
-                    } else {
-                        integrate_tick_reference(light, 1.0, Reset::Subtract, px, &mut plane);
+                    match isa {
+                        Some(isa) => integrate_ticks_with(
+                            isa,
+                            light,
+                            0,
+                            1.0,
+                            Reset::Subtract,
+                            px,
+                            &mut planes,
+                        ),
+                        None => integrate_ticks_reference(
+                            light,
+                            0,
+                            1.0,
+                            Reset::Subtract,
+                            px,
+                            &mut planes,
+                        ),
                     }
                 }
-                black_box(&plane);
+                black_box(&planes);
             })
         });
     }

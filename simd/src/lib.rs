@@ -1,0 +1,132 @@
+//! Run-time choice of the vector instruction set for the kernels of neuspike.
+//!
+//! The kernels are written as plain loops without branches over fixed-size blocks, which the
+//! compiler vectorises. Compiled for the baseline x86-64 target they get 128-bit vectors; the
+//! machines we run on mostly have AVX2 or AVX-512. [`with_isa`] runs a kernel inside a function
+//! compiled for the widest instruction set the CPU has (checked once, at run time), so one binary
+//! is both portable and fast. This crate holds the only `unsafe` of the project: calling a
+//! function compiled for an instruction set is sound exactly when the CPU supports it, which is
+//! checked right before each call.
+//!
+//! A kernel run through [`with_isa`] must give the same bits on every instruction set; that holds
+//! for IEEE add, sub, mul, div, sqrt, min, max and compares (Rust never fuses a multiply and an
+//! add unless asked to), and each kernel's tests check it on every [`Isa`] this CPU has.
+#![deny(missing_docs)]
+
+/// The instruction sets kernels can be compiled for, narrowest first (so `a <= b` says that code
+/// for `a` runs wherever code for `b` does).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Isa {
+    /// Whatever the compilation target guarantees (SSE2 on x86-64).
+    Baseline,
+    /// x86-64 AVX2 (256-bit vectors).
+    Avx2,
+    /// x86-64 AVX-512 F and BW (512-bit vectors).
+    Avx512,
+}
+
+impl Isa {
+    /// Every instruction set, narrowest first.
+    pub const ALL: [Isa; 3] = [Isa::Baseline, Isa::Avx2, Isa::Avx512];
+
+    /// Lower-case name (`baseline`, `avx2`, `avx512`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Baseline => "baseline",
+            Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
+        }
+    }
+
+    /// Whether this CPU can run code compiled for `self`.
+    pub fn is_supported(self) -> bool {
+        self <= detect()
+    }
+}
+
+/// The widest instruction set this CPU supports (the standard library caches the CPU query).
+pub fn detect() -> Isa {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512bw")
+        {
+            return Isa::Avx512;
+        }
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Isa::Avx2;
+        }
+    }
+    Isa::Baseline
+}
+
+/// Runs `kernel` compiled for the widest instruction set the CPU supports.
+#[inline]
+pub fn dispatch<R>(kernel: impl FnOnce() -> R) -> R {
+    with_isa(detect(), kernel)
+}
+
+/// Runs `kernel` compiled for `isa`, or for the widest instruction set below it that the CPU
+/// supports (tests and benchmarks use it to compare the variants).
+///
+/// `kernel` must be a closure marked `#[inline(always)]` that calls `#[inline(always)]` functions
+/// (`with_isa(isa, #[inline(always)] || kernel(..))`), so its whole body is compiled inside the
+/// variant; without the marks the compiler may keep it out of line, compiled for the baseline.
+#[inline]
+pub fn with_isa<R>(isa: Isa, kernel: impl FnOnce() -> R) -> R {
+    let isa = isa.min(detect());
+    #[cfg(target_arch = "x86_64")]
+    {
+        match isa {
+            // SAFETY: `isa <= detect()`: the CPU supports AVX-512 F and BW.
+            #[allow(unsafe_code)]
+            Isa::Avx512 => return unsafe { x86::avx512(kernel) },
+            // SAFETY: `isa <= detect()`: the CPU supports AVX2.
+            #[allow(unsafe_code)]
+            Isa::Avx2 => return unsafe { x86::avx2(kernel) },
+            Isa::Baseline => {}
+        }
+    }
+    let _ = isa;
+    kernel()
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub fn avx2<R>(kernel: impl FnOnce() -> R) -> R {
+        kernel()
+    }
+
+    #[target_feature(enable = "avx512f,avx512bw")]
+    #[inline]
+    pub fn avx512<R>(kernel: impl FnOnce() -> R) -> R {
+        kernel()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_isa_runs_and_gives_the_same_bits() {
+        let xs: Vec<f32> = (0..1000).map(|i| (i as f32 * 0.37).sin()).collect();
+        let sum = |xs: &[f32]| {
+            let mut acc = [0f32; 16];
+            for c in xs.chunks_exact(16) {
+                for j in 0..16 {
+                    acc[j] += c[j] * c[j] + 0.5;
+                }
+            }
+            acc
+        };
+        let want = sum(&xs);
+        for isa in Isa::ALL {
+            assert_eq!(with_isa(isa, || sum(&xs)), want, "{}", isa.name());
+        }
+        assert!(Isa::Baseline.is_supported());
+        assert!(detect().is_supported());
+    }
+}
