@@ -9,8 +9,7 @@
 //! NaN pixels are not cleaned: they make PSNR and SSIM NaN (which the report counts), while
 //! [`entropy_2d`] quantises NaN to grey level 0.
 
-use ndarray::{ArrayView2, Axis};
-use rayon::prelude::*;
+use ndarray::ArrayView2;
 
 /// Side of the SSIM window (Wang et al. 2004; scikit-image's `2 * int(3.5 * sigma + 0.5) + 1`).
 pub const SSIM_WINDOW: usize = 11;
@@ -26,8 +25,6 @@ pub const DATA_RANGE: f64 = 1.0;
 const SSIM_RADIUS: usize = SSIM_WINDOW / 2;
 const SSIM_C1: f64 = (SSIM_K1 * DATA_RANGE) * (SSIM_K1 * DATA_RANGE);
 const SSIM_C2: f64 = (SSIM_K2 * DATA_RANGE) * (SSIM_K2 * DATA_RANGE);
-/// Images with at least this many pixels filter their rows on the rayon pool.
-const SSIM_PARALLEL_MIN_PIXELS: usize = 128 * 128;
 /// Grey levels of the 8-bit quantisation used by [`entropy_2d`].
 const GREY_LEVELS: usize = 256;
 
@@ -56,22 +53,52 @@ pub fn check_same_shape(x: ArrayView2<f32>, gt: ArrayView2<f32>) -> Result<(), M
     }
 }
 
-/// Mean squared error of `x` against `gt`, in f64. Zero for empty images.
+/// Lanes of the f64 sums: eight partial sums, added in a fixed order at the end, so the loop
+/// vectorises and the result does not depend on the instruction set.
+const LANES: usize = 8;
+
+/// `sum over pixels of f(x, gt)` in f64, over eight lanes, pixels in row-major order.
+#[inline(always)]
+fn sum_pairs(x: ArrayView2<f32>, gt: ArrayView2<f32>, f: impl Fn(f64, f64) -> f64) -> f64 {
+    let lanes = |xs: &[f32], gs: &[f32]| -> f64 {
+        let mut acc = [0.0f64; LANES];
+        let (xc, gc) = (xs.chunks_exact(LANES), gs.chunks_exact(LANES));
+        let (xr, gr) = (xc.remainder(), gc.remainder());
+        for (a, b) in xc.zip(gc) {
+            for j in 0..LANES {
+                acc[j] += f(f64::from(a[j]), f64::from(b[j]));
+            }
+        }
+        for (j, (&a, &b)) in xr.iter().zip(gr).enumerate() {
+            acc[j] += f(f64::from(a), f64::from(b));
+        }
+        acc.iter().sum()
+    };
+    match (x.as_slice(), gt.as_slice()) {
+        (Some(xs), Some(gs)) => neuspike_simd::dispatch(
+            #[inline(always)]
+            || lanes(xs, gs),
+        ),
+        _ => {
+            let (xs, gs): (Vec<f32>, Vec<f32>) =
+                (x.iter().copied().collect(), gt.iter().copied().collect());
+            lanes(&xs, &gs)
+        }
+    }
+}
+
+/// Mean squared error of `map(x)` against `gt`, in f64. Zero for empty images.
+#[inline(always)]
 fn mse_by(x: ArrayView2<f32>, gt: ArrayView2<f32>, map: impl Fn(f64) -> f64) -> f64 {
     debug_assert_eq!(x.dim(), gt.dim(), "metrics need images of one shape");
     let n = x.len();
     if n == 0 {
         return 0.0;
     }
-    let sum: f64 = x
-        .iter()
-        .zip(gt.iter())
-        .map(|(&a, &g)| {
-            let d = map(f64::from(a)) - f64::from(g);
-            d * d
-        })
-        .sum();
-    sum / n as f64
+    sum_pairs(x, gt, |a, g| {
+        let d = map(a) - g;
+        d * d
+    }) / n as f64
 }
 
 /// PSNR from an MSE: `10 log10(1 / MSE)`, infinite for an MSE of 0.
@@ -97,13 +124,8 @@ pub fn psnr(x: ArrayView2<f32>, gt: ArrayView2<f32>) -> f64 {
 /// Precondition: equal shapes.
 pub fn gain_lsq(x: ArrayView2<f32>, gt: ArrayView2<f32>) -> f64 {
     debug_assert_eq!(x.dim(), gt.dim(), "metrics need images of one shape");
-    let (sxg, sxx) = x
-        .iter()
-        .zip(gt.iter())
-        .fold((0.0f64, 0.0f64), |(sxg, sxx), (&a, &g)| {
-            let a = f64::from(a);
-            (sxg + a * f64::from(g), sxx + a * a)
-        });
+    let sxg = sum_pairs(x, gt, |a, g| a * g);
+    let sxx = sum_pairs(x, gt, |a, _| a * a);
     if sxx == 0.0 { 1.0 } else { sxg / sxx }
 }
 
@@ -153,14 +175,10 @@ fn ssim_from_moments([ux, uy, uxx, uyy, uxy]: Moments) -> f64 {
 /// Images smaller than 11 pixels in either dimension have no such pixel (scikit-image refuses
 /// them); here they get the global SSIM instead: the same formula with one window covering the
 /// whole image, uniformly weighted (plain means and population variances). Empty images give 1.
-/// Precondition: equal shapes. The Gaussian filtering is separable, and large images filter their
-/// rows in parallel; the result does not depend on the number of threads.
+/// Precondition: equal shapes. The Gaussian filtering is separable and runs on one thread (the
+/// sink shares the machine with the rest of the graph), vectorised on the widest instruction set
+/// the CPU has; the result does not depend on it.
 pub fn ssim(x: ArrayView2<f32>, gt: ArrayView2<f32>) -> f64 {
-    let parallel = x.len() >= SSIM_PARALLEL_MIN_PIXELS;
-    ssim_with(x, gt, parallel)
-}
-
-fn ssim_with(x: ArrayView2<f32>, gt: ArrayView2<f32>, parallel: bool) -> f64 {
     debug_assert_eq!(x.dim(), gt.dim(), "metrics need images of one shape");
     let (rows, cols) = x.dim();
     if rows == 0 || cols == 0 {
@@ -168,7 +186,10 @@ fn ssim_with(x: ArrayView2<f32>, gt: ArrayView2<f32>, parallel: bool) -> f64 {
     } else if rows < SSIM_WINDOW || cols < SSIM_WINDOW {
         ssim_global(x, gt)
     } else {
-        ssim_windowed(x, gt, parallel)
+        neuspike_simd::dispatch(
+            #[inline(always)]
+            || ssim_windowed(x, gt),
+        )
     }
 }
 
@@ -193,77 +214,73 @@ fn ssim_global(x: ArrayView2<f32>, gt: ArrayView2<f32>) -> f64 {
     (a1 * a2) / (b1 * b2)
 }
 
-/// Gaussian-windowed SSIM over the valid region, separable: rows first, then columns.
-fn ssim_windowed(x: ArrayView2<f32>, gt: ArrayView2<f32>, parallel: bool) -> f64 {
+/// Gaussian-windowed SSIM over the valid region, separable: rows first, then columns. Each
+/// filtered value adds its taps in tap order, so it equals the direct sum of the same products.
+#[inline(always)]
+fn ssim_windowed(x: ArrayView2<f32>, gt: ArrayView2<f32>) -> f64 {
     let (rows, cols) = x.dim();
     let out_rows = rows - 2 * SSIM_RADIUS;
     let out_cols = cols - 2 * SSIM_RADIUS;
     let taps = gaussian_taps();
 
-    // Horizontal pass: for every input row, the moments filtered along the row, valid columns only.
-    let mut horizontal: Vec<Moments> = vec![[0.0; 5]; rows * out_cols];
-    let filter_row = |(r, out): (usize, &mut [Moments])| {
-        let xr = x.index_axis(Axis(0), r);
-        let gr = gt.index_axis(Axis(0), r);
-        let xs: Vec<f64> = xr.iter().map(|&v| f64::from(v)).collect();
-        let gs: Vec<f64> = gr.iter().map(|&v| f64::from(v)).collect();
-        for (c, m) in out.iter_mut().enumerate() {
-            let mut acc = [0.0; 5];
-            for (k, &w) in taps.iter().enumerate() {
-                let (a, b) = (xs[c + k], gs[c + k]);
-                acc[0] += w * a;
-                acc[1] += w * b;
-                acc[2] += w * (a * a);
-                acc[3] += w * (b * b);
-                acc[4] += w * (a * b);
-            }
-            *m = acc;
+    // Horizontal pass. Row r of the input gives five filtered rows (the moments E[x], E[y],
+    // E[x^2], E[y^2], E[xy]), stored at `horizontal[(5 r + m) * out_cols..]`.
+    let mut horizontal = vec![0.0f64; 5 * rows * out_cols];
+    let mut signals = [
+        vec![0.0f64; cols],
+        vec![0.0f64; cols],
+        vec![0.0f64; cols],
+        vec![0.0f64; cols],
+        vec![0.0f64; cols],
+    ];
+    for (r, out) in horizontal.chunks_exact_mut(5 * out_cols).enumerate() {
+        let [xs, gs, xx, gg, xg] = &mut signals;
+        for (c, (&a, &b)) in x.row(r).iter().zip(gt.row(r)).enumerate() {
+            let (a, b) = (f64::from(a), f64::from(b));
+            xs[c] = a;
+            gs[c] = b;
+            xx[c] = a * a;
+            gg[c] = b * b;
+            xg[c] = a * b;
         }
-    };
-
-    if parallel {
-        horizontal
-            .par_chunks_mut(out_cols)
-            .enumerate()
-            .for_each(filter_row);
-    } else {
-        horizontal
-            .chunks_mut(out_cols)
-            .enumerate()
-            .for_each(filter_row);
-    }
-
-    // Vertical pass: one output row's sum of the SSIM map.
-    let horizontal = &horizontal;
-    let ssim_row_sum = |r: usize| -> f64 {
-        let mut acc: Vec<Moments> = vec![[0.0; 5]; out_cols];
-        for (k, &w) in taps.iter().enumerate() {
-            let src = &horizontal[(r + k) * out_cols..(r + k + 1) * out_cols];
-            for (a, s) in acc.iter_mut().zip(src) {
-                for m in 0..5 {
-                    a[m] += w * s[m];
+        for (signal, out) in signals.iter().zip(out.chunks_exact_mut(out_cols)) {
+            for (k, &w) in taps.iter().enumerate() {
+                for (o, &v) in out.iter_mut().zip(&signal[k..k + out_cols]) {
+                    *o += w * v;
                 }
             }
         }
-        acc.into_iter().map(ssim_from_moments).sum()
-    };
-    let row_sums: Vec<f64> = if parallel {
-        (0..out_rows).into_par_iter().map(ssim_row_sum).collect()
-    } else {
-        (0..out_rows).map(ssim_row_sum).collect()
-    };
-    // Summed in row order whatever the thread count, so the result is deterministic.
-    row_sums.iter().sum::<f64>() / (out_rows * out_cols) as f64
+    }
+
+    // Vertical pass, one output row at a time, then the SSIM map summed in row-major order.
+    let mut acc = vec![0.0f64; 5 * out_cols];
+    let mut total = 0.0f64;
+    for r in 0..out_rows {
+        acc.fill(0.0);
+        for (k, &w) in taps.iter().enumerate() {
+            let src = &horizontal[5 * (r + k) * out_cols..5 * (r + k + 1) * out_cols];
+            for (a, &v) in acc.iter_mut().zip(src) {
+                *a += w * v;
+            }
+        }
+        let (ux, rest) = acc.split_at(out_cols);
+        let (uy, rest) = rest.split_at(out_cols);
+        let (uxx, rest) = rest.split_at(out_cols);
+        let (uyy, uxy) = rest.split_at(out_cols);
+        let mut row = 0.0f64;
+        for c in 0..out_cols {
+            row += ssim_from_moments([ux[c], uy[c], uxx[c], uyy[c], uxy[c]]);
+        }
+        total += row;
+    }
+    total / (out_rows * out_cols) as f64
 }
 
 /// 8-bit grey level of a luminance: `round(clamp(v, 0, 1) * 255)`, half away from zero, in f64;
-/// NaN gives 0.
-fn grey_level(v: f32) -> usize {
-    if v.is_nan() {
-        0
-    } else {
-        (f64::from(v).clamp(0.0, 1.0) * (GREY_LEVELS - 1) as f64).round() as usize
-    }
+/// NaN gives 0. (`floor(y + 0.5)` is that rounding for `y >= 0`, exact here; `NaN as u8` is 0.)
+#[inline(always)]
+fn grey_level(v: f32) -> u8 {
+    (f64::from(v).clamp(0.0, 1.0) * (GREY_LEVELS - 1) as f64 + 0.5) as u8
 }
 
 /// 2D entropy in bits (the paper's no-reference metric, `REFERENCE.md`), between 0 and 16.
@@ -279,20 +296,29 @@ pub fn entropy_2d(x: ArrayView2<f32>) -> f64 {
     if n == 0 {
         return 0.0;
     }
-    let levels: Vec<usize> = x.iter().map(|&v| grey_level(v)).collect();
+    let levels: Vec<u8> = match x.as_slice() {
+        Some(xs) => neuspike_simd::dispatch(
+            #[inline(always)]
+            || xs.iter().map(|&v| grey_level(v)).collect(),
+        ),
+        None => x.iter().map(|&v| grey_level(v)).collect(),
+    };
+    // 3x3 box sums with the edges replicated: along rows, then along columns.
+    let mut across = vec![0u16; n];
+    for (row, out) in levels.chunks_exact(cols).zip(across.chunks_exact_mut(cols)) {
+        for c in 0..cols {
+            let (l, r) = (c.saturating_sub(1), (c + 1).min(cols - 1));
+            out[c] = u16::from(row[l]) + u16::from(row[c]) + u16::from(row[r]);
+        }
+    }
     let mut counts = vec![0u64; GREY_LEVELS * GREY_LEVELS];
     for r in 0..rows {
-        let neighbour_rows = [r.saturating_sub(1), r, (r + 1).min(rows - 1)];
+        let at = |rr: usize| &across[rr * cols..(rr + 1) * cols];
+        let (up, mid, down) = (at(r.saturating_sub(1)), at(r), at((r + 1).min(rows - 1)));
+        let lv = &levels[r * cols..(r + 1) * cols];
         for c in 0..cols {
-            let neighbour_cols = [c.saturating_sub(1), c, (c + 1).min(cols - 1)];
-            let mut sum = 0;
-            for nr in neighbour_rows {
-                for nc in neighbour_cols {
-                    sum += levels[nr * cols + nc];
-                }
-            }
-            let j = (sum + 4) / 9;
-            counts[levels[r * cols + c] * GREY_LEVELS + j] += 1;
+            let j = (usize::from(up[c]) + usize::from(mid[c]) + usize::from(down[c]) + 4) / 9;
+            counts[usize::from(lv[c]) * GREY_LEVELS + j] += 1;
         }
     }
     let n = n as f64;
@@ -557,23 +583,25 @@ mod tests {
         let x = pattern(29, 34);
         let y = noisy(&x, 5);
         let direct = ssim_direct(&x, &y);
-        for parallel in [false, true] {
-            let fast = ssim_with(x.view(), y.view(), parallel);
-            assert!(
-                (fast - direct).abs() < 1e-12,
-                "{parallel}: {fast} vs {direct}"
-            );
-        }
+        let fast = ssim(x.view(), y.view());
+        assert!((fast - direct).abs() < 1e-12, "{fast} vs {direct}");
     }
 
     #[test]
-    fn parallel_ssim_is_bit_identical_to_sequential() {
+    fn ssim_is_the_same_on_every_instruction_set() {
         let x = pattern(250, 400);
         let y = noisy(&x, 77);
-        assert_eq!(
-            ssim_with(x.view(), y.view(), true).to_bits(),
-            ssim_with(x.view(), y.view(), false).to_bits()
-        );
+        let want = neuspike_simd::with_isa(neuspike_simd::Isa::Baseline, || {
+            ssim_windowed(x.view(), y.view())
+        });
+        for isa in neuspike_simd::Isa::ALL {
+            let got = neuspike_simd::with_isa(
+                isa,
+                #[inline(always)]
+                || ssim_windowed(x.view(), y.view()),
+            );
+            assert_eq!(got.to_bits(), want.to_bits(), "{}", isa.name());
+        }
     }
 
     #[test]
@@ -737,25 +765,5 @@ mod tests {
             prop_assert!(h <= 16.0);
             prop_assert!(h <= (a.len() as f64).log2() + 1e-12);
         }
-    }
-
-    #[test]
-    #[ignore = "timing, run by hand: cargo test --release -p neuspike-sink --lib -- --ignored --nocapture"]
-    fn ssim_timing_400x250() {
-        let x = pattern(250, 400);
-        let y = noisy(&x, 3);
-        for parallel in [false, true] {
-            let start = std::time::Instant::now();
-            let reps = 50;
-            let mut s = 0.0;
-            for _ in 0..reps {
-                s += ssim_with(x.view(), y.view(), parallel);
-            }
-            let per = start.elapsed() / reps;
-            println!("ssim 400x250 parallel={parallel}: {per:?} per call ({s})");
-        }
-        let start = std::time::Instant::now();
-        let h = entropy_2d(x.view());
-        println!("entropy_2d 400x250: {:?} ({h})", start.elapsed());
     }
 }

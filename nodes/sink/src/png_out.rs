@@ -5,7 +5,7 @@ use std::io::{BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use image::codecs::png::{PngDecoder, PngEncoder};
-use image::{DynamicImage, ImageBuffer, Luma};
+use image::{DynamicImage, ExtendedColorType, ImageEncoder};
 use ndarray::{Array2, ArrayView2};
 
 use crate::SinkError;
@@ -69,11 +69,20 @@ pub fn tmp_path(path: &Path) -> PathBuf {
 }
 
 /// Grey level of a luminance: `round(clamp(v, 0, 1) * max)`, half away from zero, in f64; NaN -> 0.
+/// (`floor(y + 0.5)` is that rounding for `y >= 0`, exact in f64 here; `NaN as u16` is 0.)
+#[inline(always)]
 fn level(v: f32, max: u16) -> u16 {
-    if v.is_nan() {
-        0
-    } else {
-        (f64::from(v).clamp(0.0, 1.0) * f64::from(max)).round() as u16
+    (f64::from(v).clamp(0.0, 1.0) * f64::from(max) + 0.5) as u16
+}
+
+/// The grey levels of `frame` in row-major order, vectorised when the frame is contiguous.
+fn levels<T>(frame: ArrayView2<f32>, max: u16, cast: impl Fn(u16) -> T + Copy) -> Vec<T> {
+    match frame.as_slice() {
+        Some(xs) => neuspike_simd::dispatch(
+            #[inline(always)]
+            || xs.iter().map(|&v| cast(level(v, max))).collect(),
+        ),
+        None => frame.iter().map(|&v| cast(level(v, max))).collect(),
     }
 }
 
@@ -131,25 +140,25 @@ pub fn write_frame_png(
     let width = u32::try_from(cols).map_err(|_| bad_shape())?;
     let height = u32::try_from(rows).map_err(|_| bad_shape())?;
     let max = depth.max_level();
-    let at = |x: u32, y: u32| level(frame[[y as usize, x as usize]], max);
     write_atomically(path, |out, tmp| {
         let png_error = |source| SinkError::Png {
             path: tmp.to_owned(),
             source,
         };
+        let encoder = PngEncoder::new(out);
         match depth {
             BitDepth::Eight => {
                 // level() is at most max_level() = 255 here
-                let img = ImageBuffer::from_fn(width, height, |x, y| Luma([at(x, y) as u8]));
-                img.write_with_encoder(PngEncoder::new(out))
-                    .map_err(png_error)
+                let data = levels(frame, max, |l| l as u8);
+                encoder.write_image(&data, width, height, ExtendedColorType::L8)
             }
             BitDepth::Sixteen => {
-                let img = ImageBuffer::from_fn(width, height, |x, y| Luma([at(x, y)]));
-                img.write_with_encoder(PngEncoder::new(out))
-                    .map_err(png_error)
+                let data = levels(frame, max, |l| l);
+                let bytes: Vec<u8> = data.iter().flat_map(|l| l.to_ne_bytes()).collect();
+                encoder.write_image(&bytes, width, height, ExtendedColorType::L16)
             }
         }
+        .map_err(png_error)
     })
 }
 
