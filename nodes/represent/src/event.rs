@@ -54,6 +54,68 @@ impl EventSlice<'_> {
     /// - [`RepresentError::Index`] when an event lies outside the sensor (`x >= width` or
     ///   `y >= height`), naming the event and the coordinate.
     pub fn validate(&self, height: usize, width: usize) -> Result<(), RepresentError> {
+        if self.is_valid(height, width) {
+            return Ok(());
+        }
+        self.first_violation(height, width)
+    }
+
+    /// Whether every invariant holds: branch-free reductions over blocks of events that the
+    /// compiler vectorises, several times faster than [`Self::first_violation`]'s event-by-event
+    /// checks, which run only when this says no (to name the first offending event).
+    fn is_valid(&self, height: usize, width: usize) -> bool {
+        /// Events per block; a violation stops the scan at the end of its block.
+        const BLOCK: usize = 1 << 12;
+        let n = self.t_ns.len();
+        if self.x.len() != n || self.y.len() != n || self.polarity.len() != n {
+            return false;
+        }
+        if n == 0 {
+            return true;
+        }
+        // x < width and y < height as u16 bounds; a sensor wider than u16 holds every x.
+        let x_limit = u16::try_from(width).unwrap_or(u16::MAX).saturating_sub(1);
+        let y_limit = u16::try_from(height).unwrap_or(u16::MAX).saturating_sub(1);
+        let (x_all, y_all) = (
+            width > usize::from(u16::MAX),
+            height > usize::from(u16::MAX),
+        );
+        if width == 0 || height == 0 {
+            return false;
+        }
+        let mut start = 0;
+        while start < n {
+            let end = (start + BLOCK).min(n);
+            let t = &self.t_ns[start..end];
+            let before = if start > 0 {
+                self.t_ns[start - 1]
+            } else {
+                t[0]
+            };
+            let unsorted = (t[0] < before)
+                | t.iter()
+                    .zip(&t[1..])
+                    .fold(false, |bad, (a, b)| bad | (b < a));
+            let x_max = self.x[start..end].iter().fold(0u16, |m, &v| m.max(v));
+            let y_max = self.y[start..end].iter().fold(0u16, |m, &v| m.max(v));
+            // p = 1 maps to 2 and p = -1 to 0; every other byte keeps a bit outside 0b10.
+            let bad_polarity = self.polarity[start..end]
+                .iter()
+                .fold(0u8, |bad, &p| bad | ((p as u8).wrapping_add(1) & !2));
+            if unsorted
+                || (x_max > x_limit && !x_all)
+                || (y_max > y_limit && !y_all)
+                || bad_polarity != 0
+            {
+                return false;
+            }
+            start = end;
+        }
+        true
+    }
+
+    /// The event-by-event checks: the error for the first violation, `Ok` if there is none.
+    fn first_violation(&self, height: usize, width: usize) -> Result<(), RepresentError> {
         let n = self.t_ns.len();
         for (what, len) in [
             ("event slice x length", self.x.len()),
@@ -530,39 +592,9 @@ fn count_fast(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::Events;
     use ndarray::{Array2, Array3};
     use proptest::prelude::*;
-
-    /// Owned events for tests.
-    #[derive(Clone, Debug, Default)]
-    struct Events {
-        t_ns: Vec<i64>,
-        x: Vec<u16>,
-        y: Vec<u16>,
-        polarity: Vec<i8>,
-    }
-
-    impl Events {
-        fn from(list: &[(i64, u16, u16, i8)]) -> Self {
-            let mut e = Self::default();
-            for &(t, x, y, p) in list {
-                e.t_ns.push(t);
-                e.x.push(x);
-                e.y.push(y);
-                e.polarity.push(p);
-            }
-            e
-        }
-
-        fn slice(&self) -> EventSlice<'_> {
-            EventSlice {
-                t_ns: &self.t_ns,
-                x: &self.x,
-                y: &self.y,
-                polarity: &self.polarity,
-            }
-        }
-    }
 
     fn integrate(e: &Events, t0: i64, ts: &[i64], tau: f64, h: usize, w: usize) -> Array3<f32> {
         let mut v = Array3::from_elem((ts.len(), h, w), f32::NAN);
@@ -793,7 +825,68 @@ mod tests {
         })
     }
 
+    /// Events that break one invariant now and then: a time step back, a coordinate one past
+    /// the sensor, a polarity of 0 or ±2, a missing element; several blocks long at times.
+    fn maybe_invalid() -> impl Strategy<Value = (Events, usize, usize)> {
+        (
+            1usize..4,
+            1usize..4,
+            prop_oneof![0usize..20, 4_000usize..9_000],
+        )
+            .prop_flat_map(|(h, w, n)| {
+                let event = (0i64..3, 0..=w as u16, 0..=h as u16, -2i8..=2);
+                (
+                    proptest::collection::vec(event, n),
+                    any::<bool>(),
+                    0usize..4,
+                    Just((h, w)),
+                )
+                    .prop_map(|(list, cut, which, (h, w))| {
+                        // Mostly valid: clamp all but a few rare offenders back into range.
+                        let mut t = 0i64;
+                        let mut e = Events::default();
+                        for (k, (dt, x, y, p)) in list.into_iter().enumerate() {
+                            let rare = k % 997 == 3 && cut;
+                            t += if rare && which == 0 { -1 } else { dt };
+                            let x = if rare && which == 1 {
+                                x
+                            } else {
+                                x.min(w as u16 - 1)
+                            };
+                            let y = if rare && which == 2 {
+                                y
+                            } else {
+                                y.min(h as u16 - 1)
+                            };
+                            let p = if rare && which == 3 {
+                                p
+                            } else if p < 0 {
+                                -1
+                            } else {
+                                1
+                            };
+                            e.push(t, x, y, p);
+                        }
+                        if cut && which == 0 && !e.y.is_empty() && e.t_ns.len() % 2 == 0 {
+                            e.y.pop();
+                        }
+                        (e, h, w)
+                    })
+            })
+    }
+
     proptest! {
+        #[test]
+        fn quick_validation_agrees_with_the_event_by_event_checks((e, h, w) in maybe_invalid()) {
+            let s = e.slice();
+            prop_assert_eq!(s.is_valid(h, w), s.first_violation(h, w).is_ok());
+            prop_assert_eq!(s.validate(h, w).is_ok(), s.first_violation(h, w).is_ok());
+            // A sensor bigger than any u16 coordinate accepts every coordinate.
+            if s.first_violation(h, w).is_ok() {
+                prop_assert!(s.is_valid(70_000, 70_000));
+            }
+        }
+
         #[test]
         fn integration_fast_matches_reference(
             (e, h, w, t0, ts, tau) in case(), rows in 1usize..4, par in any::<bool>()

@@ -11,6 +11,9 @@
 //! | [`spike_representation_into`] | NeuSpike-Net spike tensor: 1/ISI channel + `n - 1` raw planes |
 //! | [`event_integration_into`] | event integration (paper Eq. 8), one channel per instant |
 //! | [`event_count_into`] | signed event count per pixel |
+//! | [`voxel_grid_into`] | E2VID voxel grid: `B` bins, linear in time, optionally normalised |
+//! | [`event_stack_into`] | event stacking (SBT): signed count per pixel in each of `B` bins |
+//! | [`time_surface_into`] | time surface `exp(-(t_ref - t_last) / tau)`, ON and OFF channels |
 //!
 //! Conventions: spike planes are `ArrayView3<u8>` `[N, H, W]` (nonzero = spike), events an
 //! [`EventSlice`] sorted by time. Kernels never modify their inputs, write every element of their
@@ -21,6 +24,13 @@
 mod error;
 mod event;
 mod spike;
+mod surface;
+#[cfg(test)]
+mod testing;
+mod voxel;
+
+#[cfg(test)]
+mod extremes;
 
 pub use error::RepresentError;
 pub use event::{
@@ -31,4 +41,8 @@ pub use spike::{
     MAX_PLANES, MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK, isi_into, isi_reference, raw_block_start,
     spike_representation_into, spike_representation_reference, tfi_into, tfi_reference, tfp_into,
     tfp_reference,
+};
+pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_reference};
+pub use voxel::{
+    VoxelNorm, event_stack_into, event_stack_reference, voxel_grid_into, voxel_grid_reference,
 };
