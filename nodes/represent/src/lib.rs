@@ -40,7 +40,7 @@ pub use event::{
 pub use spike::{
     MAX_PLANES, MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK, isi_into, isi_reference, raw_block_start,
     spike_representation_into, spike_representation_reference, tfi_into, tfi_reference, tfp_into,
-    tfp_reference,
+    tfp_packed_into, tfp_reference,
 };
 pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_reference};
 pub use voxel::{

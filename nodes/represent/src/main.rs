@@ -5,9 +5,9 @@
 use std::collections::BTreeMap;
 
 use dora_node_api::{DoraNode, Event, EventStream};
-use ndarray::{Array2, Array3, Axis, s};
+use ndarray::{Array2, Array3, Axis};
 use neuspike_represent::{
-    EventSlice, event_integration_into, isi_into, spike_representation_into, tfp_into,
+    EventSlice, event_integration_into, isi_into, spike_representation_into, tfp_packed_into,
 };
 use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
@@ -70,7 +70,7 @@ fn represent(
     planes: &Array3<u8>,
     args: &Args,
 ) -> eyre::Result<Representation> {
-    let (n, h, wd) = planes.dim();
+    let (n, h, wd) = (w.spikes.n_planes, w.spikes.height, w.spikes.width);
     let c = w.ref_index();
     let mut params = BTreeMap::new();
     if let Some(g) = w.spikes.lum_per_rate {
@@ -82,7 +82,8 @@ fn represent(
             let start = c.saturating_sub(len / 2).min(n - len);
             params.insert("window".into(), len as f64);
             let mut dst = Array2::<f32>::zeros((h, wd));
-            tfp_into(planes.slice(s![start..start + len, .., ..]), dst.view_mut())?;
+            // Straight from the packed planes: no unpacking.
+            tfp_packed_into(&w.spikes.bits, start..start + len, dst.view_mut())?;
             dst.insert_axis(Axis(0))
         }
         "isi" => {
@@ -147,6 +148,8 @@ fn run(
     let mut seq = SeqTracker::default();
     let mut sent = 0u64;
     let mut planes = Array3::<u8>::zeros((0, 0, 0));
+    // TFP reads the packed planes; the other spike kinds need them unpacked.
+    let needs_planes = active.iter().any(|(_, kind)| *kind != "tfp");
     while let Some(event) = events.recv() {
         match event {
             Event::Input { id, metadata, data } if AsRef::<str>::as_ref(&id) == "windows" => {
@@ -162,11 +165,13 @@ fn run(
                 if let SeqStatus::Gap { missing } = seq.observe(w.seq()) {
                     tracing::error!(seq = w.seq(), missing, "windows lost before this one");
                 }
-                let dim = (w.spikes.n_planes, w.spikes.height, w.spikes.width);
-                if planes.dim() != dim {
-                    planes = Array3::zeros(dim);
+                if needs_planes {
+                    let dim = (w.spikes.n_planes, w.spikes.height, w.spikes.width);
+                    if planes.dim() != dim {
+                        planes = Array3::zeros(dim);
+                    }
+                    w.spikes.unpack_into(planes.view_mut());
                 }
-                w.spikes.unpack_into(planes.view_mut());
                 for (id, kind) in &active {
                     let r = represent(kind, &w, &planes, args)?;
                     send(&mut node, &output(id), &r)?;

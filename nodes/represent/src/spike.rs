@@ -120,6 +120,99 @@ pub fn tfp_into(spikes: ArrayView3<u8>, dst: ArrayViewMut2<f32>) -> Result<(), R
     Ok(())
 }
 
+/// Byte `j` of `SPREAD[b]` is bit `j` of `b`: adding it to a `u64` adds one packed byte's eight
+/// spikes to eight byte-wide counters at once.
+const SPREAD: [u64; 256] = {
+    let mut t = [0u64; 256];
+    let mut b = 0;
+    while b < 256 {
+        let mut j = 0;
+        while j < 8 {
+            if b & (1 << j) != 0 {
+                t[b] |= 1 << (8 * j);
+            }
+            j += 1;
+        }
+        b += 1;
+    }
+    t
+};
+
+/// [`tfp_into`] straight from bit-packed planes, without unpacking them: `bits` holds planes of
+/// `ceil(H W / 8)` bytes each, pixel `i = y W + x` at bit `i & 7` of byte `i >> 3` (the
+/// `SpikeChunk` layout), and the TFP averages `planes` (a range of plane indices). `H` and `W`
+/// come from `dst`. Equal to unpacking and calling [`tfp_into`] (tested).
+///
+/// Counting runs on byte-wide counters, eight pixels per `u64`, emptied every 255 planes.
+///
+/// # Errors
+/// - [`RepresentError::Param`] when the range is empty or longer than [`MAX_PLANES`].
+/// - [`RepresentError::Shape`] when `bits` holds fewer than `planes.end` planes.
+pub fn tfp_packed_into(
+    bits: &[u8],
+    planes: std::ops::Range<usize>,
+    mut dst: ArrayViewMut2<f32>,
+) -> Result<(), RepresentError> {
+    let n = planes.len();
+    if n == 0 || n > MAX_PLANES {
+        return Err(RepresentError::Param {
+            name: "spikes planes N",
+            value: n.to_string(),
+            reason: "between 1 and u32::MAX - 1 planes are needed",
+        });
+    }
+    let (h, w) = dst.dim();
+    let pixels = h * w;
+    let per = pixels.div_ceil(8);
+    if bits.len() < planes.end * per {
+        return Err(RepresentError::Shape {
+            what: "packed spike planes",
+            expected: format!(
+                "at least {} bytes ({} planes of {per})",
+                planes.end * per,
+                planes.end
+            ),
+            actual: format!("{} bytes", bits.len()),
+        });
+    }
+    let mut counts = vec![0u32; per * 8];
+    let mut lanes = vec![0u64; per];
+    let flush = |lanes: &mut [u64], counts: &mut [u32]| {
+        for (lane, c) in lanes.iter_mut().zip(counts.chunks_exact_mut(8)) {
+            for (j, c) in c.iter_mut().enumerate() {
+                *c += ((*lane >> (8 * j)) & 0xff) as u32;
+            }
+            *lane = 0;
+        }
+    };
+    let mut since_flush = 0;
+    for k in planes {
+        let plane = &bits[k * per..(k + 1) * per];
+        for (lane, &b) in lanes.iter_mut().zip(plane) {
+            *lane += SPREAD[usize::from(b)];
+        }
+        since_flush += 1;
+        if since_flush == 255 {
+            flush(&mut lanes, &mut counts);
+            since_flush = 0;
+        }
+    }
+    flush(&mut lanes, &mut counts);
+    match dst.as_slice_mut() {
+        Some(out) => {
+            for (o, &c) in out.iter_mut().zip(&counts) {
+                *o = rate(c, n);
+            }
+        }
+        None => {
+            for ((y, x), o) in dst.indexed_iter_mut() {
+                *o = rate(counts[y * w + x], n);
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Scalar oracle for [`tfp_into`]: one pixel at a time, one plane at a time. Same checks.
 #[doc(hidden)]
 pub fn tfp_reference(
@@ -903,5 +996,51 @@ mod tests {
             tfp_into(f.view(), fast_t.view_mut().reversed_axes()).expect("tfp");
             prop_assert_eq!(&fast_t.t(), &slow.view());
         }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn tfp_packed_equals_unpacked(
+            h in 1usize..9,
+            w in 1usize..13,
+            total in 1usize..300,
+            seed in proptest::prelude::any::<u64>(),
+            cut in 0usize..1000,
+        ) {
+            // xorshift draws; a per-case firing threshold from sparse to dense
+            let mut state = seed | 1;
+            let mut next = move || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let threshold = next();
+            let planes = Array3::from_shape_fn((total, h, w), |_| u8::from(next() < threshold));
+            let bits = neuspike_schemas::pack_planes(planes.view());
+            let start = cut % total;
+            let end = start + 1 + (cut * 7) % (total - start);
+            let mut want = Array2::<f32>::zeros((h, w));
+            tfp_reference(planes.slice(ndarray::s![start..end, .., ..]), want.view_mut()).unwrap();
+            let mut got = Array2::<f32>::from_elem((h, w), f32::NAN);
+            tfp_packed_into(&bits, start..end, got.view_mut()).unwrap();
+            proptest::prop_assert_eq!(got, want);
+        }
+    }
+
+    #[test]
+    fn tfp_packed_names_short_input_and_empty_range() {
+        let mut dst = Array2::<f32>::zeros((2, 4));
+        let e = tfp_packed_into(&[0u8; 3], 0..4, dst.view_mut())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("3 bytes") && e.contains("packed spike planes"),
+            "{e}"
+        );
+        let e = tfp_packed_into(&[0u8; 3], 1..1, dst.view_mut())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("spikes planes N") && e.contains('0'), "{e}");
     }
 }
