@@ -121,6 +121,8 @@ pub struct Report {
     pub result: DataflowResult,
     /// Output folders of the graph's sinks.
     pub out_dirs: Vec<PathBuf>,
+    /// Wall time of the dataflow, from its start to the end of its last node (builds excluded).
+    pub elapsed: Duration,
 }
 
 impl Report {
@@ -131,6 +133,7 @@ impl Report {
                 eprintln!("node `{node}` failed: {e}");
             }
         }
+        println!("ran in {:.2} s (wall, builds excluded)", self.elapsed.as_secs_f64());
         for dir in &self.out_dirs {
             let dir = dir.canonicalize().unwrap_or_else(|_| dir.clone());
             println!("frames:  {}/<method>/*.png", dir.display());
@@ -195,6 +198,7 @@ pub fn run(
     let done = Arc::new(AtomicBool::new(false));
     let spinner = progress.map(|dir| spawn_progress(dir.join("metrics.csv"), done.clone()));
     let path = graph_path.clone();
+    let started = std::time::Instant::now();
     let handle = rt.spawn(async move {
         Daemon::run_dataflow_with(
             None,
@@ -221,7 +225,12 @@ pub fn run(
     rt.shutdown_timeout(Duration::from_secs(10));
     let _ = printer.join();
     let result = result.wrap_err("the dataflow task panicked")??;
-    Ok(Report { result, out_dirs })
+    let elapsed = started.elapsed();
+    Ok(Report {
+        result,
+        out_dirs,
+        elapsed,
+    })
 }
 
 /// Prints a node's log line as `node | message`; the daemon's own lines only when they warn.

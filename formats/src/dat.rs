@@ -1,0 +1,328 @@
+//! Prophesee DAT event files (N-CARS, the Gen1 automotive dataset): a `%` header
+//! (`Data file containing CD events`, `Version 2`, `Width`, `Height`, ...), then two bytes, the
+//! event type and the event size, then little-endian 8-byte records:
+//!
+//! | bytes | field |
+//! |---|---|
+//! | 0..4 | timestamp, µs (`u32`) |
+//! | 4..8 | bits `[13:0]` x, `[27:14]` y, `[31:28]` polarity (0 or 1) |
+//!
+//! Event types: `0x00` Event2d and `0x0C` EventCD carry this layout and are decoded; `0x0E`
+//! (external triggers) is reported as unsupported. The size byte must be 8. The 32-bit clock
+//! wraps every 2^32 µs (71.6 min): a timestamp more than 2^31 µs below its predecessor is a wrap.
+//! Files that say `Version 1` use another record layout and are reported as unsupported; files
+//! without a `Version` line are read as version 2.
+
+use std::fs::File;
+use std::io::{Cursor, Read, Write};
+use std::path::{Path, PathBuf};
+
+use neuspike_schemas::{Event, EventBatch};
+
+use crate::binary::{Chunked, Out, WriteSummary, ns_to_us, us_to_ns};
+use crate::error::{FormatError, Location, Result};
+use crate::events::{Bounds, EventReader, ReadOptions, ReadStats, Resolution, Sink};
+use crate::evt2::check_event;
+use crate::header::{AfterHeader, PropheseeHeader, read_header, resolve_resolution};
+use crate::info::{EventInfo, event_info};
+use crate::sniff::Format;
+
+/// Bytes per record.
+pub const RECORD_BYTES: usize = 8;
+/// The clock's period: times are stored modulo 2^32 µs (71.6 min). A reader starts counting
+/// wraps at 0, so a file's absolute start time is known only modulo this period.
+pub const CLOCK_PERIOD_US: u64 = 1 << 32;
+/// Event type byte of generic 2D events.
+pub const TYPE_EVENT_2D: u8 = 0x00;
+/// Event type byte of change-detection events.
+pub const TYPE_EVENT_CD: u8 = 0x0C;
+/// Event type byte of external triggers.
+pub const TYPE_EXT_TRIGGER: u8 = 0x0E;
+const COORD_BITS: u32 = 14;
+const COORD_MASK: u32 = (1 << COORD_BITS) - 1;
+const WRAP_THRESHOLD: u32 = 1 << 31;
+
+/// Whether `(type, size)` is a DAT event type/size pair this format defines.
+pub fn is_type_size_pair(event_type: u8, size: u8) -> bool {
+    matches!(event_type, TYPE_EVENT_2D | TYPE_EVENT_CD | TYPE_EXT_TRIGGER)
+        && usize::from(size) == RECORD_BYTES
+}
+
+/// A streaming reader of Prophesee DAT CD event files.
+pub struct DatReader<R: Read> {
+    header: PropheseeHeader,
+    event_type: u8,
+    stream: Chunked<AfterHeader<R>>,
+    last_t32: Option<u32>,
+    wraps: u64,
+    sink: Sink,
+}
+
+impl DatReader<File> {
+    /// Opens a DAT file.
+    pub fn open(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Self> {
+        let path = path.as_ref();
+        let file = File::open(path).map_err(|source| FormatError::Open {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_reader(file, path, opts)
+    }
+}
+
+impl<R: Read> DatReader<R> {
+    /// Reads a DAT stream from `r`, named `name` in errors.
+    pub fn from_reader(r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
+        Self::with_bounds(r, name.into(), opts, false)
+    }
+
+    pub(crate) fn with_bounds(
+        mut r: R,
+        path: PathBuf,
+        opts: &ReadOptions,
+        allow_unknown_size: bool,
+    ) -> Result<Self> {
+        let (header, rest) = read_header(&mut r, &path)?;
+        if header.lines.is_empty() && rest.is_empty() {
+            return Err(FormatError::Empty { path });
+        }
+        if header.lines.is_empty() {
+            return Err(FormatError::Header {
+                path,
+                what: "no `%` header: not a Prophesee DAT file".into(),
+            });
+        }
+        if let Some(v) = header.dat_version
+            && v != 2
+        {
+            return Err(FormatError::Unsupported {
+                path,
+                what: format!("DAT `Version {v}` (only version 2 records are decoded)"),
+            });
+        }
+        let offset = header.data_offset;
+        let mut stream = Chunked::new(Cursor::new(rest).chain(r), offset);
+        stream.fill(2, &path)?;
+        let ts = stream.data();
+        if ts.len() < 2 {
+            return Err(FormatError::Truncated {
+                path,
+                offset,
+                what: "the event type and size bytes after the header are missing".into(),
+            });
+        }
+        let (event_type, size) = (ts[0], ts[1]);
+        if !is_type_size_pair(event_type, size) {
+            return Err(FormatError::Corrupt {
+                path,
+                offset,
+                what: format!(
+                    "event type {event_type:#04x} and size {size} are not a DAT pair \
+                     (type 0x00, 0x0C or 0x0E, size 8)"
+                ),
+            });
+        }
+        if event_type == TYPE_EXT_TRIGGER {
+            return Err(FormatError::Unsupported {
+                path,
+                what: "DAT of external triggers (type 0x0E), not CD events".into(),
+            });
+        }
+        stream.consume(2);
+        let resolution = resolve_resolution(
+            header.resolution,
+            opts.resolution,
+            &path,
+            allow_unknown_size,
+            "the DAT header has no `% Width` and `% Height` lines",
+        )?;
+        Ok(DatReader {
+            header,
+            event_type,
+            stream,
+            last_t32: None,
+            wraps: 0,
+            sink: Sink::new(
+                path,
+                resolution.map_or(Bounds::Unknown, Bounds::Sensor),
+                opts,
+            ),
+        })
+    }
+
+    /// The sensor size, when the file or the options give one.
+    pub(crate) fn known_resolution(&self) -> Option<Resolution> {
+        self.sink.known
+    }
+
+    /// The header.
+    pub fn header(&self) -> &PropheseeHeader {
+        &self.header
+    }
+
+    /// The event type byte (`0x00` or `0x0C`).
+    pub fn event_type(&self) -> u8 {
+        self.event_type
+    }
+}
+
+impl<R: Read> EventReader for DatReader<R> {
+    fn source(&self) -> &Path {
+        &self.sink.path
+    }
+
+    fn resolution(&self) -> Resolution {
+        self.sink.resolution
+    }
+
+    fn stats(&self) -> &ReadStats {
+        &self.sink.stats
+    }
+
+    fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize> {
+        let stream = &mut self.stream;
+        let last_t32 = &mut self.last_t32;
+        let wraps = &mut self.wraps;
+        self.sink.read_with(out, max, |sink, out| {
+            while !sink.full() {
+                stream.fill(RECORD_BYTES, &sink.path)?;
+                let data = stream.data();
+                if data.len() < RECORD_BYTES {
+                    if !data.is_empty() {
+                        return Err(FormatError::Truncated {
+                            path: sink.path.clone(),
+                            offset: stream.offset(),
+                            what: format!("{} byte(s) of an 8-byte DAT record", data.len()),
+                        });
+                    }
+                    sink.finish();
+                    return Ok(());
+                }
+                let base = stream.offset();
+                let mut consumed = 0usize;
+                for rec in data.chunks_exact(RECORD_BYTES) {
+                    if sink.full() {
+                        break;
+                    }
+                    let at = base + consumed as u64;
+                    consumed += RECORD_BYTES;
+                    let t32 = u32::from_le_bytes([rec[0], rec[1], rec[2], rec[3]]);
+                    let w = u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]);
+                    if let Some(last) = *last_t32
+                        && t32 < last
+                        && last - t32 > WRAP_THRESHOLD
+                    {
+                        *wraps += 1;
+                        sink.stats.time_wraps += 1;
+                    }
+                    *last_t32 = Some(t32);
+                    let polarity = w >> (2 * COORD_BITS);
+                    if polarity > 1 {
+                        return Err(FormatError::Polarity {
+                            path: sink.path.clone(),
+                            at: Location::Byte(at),
+                            value: i64::from(polarity),
+                        });
+                    }
+                    let t_ns = us_to_ns((*wraps << 32) | u64::from(t32), &sink.path, at)?;
+                    sink.emit(
+                        out,
+                        t_ns,
+                        w & COORD_MASK,
+                        (w >> COORD_BITS) & COORD_MASK,
+                        polarity == 1,
+                        Location::Byte(at),
+                    )?;
+                }
+                stream.consume(consumed);
+            }
+            Ok(())
+        })
+    }
+}
+
+/// Summarises a DAT file; one without `Width`/`Height` lines (and no
+/// [`ReadOptions::resolution`]) is summarised without bounds.
+pub fn info(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<EventInfo> {
+    event_info(path, Format::PropheseeDat, opts)
+}
+
+/// Writes events as a Prophesee DAT file of CD events (type `0x0C`, version 2). Times are floored
+/// to microseconds and stored modulo 2^32 µs ([`CLOCK_PERIOD_US`]), as the sensor's clock wraps;
+/// a gap of 2^31 µs or more between two events cannot be told from a wrap and is refused. Times
+/// at or past the first period come back modulo [`CLOCK_PERIOD_US`] at the start of the file.
+pub struct DatWriter<W: Write> {
+    out: Out<W>,
+    resolution: Resolution,
+    last_t_us: Option<u64>,
+    summary: WriteSummary,
+}
+
+impl<W: Write> DatWriter<W> {
+    /// Starts a file on `w` (named `name` in errors) for a sensor of `resolution`.
+    pub fn new(w: W, name: impl Into<PathBuf>, resolution: Resolution) -> Result<Self> {
+        let mut out = Out::new(w, name.into());
+        if u32::from(resolution.width) > COORD_MASK + 1
+            || u32::from(resolution.height) > COORD_MASK + 1
+        {
+            return Err(out.unwritable(
+                0,
+                format!("resolution {resolution} exceeds DAT's 16384x16384"),
+            ));
+        }
+        let header = format!(
+            "% Data file containing CD events\n% Version 2\n% Width {}\n% Height {}\n",
+            resolution.width, resolution.height
+        );
+        out.put(header.as_bytes())?;
+        out.put(&[TYPE_EVENT_CD, RECORD_BYTES as u8])?;
+        Ok(DatWriter {
+            out,
+            resolution,
+            last_t_us: None,
+            summary: WriteSummary::default(),
+        })
+    }
+
+    /// Appends one event; events must come in non-decreasing time order.
+    pub fn write_event(&mut self, e: &Event) -> Result<()> {
+        let index = self.summary.items;
+        let (t_us, floored) = ns_to_us(&self.out, index, e.t_ns)?;
+        check_event(&self.out, index, e, self.resolution, self.last_t_us, t_us)?;
+        if let Some(last) = self.last_t_us
+            && t_us - last >= u64::from(WRAP_THRESHOLD)
+        {
+            return Err(self.out.unwritable(
+                index,
+                format!(
+                    "a gap of {} us after the previous event is too long for a 32-bit clock",
+                    t_us - last
+                ),
+            ));
+        }
+        let p = u32::from(e.polarity > 0);
+        let w = u32::from(e.x) | (u32::from(e.y) << COORD_BITS) | (p << (2 * COORD_BITS));
+        self.out.put(&(t_us as u32).to_le_bytes())?;
+        self.out.put(&w.to_le_bytes())?;
+        self.last_t_us = Some(t_us);
+        self.summary.items += 1;
+        self.summary.floored_timestamps += u64::from(floored);
+        Ok(())
+    }
+
+    /// Appends every event of a batch.
+    pub fn write_batch(&mut self, b: &EventBatch) -> Result<()> {
+        for i in 0..b.len() {
+            self.write_event(&b.get(i))?;
+        }
+        Ok(())
+    }
+
+    /// Flushes and returns the sink and what was written.
+    pub fn finish(self) -> Result<(W, WriteSummary)> {
+        let mut summary = self.summary;
+        let (w, bytes) = self.out.finish()?;
+        summary.bytes = bytes;
+        Ok((w, summary))
+    }
+}

@@ -1,0 +1,506 @@
+//! What every event reader shares: options, counters, the [`EventReader`] trait and the checks
+//! each decoded event goes through (sensor bounds, time order) before it reaches the caller.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use neuspike_schemas::{Event, EventBatch};
+
+use crate::error::{FormatError, Location, Result};
+
+/// A sensor size in pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Resolution {
+    /// Columns.
+    pub width: u16,
+    /// Rows.
+    pub height: u16,
+}
+
+impl Resolution {
+    /// `width x height`.
+    pub const fn new(width: u16, height: u16) -> Self {
+        Resolution { width, height }
+    }
+}
+
+impl fmt::Display for Resolution {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}x{}", self.width, self.height)
+    }
+}
+
+/// What a reader does with an event earlier than the one before it.
+///
+/// Equal timestamps are always legal (events are in non-decreasing time order, as [`EventBatch`]
+/// requires); only a step backwards is disorder.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Disorder {
+    /// Stop with [`FormatError::Unsorted`] naming the place and both timestamps (default).
+    #[default]
+    Error,
+    /// Keep the event, stamped with the previous event's time, and count it in
+    /// [`ReadStats::clamped_timestamps`].
+    Clamp,
+}
+
+/// What a binary reader does with a word whose type its format does not define.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum UnknownWords {
+    /// Stop with [`FormatError::UnknownWord`] naming the offset and the word (default).
+    #[default]
+    Error,
+    /// Skip the word and count it in [`ReadStats::unknown_words`].
+    Skip,
+}
+
+/// How to read an event file.
+#[derive(Clone, Debug, Default)]
+pub struct ReadOptions {
+    /// The sensor size, for files that do not state it (the Event Camera Dataset text without its
+    /// `W H` line, RAW files without a `geometry`/`format` line, DAT files without `Width` and
+    /// `Height`). When the file states a size too, both must agree.
+    pub resolution: Option<Resolution>,
+    /// Events earlier than their predecessor.
+    pub disorder: Disorder,
+    /// Undefined word types in binary formats.
+    pub unknown_words: UnknownWords,
+}
+
+impl ReadOptions {
+    /// Options with a known sensor size and the strict defaults.
+    pub fn with_resolution(width: u16, height: u16) -> Self {
+        ReadOptions {
+            resolution: Some(Resolution::new(width, height)),
+            ..ReadOptions::default()
+        }
+    }
+}
+
+/// What a reader has seen so far. Every repair or skip a reader makes is counted here, so nothing
+/// is changed silently.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ReadStats {
+    /// Events delivered (or decoded and waiting to be delivered).
+    pub events: u64,
+    /// Of which ON (polarity +1).
+    pub on_events: u64,
+    /// Timestamp of the first event.
+    pub first_t_ns: Option<i64>,
+    /// Timestamp of the last event.
+    pub last_t_ns: Option<i64>,
+    /// Largest column seen.
+    pub max_x: u16,
+    /// Largest row seen.
+    pub max_y: u16,
+    /// Events restamped by [`Disorder::Clamp`].
+    pub clamped_timestamps: u64,
+    /// Events identical to the event just before them (same time, place and polarity). They are
+    /// kept: real sensors do emit them.
+    pub duplicate_events: u64,
+    /// Sensor clock wraps undone (EVT 2.0: 34-bit µs; EVT 3.0: 24-bit µs; DAT: 32-bit µs).
+    pub time_wraps: u64,
+    /// External trigger words (counted, not delivered).
+    pub triggers: u64,
+    /// Words of defined types that carry no CD event: `OTHERS`, `CONTINUED`.
+    pub skipped_words: u64,
+    /// Words of undefined types skipped under [`UnknownWords::Skip`].
+    pub unknown_words: u64,
+    /// CD events met before the stream set its time base (the first `EVT_TIME_HIGH`) or, in
+    /// EVT 3.0, its row; their time or place is unknown, so they are dropped and counted, as the
+    /// Prophesee decoders do.
+    pub events_without_time_base: u64,
+    /// Text lines skipped: blank lines and `#` comments.
+    pub lines_skipped: u64,
+}
+
+impl ReadStats {
+    /// `last - first` timestamp in nanoseconds (0 with fewer than two events).
+    pub fn duration_ns(&self) -> i64 {
+        match (self.first_t_ns, self.last_t_ns) {
+            (Some(a), Some(b)) => b.saturating_sub(a),
+            _ => 0,
+        }
+    }
+}
+
+/// A streaming reader of events. Memory stays bounded whatever the file size: events are decoded
+/// a buffer at a time, on demand.
+///
+/// When the file turns out to be bad part-way, every event decoded before the fault is delivered
+/// first; the error comes on the next call, and after it the reader only returns `Ok(0)`.
+pub trait EventReader {
+    /// The file (or the name given to an in-memory source), as errors name it.
+    fn source(&self) -> &Path;
+    /// The sensor size every event is checked against.
+    fn resolution(&self) -> Resolution;
+    /// What has been decoded so far.
+    fn stats(&self) -> &ReadStats;
+    /// Appends up to `max` events to the columns of `out` (its header fields are left alone) and
+    /// returns how many; `Ok(0)` means the end of the file (or `max == 0`).
+    fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize>;
+
+    /// The next (up to) `max` events as a batch of this reader's size, `seq` 0, covering
+    /// `[first t_ns, last t_ns + 1)`; `None` at the end of the file.
+    fn next_chunk(&mut self, max: usize) -> Result<Option<EventBatch>> {
+        let r = self.resolution();
+        let mut batch = EventBatch::empty(r.width.into(), r.height.into(), 0, 0, 0);
+        if self.read_into(&mut batch, max.max(1))? == 0 {
+            return Ok(None);
+        }
+        set_interval(&mut batch);
+        Ok(Some(batch))
+    }
+
+    /// An iterator over batches of up to `max` events, numbered by `seq` from 0.
+    ///
+    /// Each batch covers `[its first t_ns, its last t_ns + 1)`. Equal timestamps may straddle two
+    /// batches, so two neighbouring intervals can share their boundary nanosecond; every event is
+    /// in exactly one batch.
+    fn into_chunks(self, max: usize) -> EventChunks<Self>
+    where
+        Self: Sized,
+    {
+        EventChunks {
+            reader: self,
+            max: max.max(1),
+            seq: 0,
+            done: false,
+        }
+    }
+}
+
+impl<R: EventReader + ?Sized> EventReader for Box<R> {
+    fn source(&self) -> &Path {
+        (**self).source()
+    }
+    fn resolution(&self) -> Resolution {
+        (**self).resolution()
+    }
+    fn stats(&self) -> &ReadStats {
+        (**self).stats()
+    }
+    fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize> {
+        (**self).read_into(out, max)
+    }
+}
+
+fn set_interval(batch: &mut EventBatch) {
+    if let (Some(&first), Some(&last)) = (batch.t_ns.first(), batch.t_ns.last()) {
+        batch.t_start_ns = first;
+        batch.t_end_ns = last.saturating_add(1);
+    }
+}
+
+/// Batches of events from an [`EventReader`]; see [`EventReader::into_chunks`].
+pub struct EventChunks<R> {
+    reader: R,
+    max: usize,
+    seq: u64,
+    done: bool,
+}
+
+impl<R: EventReader> EventChunks<R> {
+    /// The reader, for its statistics.
+    pub fn reader(&self) -> &R {
+        &self.reader
+    }
+}
+
+impl<R: EventReader> Iterator for EventChunks<R> {
+    type Item = Result<EventBatch>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        match self.reader.next_chunk(self.max) {
+            Ok(Some(mut b)) => {
+                b.seq = self.seq;
+                self.seq += 1;
+                Some(Ok(b))
+            }
+            Ok(None) => {
+                self.done = true;
+                None
+            }
+            Err(e) => {
+                self.done = true;
+                Some(Err(e))
+            }
+        }
+    }
+}
+
+/// Reads a whole file into one batch. Convenient for tests and small files only: memory grows
+/// with the file.
+pub fn read_all(reader: &mut dyn EventReader) -> Result<EventBatch> {
+    let r = reader.resolution();
+    let mut batch = EventBatch::empty(r.width.into(), r.height.into(), 0, 0, 0);
+    while reader.read_into(&mut batch, 1 << 16)? > 0 {}
+    set_interval(&mut batch);
+    Ok(batch)
+}
+
+/// The checks and the delivery every decoded event goes through, shared by all event readers.
+///
+/// A decoder pushes events with [`Sink::emit`] until [`Sink::full`]; events of a multi-event word
+/// that do not fit in the caller's request wait in an overflow queue for the next call.
+pub(crate) struct Sink {
+    pub(crate) path: PathBuf,
+    /// Bounds: `x < width`, `y < height`. `u32` so that "unknown" (65,536) admits every `u16`.
+    width: u32,
+    height: u32,
+    pub(crate) resolution: Resolution,
+    /// The sensor size, when known.
+    pub(crate) known: Option<Resolution>,
+    disorder: Disorder,
+    pub(crate) unknown_words: UnknownWords,
+    pub(crate) stats: ReadStats,
+    last: Option<Event>,
+    overflow: Vec<Event>,
+    overflow_pos: usize,
+    room: usize,
+    pending: Option<FormatError>,
+    finished: bool,
+}
+
+/// Bounds for a [`Sink`]: the sensor, or none (for [`crate::info`] on files of unknown size).
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Bounds {
+    Sensor(Resolution),
+    Unknown,
+}
+
+impl Sink {
+    pub(crate) fn new(path: PathBuf, bounds: Bounds, opts: &ReadOptions) -> Self {
+        let (width, height, resolution, known) = match bounds {
+            Bounds::Sensor(r) => (u32::from(r.width), u32::from(r.height), r, Some(r)),
+            Bounds::Unknown => (1 << 16, 1 << 16, Resolution::new(u16::MAX, u16::MAX), None),
+        };
+        Sink {
+            path,
+            width,
+            height,
+            resolution,
+            known,
+            disorder: opts.disorder,
+            unknown_words: opts.unknown_words,
+            stats: ReadStats::default(),
+            last: None,
+            overflow: Vec::new(),
+            overflow_pos: 0,
+            room: 0,
+            pending: None,
+            finished: false,
+        }
+    }
+
+    /// No more room in the caller's request: the decoder should stop at the next word boundary.
+    #[inline]
+    pub(crate) fn full(&self) -> bool {
+        self.room == 0
+    }
+
+    /// The input is exhausted without error.
+    pub(crate) fn finish(&mut self) {
+        self.finished = true;
+    }
+
+    /// Checks one event and delivers it (or queues it when the request is full).
+    #[inline]
+    pub(crate) fn emit(
+        &mut self,
+        out: &mut EventBatch,
+        t_ns: i64,
+        x: u32,
+        y: u32,
+        on: bool,
+        at: Location,
+    ) -> Result<()> {
+        if x >= self.width || y >= self.height {
+            return Err(FormatError::OutOfBounds {
+                path: self.path.clone(),
+                at,
+                x,
+                y,
+                width: self.width,
+                height: self.height,
+            });
+        }
+        let mut t_ns = t_ns;
+        if let Some(last) = self.last
+            && t_ns < last.t_ns
+        {
+            match self.disorder {
+                Disorder::Error => {
+                    return Err(FormatError::Unsorted {
+                        path: self.path.clone(),
+                        at,
+                        t_ns,
+                        previous_t_ns: last.t_ns,
+                    });
+                }
+                Disorder::Clamp => {
+                    t_ns = last.t_ns;
+                    self.stats.clamped_timestamps += 1;
+                }
+            }
+        }
+        // Bounds were checked above, so both fit in u16.
+        let e = Event {
+            t_ns,
+            x: x as u16,
+            y: y as u16,
+            polarity: if on { 1 } else { -1 },
+        };
+        let s = &mut self.stats;
+        if self.last == Some(e) {
+            s.duplicate_events += 1;
+        }
+        if s.first_t_ns.is_none() {
+            s.first_t_ns = Some(t_ns);
+        }
+        s.last_t_ns = Some(t_ns);
+        s.events += 1;
+        s.on_events += u64::from(on);
+        s.max_x = s.max_x.max(e.x);
+        s.max_y = s.max_y.max(e.y);
+        self.last = Some(e);
+        if self.room > 0 {
+            out.push(e);
+            self.room -= 1;
+        } else {
+            self.overflow.push(e);
+        }
+        Ok(())
+    }
+
+    /// Counts or rejects a word of an undefined type.
+    pub(crate) fn unknown_word(
+        &mut self,
+        offset: u64,
+        format: &'static str,
+        word_type: u8,
+        value: u32,
+    ) -> Result<()> {
+        match self.unknown_words {
+            UnknownWords::Error => Err(FormatError::UnknownWord {
+                path: self.path.clone(),
+                offset,
+                format,
+                word_type,
+                value,
+            }),
+            UnknownWords::Skip => {
+                self.stats.unknown_words += 1;
+                Ok(())
+            }
+        }
+    }
+
+    /// One `read_into` call: delivers queued events, then a pending error, then runs `decode`
+    /// (which must emit until [`Sink::full`] or call [`Sink::finish`] at the end of its input).
+    /// An error with events already delivered in this call is kept for the next call.
+    pub(crate) fn read_with<F>(
+        &mut self,
+        out: &mut EventBatch,
+        max: usize,
+        decode: F,
+    ) -> Result<usize>
+    where
+        F: FnOnce(&mut Sink, &mut EventBatch) -> Result<()>,
+    {
+        let start = out.len();
+        self.room = max;
+        while self.room > 0 && self.overflow_pos < self.overflow.len() {
+            out.push(self.overflow[self.overflow_pos]);
+            self.overflow_pos += 1;
+            self.room -= 1;
+        }
+        if self.overflow_pos == self.overflow.len() {
+            self.overflow.clear();
+            self.overflow_pos = 0;
+        }
+        if self.room > 0 {
+            if let Some(e) = self.pending.take() {
+                if out.len() > start {
+                    self.pending = Some(e);
+                } else {
+                    self.finished = true;
+                    return Err(e);
+                }
+            } else if !self.finished
+                && let Err(e) = decode(self, out)
+            {
+                self.finished = true;
+                if out.len() > start || !self.overflow.is_empty() {
+                    self.pending = Some(e);
+                } else {
+                    return Err(e);
+                }
+            }
+        }
+        self.room = 0;
+        Ok(out.len() - start)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sink(disorder: Disorder) -> Sink {
+        Sink::new(
+            PathBuf::from("mem"),
+            Bounds::Sensor(Resolution::new(4, 3)),
+            &ReadOptions {
+                disorder,
+                ..ReadOptions::default()
+            },
+        )
+    }
+
+    #[test]
+    fn clamp_counts_and_error_names_both_times() {
+        let mut s = sink(Disorder::Clamp);
+        let mut out = EventBatch::default();
+        s.room = 10;
+        s.emit(&mut out, 10, 0, 0, true, Location::Byte(0)).unwrap();
+        s.emit(&mut out, 5, 1, 0, false, Location::Byte(4)).unwrap();
+        assert_eq!(out.t_ns, vec![10, 10]);
+        assert_eq!(s.stats.clamped_timestamps, 1);
+
+        let mut s = sink(Disorder::Error);
+        s.room = 10;
+        s.emit(&mut out, 10, 0, 0, true, Location::Byte(0)).unwrap();
+        let e = s
+            .emit(&mut out, 5, 1, 0, false, Location::Line(7))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 7") && e.contains("5 ns") && e.contains("10 ns"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn overflow_is_delivered_before_a_pending_error() {
+        let mut s = sink(Disorder::Error);
+        let mut out = EventBatch::default();
+        let n = s
+            .read_with(&mut out, 2, |s, out| {
+                for x in 0..3 {
+                    s.emit(out, 1, x, 0, true, Location::Byte(0))?;
+                }
+                s.emit(out, 1, 9, 0, true, Location::Byte(8))
+            })
+            .unwrap();
+        assert_eq!(n, 2);
+        let n = s.read_with(&mut out, 2, |_, _| unreachable!()).unwrap();
+        assert_eq!(n, 1);
+        let e = s.read_with(&mut out, 2, |_, _| unreachable!()).unwrap_err();
+        assert!(e.to_string().contains("(9, 0)"), "{e}");
+        assert_eq!(s.read_with(&mut out, 2, |_, _| unreachable!()).unwrap(), 0);
+    }
+}

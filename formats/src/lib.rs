@@ -1,0 +1,69 @@
+//! Readers and writers for real spike-camera and event-camera recordings, as the pipeline's own
+//! messages: spike planes become [`SpikeChunk`]s (bit-packed, rows top-down), events become
+//! [`EventBatch`]es (`t_ns`, `x`, `y`, polarity ±1). No dora here: this is a plain library.
+//!
+//! | module | format | read | write |
+//! |---|---|---|---|
+//! | [`pku`] | PKU Vidar spike `.dat` (headerless planes, rows bottom-up) | [`pku::PkuReader`] | [`pku::PkuWriter`] |
+//! | [`text`] | Event Camera Dataset `t_seconds x y polarity` text | [`text::TextReader`] | [`text::TextWriter`] |
+//! | [`raw`] | Prophesee RAW, EVT 2.0 ([`evt2`]) and EVT 3.0 ([`evt3`]) | [`raw::RawReader`] | [`raw::Evt2Writer`], [`raw::Evt3Writer`] |
+//! | [`dat`] | Prophesee DAT CD events (N-CARS, Gen1) | [`dat::DatReader`] | [`dat::DatWriter`] |
+//!
+//! Every reader streams with bounded memory (a 10 GB file is never loaded whole): spike readers
+//! hand out chunks of N planes, event readers fill batches of up to N events
+//! ([`EventReader::read_into`], [`EventReader::next_chunk`], [`EventReader::into_chunks`]).
+//! [`sniff()`] tells the formats apart by content (a `.dat` may be PKU spikes or Prophesee events);
+//! [`info()`] summarises any file; [`open_events`] opens any event file.
+//!
+//! Bad input gives a [`FormatError`] naming the file, the byte offset or line, and the value,
+//! after everything decoded before the fault has been delivered. Repairs are opt-in and counted
+//! ([`ReadOptions`], [`ReadStats`]). Timestamps are integers with their unit in the name.
+//!
+//! ```
+//! use neuspike_formats::{EventReader, ReadOptions, Resolution, text::{TextReader, TextWriter}};
+//! use neuspike_formats::Event;
+//!
+//! let mut w = TextWriter::new(Vec::new(), "mem", Resolution::new(240, 180), true).unwrap();
+//! w.write_event(&Event { t_ns: 2_097_134_001, x: 162, y: 27, polarity: -1 }).unwrap();
+//! let (bytes, _) = w.finish().unwrap();
+//! assert_eq!(bytes, b"240 180\n2.097134001 162 27 0\n");
+//!
+//! let mut r = TextReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
+//! let batch = r.next_chunk(100).unwrap().unwrap();
+//! assert_eq!(batch.get(0), Event { t_ns: 2_097_134_001, x: 162, y: 27, polarity: -1 });
+//! ```
+#![deny(missing_docs)]
+
+mod binary;
+pub mod dat;
+pub mod error;
+mod events;
+pub mod evt2;
+pub mod evt3;
+pub mod header;
+pub mod info;
+pub mod pku;
+pub mod raw;
+pub mod sniff;
+pub mod text;
+
+use std::path::Path;
+
+pub use binary::WriteSummary;
+pub use error::{FormatError, Location, Result};
+pub use events::{
+    Disorder, EventChunks, EventReader, ReadOptions, ReadStats, Resolution, UnknownWords, read_all,
+};
+pub use header::EvtVersion;
+pub use info::{EventInfo, Info, info};
+pub use neuspike_schemas::{Event, EventBatch, SpikeChunk, bytes_per_plane};
+pub use sniff::{Format, sniff};
+
+/// Opens any event file: sniffs its format ([`sniff()`]) and returns the matching reader.
+/// Spike files and recognised-but-undecoded formats (AEDAT 4, HDF5) are
+/// [`FormatError::Unsupported`].
+pub fn open_events(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Box<dyn EventReader>> {
+    let path = path.as_ref();
+    let format = sniff(path)?;
+    Ok(info::open_event_format(path, format, opts, false)?.0)
+}

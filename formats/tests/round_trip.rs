@@ -1,0 +1,278 @@
+//! Writers and readers against each other, on random data: what is written is read back.
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used)]
+
+mod common;
+
+use common::*;
+use neuspike_formats::dat::{DatReader, DatWriter};
+use neuspike_formats::evt3::CLOCK_PERIOD_US;
+use neuspike_formats::pku::{PkuGeometry, PkuOptions, PkuReader, PkuWriter};
+use neuspike_formats::raw::{Evt2Writer, Evt3Writer, RawReader};
+use neuspike_formats::text::{TextReader, TextWriter};
+use neuspike_formats::{Event, EventBatch, EventReader, ReadOptions, Resolution};
+use proptest::prelude::*;
+
+/// Sorted events on a `w x h` sensor, the first at `t0_us`, then with gaps drawn from `gap_us`.
+fn events_strategy(
+    w: u16,
+    h: u16,
+    t0_us: std::ops::Range<u64>,
+    gap_us: impl Strategy<Value = u64>,
+) -> impl Strategy<Value = Vec<Event>> {
+    (
+        t0_us,
+        prop::collection::vec((gap_us, 0..w, 0..h, any::<bool>()), 0..300),
+    )
+        .prop_map(|(t0, evs)| {
+            let mut t = t0;
+            evs.into_iter()
+                .map(|(gap, x, y, on)| {
+                    let e = Event {
+                        t_ns: (t * 1000) as i64,
+                        x,
+                        y,
+                        polarity: if on { 1 } else { -1 },
+                    };
+                    t += gap;
+                    e
+                })
+                .collect()
+        })
+}
+
+fn batch(events: &[Event], r: Resolution) -> EventBatch {
+    let mut b = EventBatch::empty(r.width.into(), r.height.into(), 0, 0, 0);
+    for e in events {
+        b.push(*e);
+    }
+    b
+}
+
+/// Reads everything in chunks of `n`, failing on any error.
+fn read_in_chunks(r: &mut dyn EventReader, n: usize) -> Vec<Event> {
+    let (got, e) = drain(r, n);
+    if let Some(e) = e {
+        panic!("{e}");
+    }
+    got
+}
+
+/// Gaps: mostly small, some of 0 (equal times), some up to `long` (exclusive), long enough to
+/// wrap the clocks.
+fn gaps(long: u64) -> impl Strategy<Value = u64> {
+    prop_oneof![8 => 0u64..3, 4 => 0u64..200, 1 => 0u64..long]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// The file starts inside the first period of the 34-bit clock (later wraps are undone).
+    #[test]
+    fn evt2_round_trip(
+        evs in events_strategy(640, 480, 0..(1u64 << 34), 0u64..4),
+        long in prop::collection::vec(gaps(1 << 35), 300),
+        n in 1usize..500,
+    ) {
+        // Spread the events with the long gaps too.
+        let mut evs = evs;
+        let mut shift = 0i64;
+        for (e, g) in evs.iter_mut().zip(&long) {
+            e.t_ns += shift;
+            shift += *g as i64 * 1000;
+        }
+        let r = Resolution::new(640, 480);
+        let mut w = Evt2Writer::new(Vec::new(), "mem", r).unwrap();
+        w.write_batch(&batch(&evs, r)).unwrap();
+        let (bytes, s) = w.finish().unwrap();
+        prop_assert_eq!(s.items, evs.len() as u64);
+        prop_assert_eq!(s.bytes, bytes.len() as u64);
+        let mut reader = RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
+        let got = read_in_chunks(&mut reader, n);
+        assert_same_events(&got, &evs);
+    }
+
+    #[test]
+    fn evt3_round_trip_modulo_the_24_bit_clock(
+        evs in events_strategy(1280, 720, 0..(1u64 << 30), gaps(1 << 27)),
+        runs in prop::collection::vec((0u16..1280, 1usize..40), 0..20),
+        n in 1usize..64,
+    ) {
+        // Add runs of neighbours at one time and row, which the writer vectorises.
+        let mut evs = evs;
+        for (x0, len) in runs {
+            if let Some(&e) = evs.last() {
+                for k in 0..len {
+                    let x = x0 as usize + k * (1 + k % 3);
+                    if x < 1280 {
+                        evs.push(Event { x: x as u16, ..e });
+                    }
+                }
+            }
+        }
+        let r = Resolution::new(1280, 720);
+        let mut w = Evt3Writer::new(Vec::new(), "mem", r).unwrap();
+        w.write_batch(&batch(&evs, r)).unwrap();
+        let (bytes, _) = w.finish().unwrap();
+        let mut reader = RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
+        let got = read_in_chunks(&mut reader, n);
+        let period_ns = (CLOCK_PERIOD_US * 1000) as i64;
+        let shift = evs.first().map_or(0, |e| e.t_ns / period_ns * period_ns);
+        let want: Vec<Event> = evs.iter().map(|e| Event { t_ns: e.t_ns - shift, ..*e }).collect();
+        assert_same_events(&got, &want);
+    }
+
+    /// The file starts inside the first period of the 32-bit clock (later wraps are undone).
+    #[test]
+    fn dat_round_trip(
+        evs in events_strategy(16384, 300, 0..(1u64 << 32), gaps(1 << 31)),
+        n in 1usize..500,
+    ) {
+        let r = Resolution::new(16384, 300);
+        let mut w = DatWriter::new(Vec::new(), "mem", r).unwrap();
+        w.write_batch(&batch(&evs, r)).unwrap();
+        let (bytes, _) = w.finish().unwrap();
+        let mut reader = DatReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
+        prop_assert_eq!(reader.resolution(), r);
+        assert_same_events(&read_in_chunks(&mut reader, n), &evs);
+    }
+
+    #[test]
+    fn text_round_trip_keeps_nanoseconds(
+        evs in events_strategy(346, 260, 0..(1u64 << 40), 0u64..1000),
+        ns in prop::collection::vec(0i64..1000, 300),
+        n in 1usize..500,
+    ) {
+        let mut evs = evs;
+        for (e, d) in evs.iter_mut().zip(&ns) {
+            e.t_ns += d;
+        }
+        evs.sort_by_key(|e| e.t_ns);
+        let r = Resolution::new(346, 260);
+        let mut w = TextWriter::new(Vec::new(), "mem", r, true).unwrap();
+        w.write_batch(&batch(&evs, r)).unwrap();
+        let (bytes, _) = w.finish().unwrap();
+        let mut reader = TextReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
+        assert_same_events(&read_in_chunks(&mut reader, n), &evs);
+    }
+
+    #[test]
+    fn pku_file_round_trips_byte_exact(
+        w8 in 1usize..8, h in 1usize..12, planes in 1usize..6, head in any::<bool>(),
+        seed in any::<u64>(), n in 1usize..4,
+    ) {
+        // Byte-aligned rows (as the real 400- and 416-pixel rows are) and zero head columns
+        // keep every stored bit, so file -> read -> write is byte-exact.
+        let g = if head { PkuGeometry::with_head(8 * w8, h) } else { PkuGeometry::new(8 * w8, h) };
+        let mut s = seed | 1;
+        let mut stored: Vec<u8> = (0..planes * g.stored_plane_bytes()).map(|_| {
+            s ^= s << 13; s ^= s >> 7; s ^= s << 17; s as u8
+        }).collect();
+        if head {
+            let rb = g.stored_width() / 8;
+            for row in stored.chunks_exact_mut(rb) {
+                row[rb - 2..].fill(0);
+            }
+        }
+        let opts = PkuOptions { geometry: g, ..PkuOptions::default() };
+        let mut reader = PkuReader::from_reader(&stored[..], "mem", &opts).unwrap();
+        let mut writer = PkuWriter::new(Vec::new(), "mem", g).unwrap();
+        let mut count = 0;
+        while let Some(c) = reader.next_chunk(n).unwrap() {
+            prop_assert_eq!(c.first_plane, count as u64);
+            count += c.n_planes;
+            writer.write_chunk(&c).unwrap();
+        }
+        prop_assert_eq!(count, planes);
+        let (bytes, _) = writer.finish().unwrap();
+        prop_assert_eq!(bytes, stored);
+    }
+}
+
+#[test]
+fn evt3_writer_vectorises_runs() {
+    let r = Resolution::new(640, 480);
+    let row: Vec<Event> = (0..32)
+        .map(|x| Event {
+            t_ns: 5_000,
+            x: 100 + x,
+            y: 7,
+            polarity: 1,
+        })
+        .collect();
+    let mut w = Evt3Writer::new(Vec::new(), "mem", r).unwrap();
+    w.write_batch(&batch(&row, r)).unwrap();
+    let (bytes, s) = w.finish().unwrap();
+    assert_eq!(s.items, 32);
+    let header = bytes.iter().rposition(|&b| b == b'\n').unwrap() + 1;
+    // TIME_HIGH, TIME_LOW, ADDR_Y, then one VECT_BASE_X + VECT_12 + VECT_12 + VECT_8 group.
+    assert_eq!(bytes.len() - header, 7 * 2);
+    let got = drain(
+        &mut RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap(),
+        5,
+    )
+    .0;
+    assert_same_events(&got, &row);
+}
+
+#[test]
+fn writers_floor_to_microseconds_and_count() {
+    let r = Resolution::new(10, 10);
+    let e = Event {
+        t_ns: 1_999,
+        x: 1,
+        y: 1,
+        polarity: 1,
+    };
+    let mut w = Evt2Writer::new(Vec::new(), "mem", r).unwrap();
+    w.write_event(&e).unwrap();
+    let (bytes, s) = w.finish().unwrap();
+    assert_eq!(s.floored_timestamps, 1);
+    let got = drain(
+        &mut RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap(),
+        5,
+    )
+    .0;
+    assert_eq!(got[0].t_ns, 1_000);
+}
+
+#[test]
+fn writers_refuse_what_their_format_cannot_hold() {
+    let r = Resolution::new(10, 10);
+    let ok = Event {
+        t_ns: 5_000,
+        x: 1,
+        y: 1,
+        polarity: 1,
+    };
+    let cases: [(Event, &str); 4] = [
+        (Event { x: 10, ..ok }, "outside the 10x10 sensor"),
+        (Event { polarity: 0, ..ok }, "polarity 0"),
+        (Event { t_ns: -1, ..ok }, "negative"),
+        (Event { t_ns: 4_000, ..ok }, "earlier"),
+    ];
+    for (bad, needle) in cases {
+        let mut w = Evt2Writer::new(Vec::new(), "out.raw", r).unwrap();
+        w.write_event(&ok).unwrap();
+        let e = w.write_event(&bad).unwrap_err().to_string();
+        assert!(
+            e.starts_with("out.raw: cannot write event 1: ") && e.contains(needle),
+            "{e}"
+        );
+        let mut w = TextWriter::new(Vec::new(), "out.txt", r, false).unwrap();
+        w.write_event(&ok).unwrap();
+        let e = w.write_event(&bad).unwrap_err().to_string();
+        assert!(e.starts_with("out.txt: cannot write event 1: "), "{e}");
+    }
+    assert!(Evt3Writer::new(Vec::new(), "big", Resolution::new(4096, 10)).is_err());
+    let mut w = DatWriter::new(Vec::new(), "out.dat", r).unwrap();
+    w.write_event(&ok).unwrap();
+    let e = w
+        .write_event(&Event {
+            t_ns: ok.t_ns + (1i64 << 31) * 1000,
+            ..ok
+        })
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("too long for a 32-bit clock"), "{e}");
+}
