@@ -133,7 +133,10 @@ impl Report {
                 eprintln!("node `{node}` failed: {e}");
             }
         }
-        println!("ran in {:.2} s (wall, builds excluded)", self.elapsed.as_secs_f64());
+        println!(
+            "ran in {:.2} s (wall, builds excluded)",
+            self.elapsed.as_secs_f64()
+        );
         for dir in &self.out_dirs {
             let dir = dir.canonicalize().unwrap_or_else(|_| dir.clone());
             println!("frames:  {}/<method>/*.png", dir.display());

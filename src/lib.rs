@@ -1,10 +1,12 @@
-//! The `neuspike` program's library: running graphs on an embedded dora daemon.
+//! The `neuspike` program's library: running graphs on an embedded dora daemon, and writing
+//! simulated recordings.
 //!
 //! The binary (`src/main.rs`) is the command line; the end-to-end tests in `tests/` call
 //! [`graph::run`] directly.
 #![deny(missing_docs)]
 
 pub mod graph;
+pub mod record;
 
 use std::path::PathBuf;
 

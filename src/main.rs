@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
 use eyre::WrapErr;
-use neuspike::{demo_graph, graph};
+use neuspike::{demo_graph, graph, record};
 
 /// Spike and event cameras to high-speed video, as a dora dataflow.
 #[derive(Debug, Parser)]
@@ -44,6 +44,73 @@ enum Command {
     },
     /// List the built-in scenes.
     Scenes,
+    /// Simulate a scene with both cameras and write a recording: spikes.dat (PKU), events.txt
+    /// and events.raw (EVT 2.0), ground-truth PNGs with their time stamps, recording.yml.
+    Simulate {
+        /// Built-in scene name or scene YAML path.
+        scene: String,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Spike planes to simulate (default: the scene's duration).
+        #[arg(long)]
+        planes: Option<u64>,
+        /// Ground truth at every plane whose index is a multiple of this (0 = none).
+        #[arg(long, default_value_t = 20)]
+        gt_every_planes: u64,
+        /// Planes per simulation step.
+        #[arg(long, default_value_t = 200)]
+        chunk_planes: usize,
+        /// Spike camera only.
+        #[arg(long)]
+        no_events: bool,
+        /// Spike camera settings, as the spike-source node takes them, e.g.
+        /// `--spike="--rate-hz 40000 --fpn-cap false"`.
+        #[arg(long, default_value = "", allow_hyphen_values = true)]
+        spike: String,
+        /// Event camera settings, as the event-source node takes them, e.g.
+        /// `--dvs="--theta-on 0.3"`.
+        #[arg(long, default_value = "", allow_hyphen_values = true)]
+        dvs: String,
+    },
+    /// Describe a recording: format, resolution, duration, counts, rates, first and last times.
+    Info {
+        /// A PKU spike .dat, or an event file (ECD text, Prophesee RAW or DAT).
+        file: PathBuf,
+        /// Width of a spike .dat, or of an event file that does not state it.
+        #[arg(long)]
+        width: Option<u16>,
+        /// Height, likewise.
+        #[arg(long)]
+        height: Option<u16>,
+        /// Extra columns stored per row of a spike .dat (0 or 16).
+        #[arg(long, default_value_t = 0)]
+        head_columns: usize,
+        /// Plane rate of a spike .dat.
+        #[arg(long, default_value_t = 20_000.0)]
+        rate_hz: f64,
+    },
+}
+
+/// Spike camera settings given as one string.
+#[derive(Debug, Parser)]
+#[command(name = "--spike", no_binary_name = true)]
+struct SpikeSettings {
+    #[command(flatten)]
+    camera: neuspike_spike_source::CameraConfig,
+}
+
+/// Event camera settings given as one string.
+#[derive(Debug, Parser)]
+#[command(name = "--dvs", no_binary_name = true)]
+struct DvsSettings {
+    #[command(flatten)]
+    camera: neuspike_event_source::DvsConfig,
+}
+
+/// Splits a settings string on whitespace and parses it.
+fn settings<P: Parser>(what: &str, args: &str) -> eyre::Result<P> {
+    P::try_parse_from(args.split_whitespace()).map_err(|e| eyre::eyre!("{what}: {e}"))
 }
 
 fn main() -> eyre::Result<()> {
@@ -71,6 +138,64 @@ fn main() -> eyre::Result<()> {
             report.into_result()
         }
         Command::Demo { scene, no_build } => demo(&scene, !no_build),
+        Command::Simulate {
+            scene,
+            out,
+            planes,
+            gt_every_planes,
+            chunk_planes,
+            no_events,
+            spike,
+            dvs,
+        } => {
+            let spike: SpikeSettings = settings("--spike", &spike)?;
+            let dvs: DvsSettings = settings("--dvs", &dvs)?;
+            let opts = record::SimulateOptions {
+                scene,
+                out,
+                planes,
+                gt_every_planes,
+                chunk_planes,
+                events: !no_events,
+                spike: spike.camera,
+                dvs: dvs.camera,
+                progress: true,
+            };
+            let rec = record::simulate(&opts)?;
+            println!(
+                "{}: {} planes ({} spikes), {} events, {} ground-truth frames",
+                rec.out.display(),
+                rec.planes,
+                rec.spikes,
+                rec.events,
+                rec.ground_truth
+            );
+            Ok(())
+        }
+        Command::Info {
+            file,
+            width,
+            height,
+            head_columns,
+            rate_hz,
+        } => {
+            let mut spikes = neuspike_formats::pku::PkuOptions::default();
+            if let (Some(w), Some(h)) = (width, height) {
+                spikes.geometry.width = usize::from(w);
+                spikes.geometry.height = usize::from(h);
+            }
+            spikes.geometry.head_columns = head_columns;
+            if !(rate_hz.is_finite() && rate_hz > 0.0) {
+                eyre::bail!("--rate-hz {rate_hz}: must be finite and > 0");
+            }
+            spikes.plane_period_ns = (1e9 / rate_hz).round() as i64;
+            let mut events = neuspike_formats::ReadOptions::default();
+            if let (Some(w), Some(h)) = (width, height) {
+                events.resolution = Some(neuspike_formats::Resolution::new(w, h));
+            }
+            println!("{}", record::describe(&file, &spikes, &events)?);
+            Ok(())
+        }
         Command::Scenes => {
             for name in neuspike_scene::Scene::builtin_names() {
                 let s = neuspike_scene::Scene::builtin(name)?;
