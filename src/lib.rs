@@ -6,6 +6,7 @@
 #![deny(missing_docs)]
 
 pub mod graph;
+pub mod reconstruct;
 pub mod record;
 
 use std::path::PathBuf;

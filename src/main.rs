@@ -73,6 +73,38 @@ enum Command {
         #[arg(long, default_value = "", allow_hyphen_values = true)]
         dvs: String,
     },
+    /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the
+    /// output folder (`graph.yml`), e.g. `neuspike reconstruct --spikes car.dat --out out/car`.
+    Reconstruct {
+        /// The PKU spike .dat.
+        #[arg(long)]
+        spikes: PathBuf,
+        /// An event file to align with the spikes (refused until a method uses events).
+        #[arg(long)]
+        events: Option<PathBuf>,
+        /// Reconstruction method.
+        #[arg(long, value_enum, default_value = "tfp")]
+        method: neuspike::reconstruct::Method,
+        /// Output folder: frames, metrics, summary, and the graph that made them.
+        #[arg(long)]
+        out: PathBuf,
+        /// Spike-source settings for the file, e.g. `--source="--file-width 416 --head-columns 16
+        /// --rate-hz 40000 --start-plane 1000 --max-planes 4000 --lum-per-rate 2"`.
+        #[arg(long, default_value = "", allow_hyphen_values = true)]
+        source: String,
+        /// Planes per window.
+        #[arg(long, default_value_t = 33)]
+        window_planes: u32,
+        /// Planes between two frames.
+        #[arg(long, default_value_t = 10)]
+        stride_planes: u32,
+        /// PNG bit depth: 8 or 16.
+        #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(8..=16))]
+        bit_depth: u8,
+        /// Skip the nodes' `build:` command.
+        #[arg(long)]
+        no_build: bool,
+    },
     /// Describe a recording: format, resolution, duration, counts, rates, first and last times.
     Info {
         /// A PKU spike .dat, or an event file (ECD text, Prophesee RAW or DAT).
@@ -171,6 +203,35 @@ fn main() -> eyre::Result<()> {
                 rec.ground_truth
             );
             Ok(())
+        }
+        Command::Reconstruct {
+            spikes,
+            events,
+            method,
+            out,
+            source,
+            window_planes,
+            stride_planes,
+            bit_depth,
+            no_build,
+        } => {
+            if bit_depth != 8 && bit_depth != 16 {
+                eyre::bail!("--bit-depth {bit_depth}: must be 8 or 16");
+            }
+            let opts = neuspike::reconstruct::ReconstructOptions {
+                spikes,
+                events,
+                method,
+                out,
+                source_args: source,
+                window_planes,
+                stride_planes,
+                bit_depth,
+                build: !no_build,
+            };
+            let report = neuspike::reconstruct::reconstruct(&opts)?;
+            report.print();
+            report.into_result()
         }
         Command::Info {
             file,
