@@ -175,7 +175,11 @@ impl Aligner {
                 self.first_buffered = chunk.first_plane;
                 self.lum_per_rate = chunk.lum_per_rate;
                 self.next_ref = self.ref_plane(0, chunk.plane_period_ns);
-                while self.next_ref < self.before {
+                // The first window whose planes can still come: a stream may start anywhere
+                // (a recording played from its middle).
+                while self.next_ref < self.before
+                    || self.next_ref - self.before < chunk.first_plane
+                {
                     self.advance();
                 }
             }
@@ -389,6 +393,27 @@ mod tests {
         assert_eq!(refs, vec![4, 8, 12, 16]);
         a.close_spikes();
         assert!(a.finished());
+    }
+
+    #[test]
+    fn a_stream_starting_mid_way_gets_the_windows_its_planes_cover() {
+        let cfg = AlignConfig {
+            window_planes: 5,
+            stride_planes: 4,
+            fps: None,
+            event_offset_ns: 0,
+        };
+        let mut a = Aligner::new(cfg, false);
+        a.push_spikes(chunk(1001, 20, 0)).unwrap();
+        let mut refs = vec![];
+        while let Some(w) = a.pop_ready() {
+            assert_eq!(w.spikes.bits[w.ref_index()], (w.ref_plane % 256) as u8);
+            assert_eq!(w.t_ref_ns, w.ref_plane as i64 * P);
+            refs.push(w.ref_plane);
+        }
+        // Planes 1001..=1020: 1004 needs 1002..=1006; 1020 would need 1022.
+        assert_eq!(refs, vec![1004, 1008, 1012, 1016]);
+        assert_eq!(a.skipped_windows(), 0);
     }
 
     #[test]
