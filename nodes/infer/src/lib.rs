@@ -7,6 +7,15 @@
 //! | `tfp` | firing rate per tick (TFP) | [`luminance_from_rate_into`]: `rate * phi / light_scale` |
 //! | `tfi` | inter-spike interval in ticks (ISI) | [`luminance_from_isi_into`]: `phi / (isi * light_scale)` |
 //!
+//! and the classical event and spike + event reconstructions, as state machines fed in time order
+//! (events, frames or ISI maps pushed, frames read at any later instant):
+//!
+//! | type | inputs | luminance |
+//! |---|---|---|
+//! | [`HighPassFilter`] | events | Scheerlinck et al. (ACCV 2018) high-pass filter, `REST_LUMINANCE * exp(L)` |
+//! | [`ComplementaryFilter`] | events + spike-camera frames (TFP / TFI luminance) | Scheerlinck et al. complementary filter, `exp(L)` |
+//! | [`PhysicsFusion`] | events + ISI maps with their validity | NeuSpike-Net Eq. 5-7: theta from ISI pairs (Eq. 6), `I(t0) exp(theta E)` (Eq. 7) |
+//!
 //! `phi` is the spike camera's firing threshold and `light_scale` the charge a pixel of luminance 1
 //! collects per tick: a pixel of luminance `I` collects `light_scale * I` per tick and fires every
 //! `phi / (light_scale * I)` ticks, i.e. at rate `light_scale * I / phi`. Outputs are luminance in
@@ -17,6 +26,25 @@ use std::fmt;
 use std::str::FromStr;
 
 use ndarray::{ArrayView2, ArrayViewMut2, Zip};
+
+mod fastmath;
+mod filter;
+mod fusion;
+#[cfg(test)]
+mod testing;
+
+#[cfg(test)]
+mod comparison;
+#[cfg(test)]
+mod extremes;
+
+pub use filter::{
+    ComplementaryFilter, Contrast, EVENT_BLOCK, HighPassFilter, LUMINANCE_FLOOR, MAX_CONTRAST,
+    REST_LUMINANCE,
+};
+pub use fusion::{FusionFrameStats, FusionParams, IsiUpdateStats, PhysicsFusion, ThetaMode};
+/// The events the filters and the fusion take, as `neuspike-represent` defines them.
+pub use neuspike_represent::EventSlice;
 
 /// Pixels below which the kernels stay on the calling thread. These maps are memory-bound (tens
 /// of microseconds for a 400x250 frame on one core); in a graph every node shares the cores, and
@@ -46,6 +74,22 @@ pub enum InferError {
         /// The destination's `[H, W]`.
         actual: [usize; 2],
     },
+    /// An instant earlier than one already pushed: the filters and the fusion run forward in time
+    /// only (events, frames and ISI maps are pushed in time order, frames read at or after the
+    /// latest of them).
+    #[error("{what}: t = {t_ns} ns is before {latest_ns} ns, the latest instant already pushed")]
+    TimeBackwards {
+        /// What was pushed or asked for.
+        what: &'static str,
+        /// Its time stamp.
+        t_ns: i64,
+        /// The latest instant the state has seen.
+        latest_ns: i64,
+    },
+    /// Events that break the invariants of [`EventSlice`] (lengths, time order, polarity ±1,
+    /// inside the sensor), as `neuspike-represent` names them.
+    #[error("events: {0}")]
+    Events(#[from] neuspike_represent::RepresentError),
     /// A method name that is not one of [`Method::ALL`].
     #[error("unknown reconstruction method {value:?}; accepted: {accepted}")]
     UnknownMethod {
