@@ -86,10 +86,17 @@ fn use_rayon(elements: usize) -> bool {
 // TFP
 // ---------------------------------------------------------------------------------------------
 
-/// Firing rate for `count` spikes over `n` planes; the one formula both paths use.
+/// Firing rate for `count` spikes over `n` planes, `count / n` correctly rounded to `f32`; the one
+/// formula every path uses. Below 2^24 planes both numbers are exact in `f32` and one `f32`
+/// division rounds correctly (it equals the `f64` quotient rounded to `f32`: double rounding is
+/// harmless for a quotient when the wide format has more than twice the bits plus two).
 #[inline]
 fn rate(count: u32, n: usize) -> f32 {
-    (f64::from(count) / n as f64) as f32
+    if n <= 1 << 24 {
+        count as f32 / n as f32
+    } else {
+        (f64::from(count) / n as f64) as f32
+    }
 }
 
 /// TFP (texture from playback): the mean firing over all `N` planes given, per pixel.
@@ -1042,5 +1049,21 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("spikes planes N") && e.contains('0'), "{e}");
+    }
+
+    #[test]
+    fn rate_in_single_precision_equals_the_double_quotient() {
+        for n in 1..=600usize {
+            for count in 0..=n as u32 {
+                assert_eq!(
+                    rate(count, n).to_bits(),
+                    ((f64::from(count) / n as f64) as f32).to_bits(),
+                    "{count}/{n}"
+                );
+            }
+        }
+        for (count, n) in [(12_345_678u32, 16_777_215usize), (16_777_215, 16_777_216)] {
+            assert_eq!(rate(count, n), (f64::from(count) / n as f64) as f32);
+        }
     }
 }
