@@ -102,7 +102,7 @@ fn events(c: &mut Criterion, one: &rayon::ThreadPool) {
     let x: Vec<u16> = (0..EVENTS).map(|_| (next() % EW as u64) as u16).collect();
     let y: Vec<u16> = (0..EVENTS).map(|_| (next() % EH as u64) as u16).collect();
     let polarity: Vec<i8> = (0..EVENTS)
-        .map(|_| if next() % 3 == 0 { -1 } else { 1 })
+        .map(|_| if next().is_multiple_of(3) { -1 } else { 1 })
         .collect();
     let ev = EventSlice {
         t_ns: &t_ns,
