@@ -1,8 +1,10 @@
 //! What every neuspike node does the same way: logging, sending messages, ending streams,
 //! reading its configuration from the graph.
 
+use std::time::{Duration, Instant};
+
 use dora_node_api::dora_core::config::DataId;
-use dora_node_api::{DoraArray, DoraNode};
+use dora_node_api::{DoraArray, DoraNode, Event, EventStream, StopCause};
 use eyre::WrapErr;
 
 use crate::Message;
@@ -52,4 +54,59 @@ pub fn send_end<M: Message>(node: &mut DoraNode, output: &DataId, count: u64) ->
 /// An output id from a static name.
 pub fn output(name: &str) -> DataId {
     DataId::from(name.to_string())
+}
+
+/// How fast a source sends its messages.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Pace {
+    /// As fast as the receivers take them.
+    #[default]
+    Fast,
+    /// On the camera's clock: a message leaves when the camera time it covers has passed.
+    Realtime,
+}
+
+/// Holds a source's messages back to the camera's clock under [`Pace::Realtime`].
+#[derive(Clone, Copy, Debug)]
+pub struct Pacer {
+    pace: Pace,
+    start: Instant,
+}
+
+impl Pacer {
+    /// A clock starting now.
+    pub fn start(pace: Pace) -> Self {
+        Pacer {
+            pace,
+            start: Instant::now(),
+        }
+    }
+
+    /// Waits until `stream_ns` of camera time have passed since the start (no wait when fast;
+    /// a negative time is due at once).
+    pub fn wait_until(&self, stream_ns: i64) {
+        if self.pace == Pace::Realtime {
+            let due = self.start + Duration::from_nanos(u64::try_from(stream_ns).unwrap_or(0));
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
+            }
+        }
+    }
+}
+
+/// Whether a source was asked to stop (a source has no inputs, so only a manual stop counts);
+/// never blocks.
+pub fn stop_requested(events: &mut EventStream) -> bool {
+    match events.try_recv() {
+        Ok(Event::Stop(StopCause::Manual)) => {
+            tracing::info!("stop requested");
+            true
+        }
+        Ok(other) => {
+            tracing::debug!(?other, "ignored event");
+            false
+        }
+        Err(_) => false,
+    }
 }

@@ -150,3 +150,21 @@ pub fn payload_len(output: &OutputJson) -> usize {
         .and_then(|d| d.as_array())
         .map_or(0, |a| a.len())
 }
+
+/// The real recording `name` of `../shared/data/real/` (beside the repository; see its README),
+/// or `None` with a printed notice when it is absent (a user's fresh clone has no `../shared`):
+/// tests that need one return early then.
+pub fn real_recording(name: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/real")
+        .join(name);
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!(
+            "skipped: {} is absent (real recordings live in ../shared/data/real)",
+            p.display()
+        );
+        None
+    }
+}

@@ -23,28 +23,17 @@
 //! the receivers take them.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
 
-use dora_node_api::{DoraNode, Event, EventStream, StopCause};
+use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;
 use neuspike_event_source::{DvsConfig, EventCamera};
 use neuspike_formats::{EventReader, FormatError, ReadOptions, Resolution, open_events, sniff};
 use neuspike_scene::Scene;
 use neuspike_schemas::EventBatch;
-use neuspike_schemas::node::{self, output, send, send_end};
+use neuspike_schemas::node::{self, Pace, Pacer, output, send, send_end, stop_requested};
 
 /// Events decoded per read from a recording (the read buffer's size).
 const READ_EVENTS: usize = 1 << 16;
-
-/// How fast messages go out.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-enum Pace {
-    /// As fast as the receivers take them.
-    #[default]
-    Fast,
-    /// On the camera's clock: a batch leaves when its interval has passed.
-    Realtime,
-}
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
@@ -317,47 +306,6 @@ impl EventFile {
     }
 }
 
-/// Holds messages back to the camera's clock under [`Pace::Realtime`].
-struct Pacer {
-    pace: Pace,
-    start: Instant,
-}
-
-impl Pacer {
-    fn start(pace: Pace) -> Self {
-        Pacer {
-            pace,
-            start: Instant::now(),
-        }
-    }
-
-    /// Waits until `stream_ns` of camera time have passed since the start (no wait when fast).
-    fn wait_until(&self, stream_ns: i64) {
-        if self.pace == Pace::Realtime {
-            let due = self.start + Duration::from_nanos(u64::try_from(stream_ns).unwrap_or(0));
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
-        }
-    }
-}
-
-/// Whether the node was asked to stop (a source has no inputs, so only a manual stop counts).
-fn stop_requested(events: &mut EventStream) -> bool {
-    match events.try_recv() {
-        Ok(Event::Stop(StopCause::Manual)) => {
-            tracing::info!("stop requested");
-            true
-        }
-        Ok(other) => {
-            tracing::debug!(?other, "ignored event");
-            false
-        }
-        Err(_) => false,
-    }
-}
-
 fn main() -> eyre::Result<()> {
     node::init_logging();
     let args: Args = node::parse_config("event-source")?;
@@ -468,6 +416,7 @@ mod tests {
     use neuspike_formats::raw::Evt2Writer;
     use neuspike_formats::text::TextWriter;
     use neuspike_schemas::testing::{CannedInputs, output_ids, payload_len};
+    use std::time::{Duration, Instant};
 
     fn args(extra: &[&str]) -> Args {
         Args::try_parse_from(std::iter::once("event-source").chain(extra.iter().copied())).unwrap()
@@ -793,25 +742,11 @@ mod tests {
         assert_eq!(out.len(), 6);
     }
 
-    /// A real recording of `../shared/data/README.md`, when the folder is there.
-    fn real(name: &str) -> Option<PathBuf> {
-        let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/real")
-            .join(name);
-        if p.exists() {
-            Some(p)
-        } else {
-            eprintln!(
-                "skipped: {} is absent (real recordings live in ../shared/data/real)",
-                p.display()
-            );
-            None
-        }
-    }
-
     #[test]
     fn plays_the_real_davis_text() {
-        let Some(path) = real("davis240c-shapes-rotation-events.txt") else {
+        let Some(path) =
+            neuspike_schemas::testing::real_recording("davis240c-shapes-rotation-events.txt")
+        else {
             return;
         };
         let a = args(&[
@@ -838,7 +773,8 @@ mod tests {
 
     #[test]
     fn plays_the_real_prophesee_raw() {
-        let Some(path) = real("prophesee-evt2-640x480.raw") else {
+        let Some(path) = neuspike_schemas::testing::real_recording("prophesee-evt2-640x480.raw")
+        else {
             return;
         };
         // Its header states no geometry: the README gives 640x480.

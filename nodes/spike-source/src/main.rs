@@ -25,30 +25,19 @@
 use std::fs::File;
 use std::io::{Seek, SeekFrom};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
 
-use dora_node_api::{DoraNode, Event, EventStream, StopCause};
+use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;
 use neuspike_formats::FormatError;
 use neuspike_formats::pku::{HEAD_COLUMNS, PkuGeometry, PkuOptions, PkuReader};
 use neuspike_scene::Scene;
-use neuspike_schemas::node::{self, output, send, send_end};
+use neuspike_schemas::node::{self, Pace, Pacer, output, send, send_end, stop_requested};
 use neuspike_schemas::{Frame, FrameKind, SpikeChunk};
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
 
 /// Luminance per unit firing rate sent with the planes of a recording when the graph gives no
 /// `--lum-per-rate`: TFP frames show the firing rate (0.366 on average in the Vidar car sample).
 const DEFAULT_FILE_LUM_PER_RATE: f64 = 1.0;
-
-/// How fast messages go out.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-enum Pace {
-    /// As fast as the receivers take them.
-    #[default]
-    Fast,
-    /// At the camera's plane rate: a chunk leaves when its last plane is due.
-    Realtime,
-}
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
@@ -286,32 +275,6 @@ impl SpikeFile {
     }
 }
 
-/// Holds messages back to the camera's clock under [`Pace::Realtime`].
-struct Pacer {
-    pace: Pace,
-    start: Instant,
-}
-
-impl Pacer {
-    fn start(pace: Pace) -> Self {
-        Pacer {
-            pace,
-            start: Instant::now(),
-        }
-    }
-
-    /// Waits until `stream_ns` of camera time have passed since the start (no wait when fast).
-    fn wait_until(&self, stream_ns: i64) {
-        if self.pace == Pace::Realtime {
-            let due = self.start + Duration::from_nanos(u64::try_from(stream_ns).unwrap_or(0));
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
-        }
-    }
-}
-
 /// Camera time at which the chunk's last plane is read out, from the start of the first plane's
 /// integration (plane `k` integrates `((k - 1) T, k T]`).
 fn chunk_due_ns(chunk: &SpikeChunk) -> i64 {
@@ -319,21 +282,6 @@ fn chunk_due_ns(chunk: &SpikeChunk) -> i64 {
     i64::try_from(planes)
         .unwrap_or(i64::MAX)
         .saturating_mul(chunk.plane_period_ns)
-}
-
-/// Whether the node was asked to stop (a source has no inputs, so only a manual stop counts).
-fn stop_requested(events: &mut EventStream) -> bool {
-    match events.try_recv() {
-        Ok(Event::Stop(StopCause::Manual)) => {
-            tracing::info!("stop requested");
-            true
-        }
-        Ok(other) => {
-            tracing::debug!(?other, "ignored event");
-            false
-        }
-        Err(_) => false,
-    }
 }
 
 fn main() -> eyre::Result<()> {
@@ -481,6 +429,7 @@ mod tests {
     use neuspike_formats::pku::PkuWriter;
     use neuspike_schemas::bytes_per_plane;
     use neuspike_schemas::testing::{CannedInputs, output_ids, payload_len};
+    use std::time::{Duration, Instant};
 
     fn args(extra: &[&str]) -> Args {
         Args::try_parse_from(std::iter::once("spike-source").chain(extra.iter().copied())).unwrap()
@@ -829,25 +778,9 @@ mod tests {
         assert_eq!(out.len(), 5);
     }
 
-    /// The real Vidar recording of `../shared/data/README.md`, when the folder is there.
-    fn real(name: &str) -> Option<PathBuf> {
-        let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../../shared/data/real")
-            .join(name);
-        if p.exists() {
-            Some(p)
-        } else {
-            eprintln!(
-                "skipped: {} is absent (real recordings live in ../shared/data/real)",
-                p.display()
-            );
-            None
-        }
-    }
-
     #[test]
     fn plays_the_real_vidar_recording() {
-        let Some(path) = real("vidar-car-400x250.dat") else {
+        let Some(path) = neuspike_schemas::testing::real_recording("vidar-car-400x250.dat") else {
             return;
         };
         let a = args(&["--file", path.to_str().unwrap(), "--chunk-planes", "32"]);
