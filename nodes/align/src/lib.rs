@@ -177,8 +177,7 @@ impl Aligner {
                 self.next_ref = self.ref_plane(0, chunk.plane_period_ns);
                 // The first window whose planes can still come: a stream may start anywhere
                 // (a recording played from its middle).
-                while self.next_ref < self.before
-                    || self.next_ref - self.before < chunk.first_plane
+                while self.next_ref < self.before || self.next_ref - self.before < chunk.first_plane
                 {
                     self.advance();
                 }
