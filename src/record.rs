@@ -20,7 +20,7 @@ use neuspike_event_source::{DvsConfig, EventCamera};
 use neuspike_formats::evt2::Evt2Writer;
 use neuspike_formats::pku::{PkuGeometry, PkuWriter};
 use neuspike_formats::text::TextWriter;
-use neuspike_formats::{Resolution, WriteSummary};
+use neuspike_formats::{EventWriter, Resolution, WriteSummary};
 use neuspike_scene::Scene;
 use neuspike_sink::png_out::{BitDepth, write_frame_png};
 use neuspike_spike_source::{CameraConfig, SpikeCamera};

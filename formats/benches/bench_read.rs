@@ -4,6 +4,7 @@
 //!
 //! `cargo bench -p neuspike-formats --bench bench_read -- --warm-up-time 1 --measurement-time 3`
 
+use neuspike_formats::EventWriter;
 use std::hint::black_box;
 use std::path::PathBuf;
 

@@ -115,6 +115,13 @@ impl<W: Write> Out<W> {
     }
 
     /// Writes out everything and returns the sink and the bytes written in all.
+    /// Flushes and returns the sink with `summary`, its byte count filled in.
+    pub(crate) fn finish_with(self, mut summary: WriteSummary) -> Result<(W, WriteSummary)> {
+        let (w, bytes) = self.finish()?;
+        summary.bytes = bytes;
+        Ok((w, summary))
+    }
+
     pub(crate) fn finish(mut self) -> Result<(W, u64)> {
         self.flush_buf()?;
         self.w.flush().map_err(|source| FormatError::Io {

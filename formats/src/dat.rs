@@ -310,19 +310,14 @@ impl<W: Write> DatWriter<W> {
         Ok(())
     }
 
-    /// Appends every event of a batch.
-    pub fn write_batch(&mut self, b: &EventBatch) -> Result<()> {
-        for i in 0..b.len() {
-            self.write_event(&b.get(i))?;
-        }
-        Ok(())
-    }
-
     /// Flushes and returns the sink and what was written.
     pub fn finish(self) -> Result<(W, WriteSummary)> {
-        let mut summary = self.summary;
-        let (w, bytes) = self.out.finish()?;
-        summary.bytes = bytes;
-        Ok((w, summary))
+        self.out.finish_with(self.summary)
+    }
+}
+
+impl<W: Write> crate::EventWriter for DatWriter<W> {
+    fn write_event(&mut self, e: &Event) -> Result<()> {
+        DatWriter::write_event(self, e)
     }
 }

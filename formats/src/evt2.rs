@@ -213,20 +213,9 @@ impl<W: Write> Evt2Writer<W> {
         Ok(())
     }
 
-    /// Appends every event of a batch.
-    pub fn write_batch(&mut self, b: &EventBatch) -> Result<()> {
-        for i in 0..b.len() {
-            self.write_event(&b.get(i))?;
-        }
-        Ok(())
-    }
-
     /// Flushes and returns the sink and what was written.
     pub fn finish(self) -> Result<(W, WriteSummary)> {
-        let mut summary = self.summary;
-        let (w, bytes) = self.out.finish()?;
-        summary.bytes = bytes;
-        Ok((w, summary))
+        self.out.finish_with(self.summary)
     }
 }
 
@@ -257,4 +246,10 @@ pub(crate) fn check_event<W: Write>(
         ));
     }
     Ok(())
+}
+
+impl<W: Write> crate::EventWriter for Evt2Writer<W> {
+    fn write_event(&mut self, e: &Event) -> Result<()> {
+        Evt2Writer::write_event(self, e)
+    }
 }

@@ -324,9 +324,16 @@ impl<W: Write> Evt3Writer<W> {
 
     /// Flushes and returns the sink and what was written.
     pub fn finish(self) -> Result<(W, WriteSummary)> {
-        let mut summary = self.summary;
-        let (w, bytes) = self.out.finish()?;
-        summary.bytes = bytes;
-        Ok((w, summary))
+        self.out.finish_with(self.summary)
+    }
+}
+
+impl<W: Write> crate::EventWriter for Evt3Writer<W> {
+    fn write_event(&mut self, e: &Event) -> Result<()> {
+        Evt3Writer::write_event(self, e)
+    }
+
+    fn write_batch(&mut self, b: &EventBatch) -> Result<()> {
+        Evt3Writer::write_batch(self, b)
     }
 }

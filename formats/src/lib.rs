@@ -59,6 +59,21 @@ pub use info::{EventInfo, Info, info};
 pub use neuspike_schemas::{Event, EventBatch, SpikeChunk, bytes_per_plane};
 pub use sniff::{Format, sniff};
 
+/// What every event writer does: append events in time order (`write_batch` appends a batch
+/// event by event unless the format packs runs).
+pub trait EventWriter {
+    /// Appends one event.
+    fn write_event(&mut self, e: &Event) -> Result<()>;
+
+    /// Appends every event of a batch.
+    fn write_batch(&mut self, b: &EventBatch) -> Result<()> {
+        for i in 0..b.len() {
+            self.write_event(&b.get(i))?;
+        }
+        Ok(())
+    }
+}
+
 /// Opens any event file: sniffs its format ([`sniff()`]) and returns the matching reader.
 /// Spike files and recognised-but-undecoded formats (AEDAT 4, HDF5) are
 /// [`FormatError::Unsupported`].

@@ -485,10 +485,7 @@ impl<W: Write> PkuWriter<W> {
 
     /// Flushes and returns the sink and what was written.
     pub fn finish(self) -> Result<(W, WriteSummary)> {
-        let mut summary = self.summary;
-        let (w, bytes) = self.out.finish()?;
-        summary.bytes = bytes;
-        Ok((w, summary))
+        self.out.finish_with(self.summary)
     }
 }
 

@@ -7,6 +7,7 @@
 
 mod common;
 
+use neuspike_formats::EventWriter;
 use std::path::Path;
 use std::sync::OnceLock;
 

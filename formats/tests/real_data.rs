@@ -6,6 +6,7 @@
 mod common;
 
 use common::*;
+use neuspike_formats::EventWriter;
 use neuspike_formats::dat::{DatReader, DatWriter};
 use neuspike_formats::pku::{self, PkuGeometry, PkuOptions, PkuReader, PkuWriter};
 use neuspike_formats::raw::{self, Evt2Writer, Evt3Writer, RawReader};

@@ -5,6 +5,7 @@
 mod common;
 
 use common::*;
+use neuspike_formats::EventWriter;
 use neuspike_formats::dat::{DatReader, DatWriter};
 use neuspike_formats::evt3::CLOCK_PERIOD_US;
 use neuspike_formats::pku::{PkuGeometry, PkuOptions, PkuReader, PkuWriter};
