@@ -199,22 +199,67 @@ pub fn log_intensity_into(frame: &[f32], light_scale: f32, floor: f32, dst: &mut
 }
 
 /// The pixel array of a DVS: per-pixel thresholds, reference levels and refractory clocks. It
-/// turns a sequence of log-intensity frames into events, like v2e does with video frames; the
-/// scene sampling lives in [`EventCamera`].
+/// turns a sequence of intensity frames into events, like v2e does with video frames; the scene
+/// sampling lives in [`EventCamera`].
+///
+/// A pixel's log intensity is `ln_fast(max(I * light_scale, floor))`. The fast path
+/// ([`DvsPixels::step`]) does not take the log of every pixel: it compares the intensities
+/// themselves against per-pixel linear levels `exp(level -/+ margin)` and takes logs only in the
+/// few blocks of pixels that may cross; the margin covers `ln_fast`'s error bound, so the
+/// pre-check never misses a crossing (tested, and argued at [`linear_levels`]).
+#[derive(Clone)]
 pub struct DvsPixels {
     width: usize,
     refractory_ns: i64,
-    theta_on: Vec<f32>,
-    theta_off: Vec<f32>,
-    reference: Vec<f32>,
-    last_event_ns: Vec<i64>,
-    /// `reference + theta_on` rounded down and `reference - theta_off` rounded up to single
-    /// precision: the pre-check levels of [`DvsPixels::step`].
+    light_scale: f32,
+    floor: f32,
+    /// Per-pixel state, together, so an event touches one cache line.
+    state: Vec<PixelState>,
+    /// Linear pre-check levels: a pixel whose scaled intensity `x` has `lower < x < upper` has
+    /// no crossing.
     upper: Vec<f32>,
     lower: Vec<f32>,
-    /// Scratch of [`DvsPixels::step`]: pixels that may cross.
-    candidates: Vec<u8>,
+    /// Scratch of [`DvsPixels::step`]: one bit per pixel that may cross, and those pixels.
+    block_masks: Vec<u32>,
+    candidates: Candidates,
 }
+
+/// One pixel's thresholds, reference level and refractory clock.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct PixelState {
+    reference: f32,
+    theta_on: f32,
+    theta_off: f32,
+    /// `exp(theta_on)` rounded down, `exp(-theta_off)` rounded up (see [`linear_levels`]).
+    gain_on: f32,
+    gain_off: f32,
+    last_event_ns: i64,
+}
+
+/// The pixels that may cross in a step: their indices and their two log intensities.
+#[derive(Clone, Default)]
+struct Candidates {
+    index: Vec<usize>,
+    la: Vec<f32>,
+    lb: Vec<f32>,
+    state: Vec<PixelState>,
+}
+
+impl Candidates {
+    fn clear(&mut self) {
+        self.index.clear();
+        self.la.clear();
+        self.lb.clear();
+        self.state.clear();
+    }
+}
+
+/// Pixels per mask of the vectorised pre-check in [`DvsPixels::step`] (bits of a `u32`).
+const CANDIDATE_BLOCK: usize = 32;
+
+/// Relative error bound of [`ln_fast`] used by the pre-check: `|ln_fast(x) - ln x| <=
+/// LN_FAST_ERROR * max(1, |ln x|)` (the test checks 2e-6; twice that is the margin's unit).
+const LN_FAST_ERROR: f64 = 4e-6;
 
 /// The largest `f32` at or below `y`.
 fn f32_at_or_below(y: f64) -> f32 {
@@ -228,13 +273,49 @@ fn f32_at_or_above(y: f64) -> f32 {
     if f64::from(f) < y { f.next_up() } else { f }
 }
 
+/// Linear pre-check levels `(upper, lower)` of a pixel with reference `r` and thresholds `on`,
+/// `off` (so log levels `up = r + on`, `lo = r - off`), given `gain_on <= exp(on)` and
+/// `gain_off >= exp(-off)`: every `x >= f32::MIN_POSITIVE` (the log floor, at least 1e-30,
+/// guarantees it) with `ln_fast(x) >= up` has `x >= upper`, and every such `x` with
+/// `ln_fast(x) <= lo` has `x <= lower`. One exponential per call: an event flood moves
+/// millions of levels a second.
+///
+/// Why: with `e = LN_FAST_ERROR` and margin `m = 2 e max(1, |up|)`, take `x < exp(up - m)`, so
+/// `L = ln x < up - m`. If `|L| <= 2|up| + 1`, `ln_fast(x) <= L + (e/2)(2 max(1,|up|) + 1) <
+/// L + m < up`. Otherwise `L < -(2|up| + 1)` and `ln_fast(x) <= L (1 - e/2) < -|up| <= up`. The
+/// OFF side is the mirror image. `exp(up - m) >= exp(r) gain_on (1 - m)`; the products' and
+/// `exp`'s roundings (below 1e-15 relative) are covered by a further 1e-12, and the f32
+/// rounding is outwards. Levels beyond the f32 range become `f32::MAX`/infinity or 0, which
+/// keeps the implication. OFF: `exp(m) <= 1 + m + m^2` for `m <= 1`.
+fn linear_levels(r: f64, on: f64, off: f64, gain_on: f64, gain_off: f64) -> (f32, f32) {
+    let m_up = 2.0 * LN_FAST_ERROR * (r + on).abs().max(1.0);
+    let m_lo = (2.0 * LN_FAST_ERROR * (r - off).abs().max(1.0)).min(1.0);
+    let e = r.exp();
+    (
+        f32_at_or_below(e * gain_on * (1.0 - m_up - 1e-12)),
+        f32_at_or_above(e * gain_off * (1.0 + m_lo + m_lo * m_lo + 1e-12)),
+    )
+}
+
+/// `(gain_on, gain_off)` of [`linear_levels`] for thresholds `on`, `off`.
+fn threshold_gains(on: f32, off: f32) -> (f32, f32) {
+    (
+        f32_at_or_below(f64::from(on).exp()),
+        f32_at_or_above((-f64::from(off)).exp()),
+    )
+}
+
 impl DvsPixels {
-    /// A pixel array whose reference levels and last frame are `log_start` (row-major, `width`
-    /// columns), with mismatch drawn from `cfg.seed`.
-    pub fn new(cfg: &DvsConfig, log_start: &[f32]) -> Result<Self, ConfigError> {
+    /// A pixel array whose reference levels and last frame are `frame_start` (intensities,
+    /// row-major, `width` columns) seen at `light_scale`, with mismatch drawn from `cfg.seed`.
+    pub fn new(
+        cfg: &DvsConfig,
+        light_scale: f32,
+        frame_start: &[f32],
+    ) -> Result<Self, ConfigError> {
         cfg.validate()?;
         let n = cfg.width * cfg.height;
-        if log_start.len() != n {
+        if frame_start.len() != n {
             return Err(ConfigError {
                 key: "width",
                 value: format!("{}x{}", cfg.width, cfg.height),
@@ -257,102 +338,172 @@ impl DvsPixels {
         let mut px = DvsPixels {
             width: cfg.width,
             refractory_ns: cfg.refractory_ns,
-            theta_on,
-            theta_off,
-            reference: log_start.to_vec(),
-            last_event_ns: vec![i64::MIN; n],
+            light_scale,
+            floor: cfg.log_floor as f32,
+            state: theta_on
+                .iter()
+                .zip(&theta_off)
+                .map(|(&theta_on, &theta_off)| {
+                    let (gain_on, gain_off) = threshold_gains(theta_on, theta_off);
+                    PixelState {
+                        reference: 0.0,
+                        theta_on,
+                        theta_off,
+                        gain_on,
+                        gain_off,
+                        last_event_ns: i64::MIN,
+                    }
+                })
+                .collect(),
             upper: vec![0.0; n],
             lower: vec![0.0; n],
-            candidates: Vec::new(),
+            block_masks: Vec::new(),
+            candidates: Candidates::default(),
         };
-        for (i, &l) in log_start.iter().enumerate() {
+        for (i, &v) in frame_start.iter().enumerate() {
+            let l = px.log_of(v);
             px.set_reference(i, f64::from(l));
         }
         Ok(px)
     }
 
-    /// Appends to `out` every crossing of the linear log-intensity path from `log_a` (the frame
-    /// of the previous step, at `t_a_ns`) to `log_b` (at `t_b_ns`), pixel by pixel, each inside
-    /// `[t_a_ns, t_b_ns)`. Fast: a vectorised pass finds the pixels that may cross and only
-    /// those take the scalar path; equal to
+    /// The log intensity the pixels see for intensity `v`.
+    #[inline(always)]
+    fn log_of(&self, v: f32) -> f32 {
+        ln_fast(self.scaled(v))
+    }
+
+    /// `max(v * light_scale, floor)`: what the log is taken of.
+    #[inline(always)]
+    fn scaled(&self, v: f32) -> f32 {
+        (v * self.light_scale).max(self.floor)
+    }
+
+    /// Appends to `out` every crossing of the linear log-intensity path from `frame_a` (the
+    /// frame of the previous step, at `t_a_ns`) to `frame_b` (at `t_b_ns`), pixel by pixel, each
+    /// inside `[t_a_ns, t_b_ns)`. Fast: a vectorised pass over the intensities finds the blocks
+    /// of pixels that may cross and only those take logs and the scalar path; equal to
     /// [`DvsPixels::step_reference`] event for event (tested).
     pub fn step(
         &mut self,
-        log_a: &[f32],
-        log_b: &[f32],
+        frame_a: &[f32],
+        frame_b: &[f32],
         t_a_ns: i64,
         t_b_ns: i64,
         out: &mut Vec<Event>,
     ) {
-        self.step_with(neuspike_simd::detect(), log_a, log_b, t_a_ns, t_b_ns, out);
+        self.step_with(
+            neuspike_simd::detect(),
+            frame_a,
+            frame_b,
+            t_a_ns,
+            t_b_ns,
+            out,
+        );
     }
 
     /// [`DvsPixels::step`] compiled for a chosen instruction set (tests and benchmarks).
     pub fn step_with(
         &mut self,
         isa: neuspike_simd::Isa,
-        log_a: &[f32],
-        log_b: &[f32],
+        frame_a: &[f32],
+        frame_b: &[f32],
         t_a_ns: i64,
         t_b_ns: i64,
         out: &mut Vec<Event>,
     ) {
-        let n = self.reference.len();
-        assert!(log_a.len() == n && log_b.len() == n, "frame size");
-        // Pass 1, vectorised: which pixels may cross (`lb >= upper` or `lb <= lower`; the levels
-        // are rounded outwards, so a pixel that fails has no crossing and `emit_pixel` would
-        // leave it as it is).
-        let mut cand = std::mem::take(&mut self.candidates);
-        cand.clear();
-        cand.resize(n, 0);
+        let n = self.state.len();
+        assert!(frame_a.len() == n && frame_b.len() == n, "frame size");
+        // Pass 1, vectorised: one bit per pixel, set when the pixel may cross (`x >= upper`
+        // or `x <= lower`, see `linear_levels`), 32 pixels to a mask.
+        let mut masks = std::mem::take(&mut self.block_masks);
+        masks.clear();
+        masks.resize(n.div_ceil(CANDIDATE_BLOCK), 0);
+        let (scale, floor) = (self.light_scale, self.floor);
         neuspike_simd::with_isa(
             isa,
             #[inline(always)]
             || {
-                for (((c, &lb), &up), &lo) in
-                    cand.iter_mut().zip(log_b).zip(&self.upper).zip(&self.lower)
-                {
-                    *c = u8::from(lb >= up) | u8::from(lb <= lo);
+                let blocks = frame_b
+                    .chunks(CANDIDATE_BLOCK)
+                    .zip(self.upper.chunks(CANDIDATE_BLOCK))
+                    .zip(self.lower.chunks(CANDIDATE_BLOCK));
+                for (mask, ((fb, up), lo)) in masks.iter_mut().zip(blocks) {
+                    let mut m = 0u32;
+                    for (j, ((&v, &up), &lo)) in fb.iter().zip(up).zip(lo).enumerate() {
+                        let x = (v * scale).max(floor);
+                        m |= (u32::from(x >= up) | u32::from(x <= lo)) << j;
+                    }
+                    *mask = m;
                 }
             },
         );
-        // Pass 2, scalar: the candidates, found eight at a time.
-        for (k, eight) in cand.chunks(8).enumerate() {
-            let mut word = [0u8; 8];
-            word[..eight.len()].copy_from_slice(eight);
-            if u64::from_ne_bytes(word) != 0 {
-                for (j, &c) in eight.iter().enumerate() {
-                    if c != 0 {
-                        let i = k * 8 + j;
-                        self.emit_pixel(i, log_a[i], log_b[i], t_a_ns, t_b_ns, out);
-                    }
-                }
+        // Pass 2: the candidates and their scaled intensities, gathered (independent loads, so
+        // their cache misses overlap); their logs, vectorised; then their crossings, one by one.
+        let mut c = std::mem::take(&mut self.candidates);
+        c.clear();
+        for (b, &m) in masks.iter().enumerate() {
+            let mut m = m;
+            while m != 0 {
+                let i = b * CANDIDATE_BLOCK + m.trailing_zeros() as usize;
+                m &= m - 1;
+                c.index.push(i);
+                c.lb.push(self.scaled(frame_b[i]));
             }
         }
-        self.candidates = cand;
+        c.la.extend(c.index.iter().map(|&i| self.scaled(frame_a[i])));
+        c.state.extend(c.index.iter().map(|&i| self.state[i]));
+        neuspike_simd::with_isa(
+            isa,
+            #[inline(always)]
+            || {
+                for v in c.la.iter_mut().chain(c.lb.iter_mut()) {
+                    *v = ln_fast(*v);
+                }
+            },
+        );
+        for (((&i, &la), &lb), &px) in c.index.iter().zip(&c.la).zip(&c.lb).zip(&c.state) {
+            self.emit_pixel(i, px, la, lb, t_a_ns, t_b_ns, out);
+        }
+        self.block_masks = masks;
+        self.candidates = c;
     }
 
-    /// [`DvsPixels::step`] as the plain loop over every pixel (the oracle).
+    /// [`DvsPixels::step`] as the plain loop over every pixel (the oracle): the log of every
+    /// pixel of both frames, then every pixel's crossings.
     pub fn step_reference(
         &mut self,
-        log_a: &[f32],
-        log_b: &[f32],
+        frame_a: &[f32],
+        frame_b: &[f32],
         t_a_ns: i64,
         t_b_ns: i64,
         out: &mut Vec<Event>,
     ) {
-        for (i, (&la, &lb)) in log_a.iter().zip(log_b).enumerate() {
-            self.emit_pixel(i, la, lb, t_a_ns, t_b_ns, out);
+        let log_a: Vec<f32> = frame_a.iter().map(|&v| self.log_of(v)).collect();
+        let log_b: Vec<f32> = frame_b.iter().map(|&v| self.log_of(v)).collect();
+        for (i, (&la, &lb)) in log_a.iter().zip(&log_b).enumerate() {
+            self.emit_pixel(i, self.state[i], la, lb, t_a_ns, t_b_ns, out);
         }
     }
 
-    /// Emits every crossing of pixel `i` between `t_a` and `t_b`.
+    /// Emits every crossing of pixel `i` (whose state is `px`) between `t_a` and `t_b`.
     #[inline(always)]
-    fn emit_pixel(&mut self, i: usize, la: f32, lb: f32, t_a: i64, t_b: i64, out: &mut Vec<Event>) {
+    #[allow(clippy::too_many_arguments)]
+    fn emit_pixel(
+        &mut self,
+        i: usize,
+        mut px: PixelState,
+        la: f32,
+        lb: f32,
+        t_a: i64,
+        t_b: i64,
+        out: &mut Vec<Event>,
+    ) {
         let dt = (t_b - t_a) as f64;
         let (la, lb) = (f64::from(la), f64::from(lb));
-        let mut r = f64::from(self.reference[i]);
-        let (on, off) = (f64::from(self.theta_on[i]), f64::from(self.theta_off[i]));
+        let (x, y) = ((i % self.width) as u16, (i / self.width) as u16);
+        let mut r = f64::from(px.reference);
+        let (on, off) = (f64::from(px.theta_on), f64::from(px.theta_off));
         loop {
             let (level, polarity) = if lb >= r + on {
                 (r + on, 1i8)
@@ -369,9 +520,10 @@ impl DvsPixels {
                 0.0
             };
             // Events of this step stay inside [t_a, t_b): a crossing exactly at t_b is
-            // stamped one nanosecond earlier.
-            let mut t = (t_a + (frac * dt).round() as i64).min(t_b - 1);
-            let free_at = self.last_event_ns[i].saturating_add(self.refractory_ns);
+            // stamped one nanosecond earlier. Rounded to the nearest nanosecond, halves up
+            // (`frac * dt >= 0`; no library call).
+            let mut t = (t_a + (frac * dt + 0.5) as i64).min(t_b - 1);
+            let free_at = px.last_event_ns.saturating_add(self.refractory_ns);
             if t < free_at {
                 if free_at >= t_b {
                     break; // still in reset at the end of the step: the reference waits
@@ -379,26 +531,35 @@ impl DvsPixels {
                 t = free_at;
             }
             r = level;
-            self.last_event_ns[i] = t;
+            px.last_event_ns = t;
             out.push(Event {
                 t_ns: t,
-                x: (i % self.width) as u16,
-                y: (i / self.width) as u16,
+                x,
+                y,
                 polarity,
             });
         }
-        self.set_reference(i, r);
+        let moved = r != f64::from(px.reference);
+        self.state[i] = px;
+        if moved {
+            self.set_reference(i, r);
+        }
     }
 
     /// Moves pixel `i`'s reference level to `r` (rounded to single precision) and its
     /// pre-check levels with it.
     #[inline(always)]
     fn set_reference(&mut self, i: usize, r: f64) {
-        let r = r as f32;
-        self.reference[i] = r;
-        let r = f64::from(r);
-        self.upper[i] = f32_at_or_below(r + f64::from(self.theta_on[i]));
-        self.lower[i] = f32_at_or_above(r - f64::from(self.theta_off[i]));
+        let px = &mut self.state[i];
+        px.reference = r as f32;
+        let r = f64::from(px.reference);
+        (self.upper[i], self.lower[i]) = linear_levels(
+            r,
+            f64::from(px.theta_on),
+            f64::from(px.theta_off),
+            f64::from(px.gain_on),
+            f64::from(px.gain_off),
+        );
     }
 }
 
@@ -408,10 +569,9 @@ pub struct EventCamera {
     cfg: DvsConfig,
     step_ns: i64,
     pixels: DvsPixels,
-    /// Log intensity at `t_ns` and at the end of the step being simulated.
-    log_now: Vec<f32>,
-    log_next: Vec<f32>,
-    frame: Array2<f32>,
+    /// The scene at `t_ns` and at the end of the step being simulated.
+    frame_now: Array2<f32>,
+    frame_next: Array2<f32>,
     t_ns: i64,
     scratch: Vec<Event>,
 }
@@ -429,17 +589,14 @@ impl EventCamera {
         } else {
             cfg.max_step_ns
         };
-        let mut frame = Array2::zeros((cfg.height, cfg.width));
-        let mut log_next = vec![0.0; cfg.width * cfg.height];
-        sample_log(&scene, &cfg, t_start_ns, &mut frame, &mut log_next);
-        let pixels = DvsPixels::new(&cfg, &log_next)?;
+        let frame = scene.render(t_start_ns, cfg.height, cfg.width);
+        let pixels = DvsPixels::new(&cfg, scene.light_scale() as f32, pixels_of(&frame))?;
         Ok(EventCamera {
-            frame,
+            frame_next: frame.clone(),
+            frame_now: frame,
             scene,
             step_ns,
             pixels,
-            log_now: log_next.clone(),
-            log_next,
             t_ns: t_start_ns,
             scratch: Vec::new(),
             cfg,
@@ -468,23 +625,17 @@ impl EventCamera {
         while self.t_ns < t_end_ns {
             let t_b = (self.t_ns + self.step_ns).min(t_end_ns);
             if !self.scene.is_static() {
-                sample_log(
-                    &self.scene,
-                    &self.cfg,
-                    t_b,
-                    &mut self.frame,
-                    &mut self.log_next,
-                );
+                self.scene.render_into(t_b, self.frame_next.view_mut());
             }
             self.scratch.clear();
             self.pixels.step(
-                &self.log_now,
-                &self.log_next,
+                pixels_of(&self.frame_now),
+                pixels_of(&self.frame_next),
                 self.t_ns,
                 t_b,
                 &mut self.scratch,
             );
-            std::mem::swap(&mut self.log_now, &mut self.log_next);
+            std::mem::swap(&mut self.frame_now, &mut self.frame_next);
             // Events of one step come pixel by pixel; the batch is in time order.
             self.scratch.sort_by_key(|e| e.t_ns);
             for e in &self.scratch {
@@ -496,14 +647,9 @@ impl EventCamera {
     }
 }
 
-/// Renders the scene at `t_ns` into `frame` and its log intensity into `log`.
-fn sample_log(scene: &Scene, cfg: &DvsConfig, t_ns: i64, frame: &mut Array2<f32>, log: &mut [f32]) {
-    scene.render_into(t_ns, frame.view_mut());
-    let ls = scene.light_scale() as f32;
-    let floor = cfg.log_floor as f32;
-    if let Some(frame) = frame.as_slice() {
-        log_intensity_into(frame, ls, floor, log);
-    }
+/// The pixels of a frame the camera rendered (standard layout, so always one slice).
+fn pixels_of(frame: &Array2<f32>) -> &[f32] {
+    frame.as_slice().unwrap_or(&[])
 }
 
 #[cfg(test)]
@@ -657,18 +803,19 @@ mod tests {
             let isa = neuspike_simd::Isa::ALL[isa];
             let c = DvsConfig { width: w, height: h, refractory_ns, theta_sigma: 0.1, seed, ..Default::default() };
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            // Small changes (most pixels stay below a threshold) with an occasional jump.
+            // Small changes of log intensity (most pixels stay below a threshold) with an
+            // occasional jump; the frames are the intensities.
             let mut prev: Vec<f32> = (0..w * h).map(|_| rand::Rng::random_range(&mut rng, -3.0f32..1.0)).collect();
             let mut frame = || -> Vec<f32> {
                 for v in prev.iter_mut() {
                     let jump = rand::Rng::random_bool(&mut rng, 0.05);
                     *v += if jump { rand::Rng::random_range(&mut rng, -1.0f32..1.0) } else { rand::Rng::random_range(&mut rng, -0.1f32..0.1) };
                 }
-                prev.clone()
+                prev.iter().map(|l| l.exp()).collect()
             };
             let start = frame();
-            let mut fast = DvsPixels::new(&c, &start).unwrap();
-            let mut slow = DvsPixels::new(&c, &start).unwrap();
+            let mut fast = DvsPixels::new(&c, 1.3, &start).unwrap();
+            let mut slow = DvsPixels::new(&c, 1.3, &start).unwrap();
             let (mut e1, mut e2) = (Vec::new(), Vec::new());
             let mut last = start.clone();
             for k in 0..steps as i64 {
@@ -678,18 +825,48 @@ mod tests {
                 last = next;
             }
             proptest::prop_assert_eq!(e1, e2);
-            proptest::prop_assert_eq!(&fast.reference, &slow.reference);
-            proptest::prop_assert_eq!(fast.last_event_ns, slow.last_event_ns);
-            // The pre-check never misses a pixel the exact test would take, at the levels
-            // themselves and their neighbours.
-            for i in 0..w * h {
-                let r = f64::from(fast.reference[i]);
-                let (up, lo) = (fast.upper[i], fast.lower[i]);
-                for lb in [up, up.next_up(), up.next_down(), lo, lo.next_up(), lo.next_down()] {
-                    let exact = f64::from(lb) >= r + f64::from(fast.theta_on[i])
-                        || f64::from(lb) <= r - f64::from(fast.theta_off[i]);
-                    proptest::prop_assert!(!exact || lb >= up || lb <= lo);
+            proptest::prop_assert_eq!(&fast.state, &slow.state);
+            proptest::prop_assert_eq!(&fast.upper, &slow.upper);
+            proptest::prop_assert_eq!(&fast.lower, &slow.lower);
+        }
+
+        /// The linear pre-check never misses an intensity whose `ln_fast` reaches the level:
+        /// intensities at, just around and far from the linear levels, at log levels across
+        /// the whole f32 range.
+        #[test]
+        fn linear_levels_never_miss_a_crossing(
+            r in -95.0f32..95.0,
+            on in 0.01f32..3.0,
+            off in 0.01f32..3.0,
+            rel in -1e-4f64..1e-4,
+            ulps in -8i32..8,
+            far in -100.0f64..100.0,
+        ) {
+            let (up, lo) = (f64::from(r) + f64::from(on), f64::from(r) - f64::from(off));
+            let (g_on, g_off) = threshold_gains(on, off);
+            let (u, l) = linear_levels(
+                f64::from(r), f64::from(on), f64::from(off), f64::from(g_on), f64::from(g_off),
+            );
+            let nudge = |v: f32| -> f32 {
+                let mut v = v;
+                for _ in 0..ulps.unsigned_abs() {
+                    v = if ulps > 0 { v.next_up() } else { v.next_down() };
                 }
+                v
+            };
+            let candidates = [
+                nudge(u), nudge(l), (f64::from(u) * (1.0 + rel)) as f32,
+                (f64::from(l) * (1.0 + rel)) as f32, up.exp() as f32, lo.exp() as f32,
+                far.exp() as f32,
+            ];
+            for x in candidates {
+                // The floor (at least 1e-30) keeps the pixels out of ln_fast's clamp.
+                if !(x >= f32::MIN_POSITIVE && x.is_finite()) {
+                    continue;
+                }
+                let lx = f64::from(ln_fast(x));
+                proptest::prop_assert!(lx < up || x >= u, "x {x} ln_fast {lx} >= {up} but below {u}");
+                proptest::prop_assert!(lx > lo || x <= l, "x {x} ln_fast {lx} <= {lo} but above {l}");
             }
         }
     }
