@@ -92,6 +92,10 @@ pub struct Aligner {
     events_closed: bool,
     emitted: u64,
     skipped_windows: u64,
+    /// The event stream output: whether it is wanted, and where the last batch ended.
+    with_stream: bool,
+    stream_cut_ns: Option<i64>,
+    stream: VecDeque<EventBatch>,
 }
 
 impl Aligner {
@@ -118,7 +122,30 @@ impl Aligner {
             events_closed: !with_events,
             emitted: 0,
             skipped_windows: 0,
+            with_stream: false,
+            stream_cut_ns: None,
+            stream: VecDeque::new(),
         }
+    }
+
+    /// Also cut the event stream at every window's reference instant: after each window,
+    /// [`Aligner::pop_stream`] gives the events of `[previous cut, t_ref)` on the spike clock,
+    /// each event exactly once, with the window's sequence number (the first batch starts at the
+    /// first window's start, or at the first event before it). The filters of the `infer` node
+    /// (HF, complementary, physics fusion) take this stream.
+    pub fn with_event_stream(mut self) -> Self {
+        self.with_stream = true;
+        self
+    }
+
+    /// Whether the event stream is cut (see [`Aligner::with_event_stream`]).
+    pub fn streams_events(&self) -> bool {
+        self.with_stream
+    }
+
+    /// The next batch of the event stream (see [`Aligner::with_event_stream`]), in window order.
+    pub fn pop_stream(&mut self) -> Option<EventBatch> {
+        self.stream.pop_front()
     }
 
     /// The reference plane of window `i` of the sequence, given the plane period.
@@ -287,6 +314,34 @@ impl Aligner {
         events
             .polarity
             .extend_from_slice(&self.events.polarity[lo..hi]);
+        if self.with_stream {
+            let t_ref = self.plane_time(c);
+            let from = match self.stream_cut_ns {
+                Some(cut) => cut,
+                None => self
+                    .events
+                    .t_ns
+                    .first()
+                    .map_or(t_start, |&t| t.min(t_start)),
+            };
+            let lo = self.events.t_ns.partition_point(|&t| t < from);
+            let hi = self.events.t_ns.partition_point(|&t| t < t_ref);
+            let mut batch = EventBatch::empty(
+                self.event_size.0,
+                self.event_size.1,
+                from,
+                t_ref,
+                self.emitted,
+            );
+            batch.t_ns.extend_from_slice(&self.events.t_ns[lo..hi]);
+            batch.x.extend_from_slice(&self.events.x[lo..hi]);
+            batch.y.extend_from_slice(&self.events.y[lo..hi]);
+            batch
+                .polarity
+                .extend_from_slice(&self.events.polarity[lo..hi]);
+            self.stream_cut_ns = Some(t_ref);
+            self.stream.push_back(batch);
+        }
         let window = AlignedWindow {
             t_ref_ns: self.plane_time(c),
             ref_plane: c,
@@ -320,7 +375,10 @@ impl Aligner {
             self.first_buffered = self.first_buffered.max(keep_from);
         }
         let (_, _, period, _) = self.geometry.unwrap_or((0, 0, 0, 0));
-        let t_keep = self.plane_time(keep_from) - period;
+        let mut t_keep = self.plane_time(keep_from) - period;
+        if let Some(cut) = self.stream_cut_ns {
+            t_keep = t_keep.min(cut); // the stream's next batch starts at the cut
+        }
         let cut = self.events.t_ns.partition_point(|&t| t < t_keep);
         if cut > 0 {
             self.events.t_ns.drain(..cut);
@@ -368,6 +426,52 @@ mod tests {
             });
         }
         b
+    }
+
+    #[test]
+    fn event_stream_holds_every_event_once_in_contiguous_batches() {
+        // Windows that leave gaps between them (5 planes every 9) and windows that overlap
+        // (9 every 2): the stream is the same either way.
+        for (window_planes, stride_planes) in [(5, 9), (9, 2)] {
+            let cfg = AlignConfig {
+                window_planes,
+                stride_planes,
+                fps: None,
+                event_offset_ns: 0,
+            };
+            let mut a = Aligner::new(cfg, true).with_event_stream();
+            let at: Vec<i64> = (0..400).map(|k| k * 9_999).collect();
+            let mut windows = Vec::new();
+            let mut stream = Vec::new();
+            for i in 0..8u64 {
+                a.push_spikes(chunk(i * 10, 10, i)).unwrap();
+                let (t0, t1) = (i as i64 * 10 * P, (i as i64 + 1) * 10 * P);
+                let inside: Vec<i64> = at.iter().copied().filter(|&t| t >= t0 && t < t1).collect();
+                a.push_events(events(t0, t1, &inside));
+                while let Some(w) = a.pop_ready() {
+                    windows.push(w);
+                    stream.push(a.pop_stream().expect("a batch per window"));
+                }
+            }
+            assert!(windows.len() >= 3, "{window_planes}/{stride_planes}");
+            let mut all = Vec::new();
+            for (k, (w, b)) in windows.iter().zip(&stream).enumerate() {
+                assert_eq!(b.seq, w.seq(), "batch {k} carries its window's seq");
+                assert_eq!(b.t_end_ns, w.t_ref_ns, "batch {k} ends at t_ref");
+                if k > 0 {
+                    assert_eq!(
+                        b.t_start_ns,
+                        stream[k - 1].t_end_ns,
+                        "batch {k} is contiguous"
+                    );
+                }
+                assert!(b.t_ns.iter().all(|&t| t >= b.t_start_ns && t < b.t_end_ns));
+                all.extend_from_slice(&b.t_ns);
+            }
+            let last = windows.last().unwrap().t_ref_ns;
+            let expected: Vec<i64> = at.iter().copied().filter(|&t| t < last).collect();
+            assert_eq!(all, expected, "{window_planes}/{stride_planes}");
+        }
     }
 
     #[test]

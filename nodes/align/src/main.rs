@@ -1,5 +1,7 @@
 //! dora node: aligns the spike and event streams. Inputs `spikes` (SpikeChunk) and, optionally,
-//! `events` (EventBatch); output `windows` (AlignedWindow).
+//! `events` (EventBatch); output `windows` (AlignedWindow) and, when the graph declares it,
+//! `events` (EventBatch): the event stream on the spike clock cut at every window's reference
+//! instant, each event once (what the event filters of `infer` take).
 
 use dora_node_api::{DoraNode, Event, EventStream};
 use neuspike_align::{AlignConfig, Aligner};
@@ -29,7 +31,27 @@ fn main() -> eyre::Result<()> {
         .inputs
         .keys()
         .any(|k| AsRef::<str>::as_ref(k) == "events");
-    run(node, events, Aligner::new(args.align, with_events))
+    let with_stream = node
+        .node_config()
+        .outputs
+        .iter()
+        .any(|o| AsRef::<str>::as_ref(o) == "events");
+    let mut aligner = Aligner::new(args.align, with_events);
+    if with_stream {
+        aligner = aligner.with_event_stream();
+    }
+    run(node, events, aligner)
+}
+
+/// Sends every ready window, each followed by its batch of the event stream (if wanted).
+fn send_ready(node: &mut DoraNode, aligner: &mut Aligner) -> eyre::Result<()> {
+    while let Some(window) = aligner.pop_ready() {
+        send::<AlignedWindow>(node, &output("windows"), &window)?;
+        if let Some(batch) = aligner.pop_stream() {
+            send::<EventBatch>(node, &output("events"), &batch)?;
+        }
+    }
+    Ok(())
 }
 
 fn observe(tracker: &mut SeqTracker, input: &str, seq: u64) {
@@ -43,7 +65,6 @@ fn observe(tracker: &mut SeqTracker, input: &str, seq: u64) {
 }
 
 fn run(mut node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyre::Result<()> {
-    let out = output("windows");
     let (mut spike_seq, mut event_seq) = (SeqTracker::default(), SeqTracker::default());
     while let Some(event) = events.recv() {
         match event {
@@ -89,19 +110,18 @@ fn run(mut node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyr
             Event::Stop(cause) => tracing::debug!(?cause, "stop received; draining the inputs"),
             _ => {}
         }
-        while let Some(window) = aligner.pop_ready() {
-            send::<AlignedWindow>(&mut node, &out, &window)?;
-        }
+        send_ready(&mut node, &mut aligner)?;
         if aligner.finished() {
             break;
         }
     }
     aligner.close_spikes();
     aligner.close_events();
-    while let Some(window) = aligner.pop_ready() {
-        send::<AlignedWindow>(&mut node, &out, &window)?;
+    send_ready(&mut node, &mut aligner)?;
+    send_end::<AlignedWindow>(&mut node, &output("windows"), aligner.emitted())?;
+    if aligner.streams_events() {
+        send_end::<EventBatch>(&mut node, &output("events"), aligner.emitted())?;
     }
-    send_end::<AlignedWindow>(&mut node, &out, aligner.emitted())?;
     tracing::info!(
         windows = aligner.emitted(),
         skipped = aligner.skipped_windows(),
@@ -153,6 +173,49 @@ mod tests {
         assert_eq!(output_ids(&out), vec!["windows"; 5]);
         assert_eq!(payload_len(&out[0]), 1, "one row per window");
         assert_eq!(payload_len(&out[4]), 0, "end-of-stream marker");
+    }
+
+    #[test]
+    fn event_stream_follows_each_window_and_ends() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = CannedInputs::new(dir.path());
+        for i in 0..5 {
+            c.message("spikes", &chunk(i * 20, 20, i)).unwrap();
+        }
+        c.end::<SpikeChunk>("spikes", 5).unwrap();
+        let mut batch = EventBatch::empty(8, 2, 0, 5_000_000, 0);
+        for k in 0..50 {
+            batch.push(neuspike_schemas::Event {
+                t_ns: k * 100_000,
+                x: 1,
+                y: 1,
+                polarity: 1,
+            });
+        }
+        c.message("events", &batch).unwrap();
+        c.end::<EventBatch>("events", 1).unwrap();
+        let cfg = AlignConfig {
+            window_planes: 33,
+            stride_planes: 20,
+            fps: None,
+            event_offset_ns: 0,
+        };
+        let out = c
+            .run(|node, events| run(node, events, Aligner::new(cfg, true).with_event_stream()))
+            .unwrap();
+        let ids = output_ids(&out);
+        assert_eq!(
+            ids,
+            [["windows", "events"]; 4]
+                .concat()
+                .into_iter()
+                .chain(["windows", "events"])
+                .collect::<Vec<_>>()
+        );
+        // References at planes 20, 40, 60, 80 (t = 1, 2, 3, 4 ms): the batches hold the events
+        // before 1 ms, then 10 each.
+        let lens: Vec<usize> = out.iter().skip(1).step_by(2).map(payload_len).collect();
+        assert_eq!(lens, vec![10, 10, 10, 10, 0]);
     }
 
     #[test]
