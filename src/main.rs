@@ -79,7 +79,7 @@ enum Command {
         /// The PKU spike .dat.
         #[arg(long)]
         spikes: PathBuf,
-        /// An event file to align with the spikes (refused until a method uses events).
+        /// An event file to align with the spikes (refused for now: the file-driven graph takes spikes only; see graphs/fusion.yml for the event methods).
         #[arg(long)]
         events: Option<PathBuf>,
         /// Reconstruction method.

@@ -40,7 +40,7 @@ impl Method {
 pub struct ReconstructOptions {
     /// The PKU spike `.dat`.
     pub spikes: PathBuf,
-    /// An event file to align with the spikes (no method uses events yet: refused).
+    /// An event file to align with the spikes (refused: the file-driven graph takes spikes only).
     pub events: Option<PathBuf>,
     /// The method.
     pub method: Method,
@@ -137,8 +137,9 @@ pub fn graph_yaml(opts: &ReconstructOptions, spikes: &Path, out: &Path) -> Strin
 pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     if let Some(events) = &opts.events {
         eyre::bail!(
-            "--events {}: no reconstruction in the infer node uses events yet (tfp and tfi read \
-             spikes only); run without --events",
+            "--events {}: the file-driven graph does not take an event file yet; the event \
+             methods (hf, cf, fusion) run in graphs/fusion.yml on simulated cameras of one size; \
+             run without --events",
             events.display()
         );
     }

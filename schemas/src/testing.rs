@@ -6,11 +6,13 @@ use std::sync::Arc;
 
 use arrow::array::RecordBatch;
 use arrow::datatypes::{Field, Schema};
+/// One output message as the testing harness records it (JSON: `id`, `data`, metadata).
+pub use dora_node_api::integration_testing::OutputJson;
 use dora_node_api::integration_testing::integration_testing_format::{
     IncomingEvent, InputData, IntegrationTestInput, TimedIncomingEvent,
 };
 use dora_node_api::integration_testing::{
-    OutputJson, TestingInput, TestingOptions, TestingOutput, drain_outputs, output_channel,
+    TestingInput, TestingOptions, TestingOutput, drain_outputs, output_channel,
 };
 use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;

@@ -82,7 +82,7 @@ impl Contrast {
     }
 
     /// Both steps finite, `> 0` and at most [`MAX_CONTRAST`].
-    fn check(self) -> Result<(), InferError> {
+    pub(crate) fn check(self) -> Result<(), InferError> {
         for (name, value) in [("contrast.on", self.on), ("contrast.off", self.off)] {
             if !(value.is_finite() && value > 0.0 && value <= MAX_CONTRAST) {
                 return Err(InferError::Param {

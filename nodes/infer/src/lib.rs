@@ -20,6 +20,9 @@
 //! collects per tick: a pixel of luminance `I` collects `light_scale * I` per tick and fires every
 //! `phi / (light_scale * I)` ticks, i.e. at rate `light_scale * I / phi`. Outputs are luminance in
 //! `[0, 1]`, clamped, finite everywhere. The learned NeuSpike-Net network is not here yet.
+//!
+//! [`Online`] runs any [`Method`] window by window, as the `infer` node does; each method
+//! declares what it reads ([`Method::inputs`]).
 #![deny(missing_docs)]
 
 use std::fmt;
@@ -30,6 +33,7 @@ use ndarray::{ArrayView2, ArrayViewMut2, Zip};
 mod fastmath;
 mod filter;
 mod fusion;
+mod online;
 #[cfg(test)]
 mod testing;
 
@@ -45,6 +49,7 @@ pub use filter::{
 pub use fusion::{FusionFrameStats, FusionParams, IsiUpdateStats, PhysicsFusion, ThetaMode};
 /// The events the filters and the fusion take, as `neuspike-represent` defines them.
 pub use neuspike_represent::EventSlice;
+pub use online::{MethodInputs, Online, OnlineParams, OnlineStats, SpikeInput, Window};
 
 /// Pixels below which the kernels stay on the calling thread. These maps are memory-bound (tens
 /// of microseconds for a 400x250 frame on one core); in a graph every node shares the cores, and
@@ -90,6 +95,14 @@ pub enum InferError {
     /// inside the sensor), as `neuspike-represent` names them.
     #[error("events: {0}")]
     Events(#[from] neuspike_represent::RepresentError),
+    /// A window without what its method reads (see [`Method::inputs`]).
+    #[error("method `{method}` needs {what}")]
+    Missing {
+        /// The method.
+        method: &'static str,
+        /// What it needs, and what came instead.
+        what: String,
+    },
     /// A method name that is not one of [`Method::ALL`].
     #[error("unknown reconstruction method {value:?}; accepted: {accepted}")]
     UnknownMethod {
@@ -104,37 +117,43 @@ pub enum InferError {
 // Method
 // ---------------------------------------------------------------------------------------------
 
-/// A reconstruction method, named as in the graph YAML (`tfp`, `tfi`).
+/// A reconstruction method, named as in the graph YAML (`tfp`, `tfi`, `hf`, `cf`, `fusion`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
     /// Texture from playback: luminance from the firing rate over a window.
     Tfp,
     /// Texture from interval: luminance from the inter-spike interval at the reference plane.
     Tfi,
+    /// Events alone: the high-pass filter ([`HighPassFilter`]).
+    Hf,
+    /// Events with the spike camera's TFP or TFI frames: the complementary filter
+    /// ([`ComplementaryFilter`]).
+    Cf,
+    /// Events with ISI maps: NeuSpike-Net's physics fusion, Eq. 5-7 ([`PhysicsFusion`]).
+    Fusion,
 }
 
 impl Method {
     /// Every method, in the order their names are listed in errors.
-    pub const ALL: [Method; 2] = [Method::Tfp, Method::Tfi];
+    pub const ALL: [Method; 5] = [
+        Method::Tfp,
+        Method::Tfi,
+        Method::Hf,
+        Method::Cf,
+        Method::Fusion,
+    ];
 
     /// The accepted names, as listed in errors.
-    const ACCEPTED: &'static str = "tfp, tfi";
+    const ACCEPTED: &'static str = "tfp, tfi, hf, cf, fusion";
 
     /// The method's name in graph YAML.
     pub fn as_str(&self) -> &'static str {
         match self {
             Method::Tfp => "tfp",
             Method::Tfi => "tfi",
-        }
-    }
-
-    /// The representation (as named by the `represent` node) this method consumes: `"tfp"` (a
-    /// firing-rate image) for [`Method::Tfp`], `"isi"` (the inter-spike-interval map, in ticks, with its validity channel) for
-    /// [`Method::Tfi`].
-    pub fn required_representation(&self) -> &'static str {
-        match self {
-            Method::Tfp => "tfp",
-            Method::Tfi => "isi",
+            Method::Hf => "hf",
+            Method::Cf => "cf",
+            Method::Fusion => "fusion",
         }
     }
 }
@@ -148,7 +167,7 @@ impl fmt::Display for Method {
 impl FromStr for Method {
     type Err = InferError;
 
-    /// Parses the exact lowercase name (`tfp`, `tfi`); anything else, other case included, is an
+    /// Parses the exact lowercase name (`tfp`, `tfi`, `hf`, `cf`, `fusion`); anything else, other case included, is an
     /// [`InferError::UnknownMethod`] naming the value and the accepted names.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         Method::ALL
@@ -451,12 +470,13 @@ mod tests {
         }
         assert_eq!("tfp".parse::<Method>().expect("tfp"), Method::Tfp);
         assert_eq!("tfi".parse::<Method>().expect("tfi"), Method::Tfi);
-        assert_eq!(Method::Tfp.required_representation(), "tfp");
-        assert_eq!(Method::Tfi.required_representation(), "isi");
+        assert_eq!(Method::Tfp.inputs().representations, ["tfp"]);
+        assert_eq!(Method::Tfi.inputs().representations, ["isi"]);
+        assert!(Method::Hf.inputs().events && Method::Hf.inputs().representations.is_empty());
         let e = "TFP".parse::<Method>().expect_err("case");
         assert_eq!(
             e.to_string(),
-            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi"
+            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi, hf, cf, fusion"
         );
         assert!("".parse::<Method>().is_err());
     }
