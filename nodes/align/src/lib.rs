@@ -299,21 +299,7 @@ impl Aligner {
         for p in self.planes.range(offset..offset + n) {
             bits.extend_from_slice(p);
         }
-        let lo = self.events.t_ns.partition_point(|&t| t < t_start);
-        let hi = self.events.t_ns.partition_point(|&t| t < t_end);
-        let mut events = EventBatch::empty(
-            self.event_size.0,
-            self.event_size.1,
-            t_start,
-            t_end,
-            self.emitted,
-        );
-        events.t_ns.extend_from_slice(&self.events.t_ns[lo..hi]);
-        events.x.extend_from_slice(&self.events.x[lo..hi]);
-        events.y.extend_from_slice(&self.events.y[lo..hi]);
-        events
-            .polarity
-            .extend_from_slice(&self.events.polarity[lo..hi]);
+        let events = self.buffered_events(t_start, t_end);
         if self.with_stream {
             let t_ref = self.plane_time(c);
             let from = match self.stream_cut_ns {
@@ -324,21 +310,7 @@ impl Aligner {
                     .first()
                     .map_or(t_start, |&t| t.min(t_start)),
             };
-            let lo = self.events.t_ns.partition_point(|&t| t < from);
-            let hi = self.events.t_ns.partition_point(|&t| t < t_ref);
-            let mut batch = EventBatch::empty(
-                self.event_size.0,
-                self.event_size.1,
-                from,
-                t_ref,
-                self.emitted,
-            );
-            batch.t_ns.extend_from_slice(&self.events.t_ns[lo..hi]);
-            batch.x.extend_from_slice(&self.events.x[lo..hi]);
-            batch.y.extend_from_slice(&self.events.y[lo..hi]);
-            batch
-                .polarity
-                .extend_from_slice(&self.events.polarity[lo..hi]);
+            let batch = self.buffered_events(from, t_ref);
             self.stream_cut_ns = Some(t_ref);
             self.stream.push_back(batch);
         }
@@ -362,6 +334,21 @@ impl Aligner {
         self.advance();
         self.drop_consumed();
         Some(window)
+    }
+
+    /// The buffered events of `[t_start, t_end)` as a batch numbered like the next window.
+    fn buffered_events(&self, t_start: i64, t_end: i64) -> EventBatch {
+        let lo = self.events.t_ns.partition_point(|&t| t < t_start);
+        let hi = self.events.t_ns.partition_point(|&t| t < t_end);
+        let (w, h) = self.event_size;
+        let mut batch = EventBatch::empty(w, h, t_start, t_end, self.emitted);
+        batch.t_ns.extend_from_slice(&self.events.t_ns[lo..hi]);
+        batch.x.extend_from_slice(&self.events.x[lo..hi]);
+        batch.y.extend_from_slice(&self.events.y[lo..hi]);
+        batch
+            .polarity
+            .extend_from_slice(&self.events.polarity[lo..hi]);
+        batch
     }
 
     /// Forgets planes and events no later window needs.

@@ -216,13 +216,7 @@ fn compare(scene_name: &str, phi: f64) {
             for f in fusions.iter_mut() {
                 let s = f.push_isi(t, isi.view(), ok.view()).expect("isi");
                 if f.params().mode == ThetaMode::PerPixel {
-                    stats.theta_accepted += s.theta_accepted;
-                    stats.theta_undefined += s.theta_undefined;
-                    stats.theta_saturated += s.theta_saturated;
-                    stats.theta_rejected += s.theta_rejected;
-                    stats.measured += s.measured;
-                    stats.bounded += s.bounded;
-                    stats.carried += s.carried;
+                    stats += s;
                 }
             }
             for cf in cfs.iter_mut() {

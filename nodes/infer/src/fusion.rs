@@ -167,6 +167,20 @@ pub struct IsiUpdateStats {
     pub theta_rejected: usize,
 }
 
+impl std::ops::AddAssign for IsiUpdateStats {
+    /// Field by field: the counts of several updates.
+    fn add_assign(&mut self, b: Self) {
+        self.measured += b.measured;
+        self.bounded += b.bounded;
+        self.carried += b.carried;
+        self.ignored += b.ignored;
+        self.theta_accepted += b.theta_accepted;
+        self.theta_undefined += b.theta_undefined;
+        self.theta_saturated += b.theta_saturated;
+        self.theta_rejected += b.theta_rejected;
+    }
+}
+
 /// What one [`PhysicsFusion::frame_into`] wrote.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FusionFrameStats {
@@ -180,6 +194,17 @@ pub struct FusionFrameStats {
     pub clamped: usize,
     /// Of those, the pixels whose exponent exceeded `ln(f64::MAX)`: `exp` would have overflowed.
     pub exp_overflow: usize,
+}
+
+impl std::ops::AddAssign for FusionFrameStats {
+    /// Field by field: the counts of several frames.
+    fn add_assign(&mut self, b: Self) {
+        self.measured += b.measured;
+        self.bounded += b.bounded;
+        self.no_anchor += b.no_anchor;
+        self.clamped += b.clamped;
+        self.exp_overflow += b.exp_overflow;
+    }
 }
 
 /// NeuSpike-Net's physics fusion of ISI maps and events (paper Eq. 5-7); see the module.

@@ -155,27 +155,6 @@ impl Method {
     }
 }
 
-/// Adds the fields of `b` to `a`.
-fn add_isi(a: &mut IsiUpdateStats, b: IsiUpdateStats) {
-    a.measured += b.measured;
-    a.bounded += b.bounded;
-    a.carried += b.carried;
-    a.ignored += b.ignored;
-    a.theta_accepted += b.theta_accepted;
-    a.theta_undefined += b.theta_undefined;
-    a.theta_saturated += b.theta_saturated;
-    a.theta_rejected += b.theta_rejected;
-}
-
-/// Adds the fields of `b` to `a`.
-fn add_frame(a: &mut FusionFrameStats, b: FusionFrameStats) {
-    a.measured += b.measured;
-    a.bounded += b.bounded;
-    a.no_anchor += b.no_anchor;
-    a.clamped += b.clamped;
-    a.exp_overflow += b.exp_overflow;
-}
-
 impl Online {
     /// A method with its settings; nothing is allocated before the first window.
     ///
@@ -308,9 +287,9 @@ impl Online {
                 f.push_events(e)?;
                 let mask = v.mapv(|x| x > 0.5);
                 let s = f.push_isi(t, isi, mask.view())?;
-                add_isi(&mut self.stats.isi, s);
+                self.stats.isi += s;
                 let s = f.frame_into(t, dst.view_mut(), valid.view_mut())?;
-                add_frame(&mut self.stats.frame, s);
+                self.stats.frame += s;
             }
             _ => unreachable!("inputs checked against the method above"),
         }
