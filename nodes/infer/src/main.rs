@@ -45,6 +45,10 @@ struct Args {
     /// fusion: theta before any estimate.
     #[arg(long, default_value_t = 0.2)]
     theta_init: f64,
+    /// cf, fusion: use the spike input of one window in this many; events carry the estimate in
+    /// between.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    anchor_every: u32,
 }
 
 fn parse_theta_mode(s: &str) -> Result<ThetaMode, String> {
@@ -64,6 +68,7 @@ impl Args {
             cf_gain_rad_s: self.cf_gain_rad_s,
             theta_mode: self.theta_mode,
             theta_init: self.theta_init,
+            anchor_every: self.anchor_every,
         }
     }
 
@@ -378,6 +383,7 @@ mod tests {
             cf_gain_rad_s: 5.0,
             theta_mode: ThetaMode::Global,
             theta_init: 0.2,
+            anchor_every: 1,
         }
     }
 

@@ -43,6 +43,10 @@ pub struct OnlineParams {
     pub theta_mode: ThetaMode,
     /// Fusion: theta before any estimate.
     pub theta_init: f64,
+    /// Fusion and CF: take the spike input of one window in this many (at least 1); between two,
+    /// the estimate is carried forward by the events alone (Eq. 7 for the fusion). The spike side
+    /// then needs computing only every N windows: the dial between speed and accuracy.
+    pub anchor_every: u32,
 }
 
 impl Default for OnlineParams {
@@ -53,6 +57,7 @@ impl Default for OnlineParams {
             cf_gain_rad_s: 5.0,
             theta_mode: ThetaMode::Global,
             theta_init: 0.2,
+            anchor_every: 1,
         }
     }
 }
@@ -136,6 +141,8 @@ pub struct Online {
     state: Option<State>,
     dim: (usize, usize),
     stats: OnlineStats,
+    /// Windows seen, for `anchor_every`.
+    windows: u64,
 }
 
 impl Method {
@@ -179,6 +186,9 @@ impl Online {
                 }
             }
         }
+        if params.anchor_every == 0 {
+            return bad("anchor-every", 0.0, "must be >= 1");
+        }
         if method == Method::Fusion {
             let mut p = FusionParams::new(1.0, 1.0);
             p.theta_init = params.theta_init;
@@ -191,6 +201,7 @@ impl Online {
             state: None,
             dim: (0, 0),
             stats: OnlineStats::default(),
+            windows: 0,
         })
     }
 
@@ -267,6 +278,10 @@ impl Online {
         }
         let mut dst = Array2::<f32>::zeros(dim);
         let t = w.t_ref_ns;
+        let anchor = self
+            .windows
+            .is_multiple_of(u64::from(self.params.anchor_every));
+        self.windows += 1;
         match (self.state.as_mut(), spikes, events) {
             (Some(State::Direct), Some(s), _) => s.luminance_into(gain, dst.view_mut())?,
             (Some(State::Hf(hf)), _, Some((e, _))) => {
@@ -275,8 +290,10 @@ impl Online {
             }
             (Some(State::Cf(cf, lum)), Some(s), Some((e, _))) => {
                 cf.push_events(e, Contrast::symmetric(self.params.contrast))?;
-                s.luminance_into(gain, lum.view_mut())?;
-                cf.push_frame(t, lum.view())?;
+                if anchor {
+                    s.luminance_into(gain, lum.view_mut())?;
+                    cf.push_frame(t, lum.view())?;
+                }
                 cf.frame_into(t, dst.view_mut())?;
             }
             (
@@ -285,9 +302,10 @@ impl Online {
                 Some((e, _)),
             ) => {
                 f.push_events(e)?;
-                let mask = v.mapv(|x| x > 0.5);
-                let s = f.push_isi(t, isi, mask.view())?;
-                self.stats.isi += s;
+                if anchor {
+                    let mask = v.mapv(|x| x > 0.5);
+                    self.stats.isi += f.push_isi(t, isi, mask.view())?;
+                }
                 let s = f.frame_into(t, dst.view_mut(), valid.view_mut())?;
                 self.stats.frame += s;
             }
@@ -382,6 +400,75 @@ mod tests {
         }
         assert_eq!(online.stats().frames, 2);
         assert_eq!(online.stats().events, 3);
+    }
+
+    /// With `anchor_every` 2 the second window's ISI is not used: the fusion carries the first
+    /// anchor forward by the events in between (Eq. 7), where every window re-anchored gives
+    /// the new ISI's luminance.
+    #[test]
+    fn fusion_carries_the_anchor_forward_between_anchors() {
+        let valid = Array2::<f32>::ones((1, 1));
+        let (isi_a, isi_b) = (array![[8.0f32]], array![[2.0f32]]);
+        let on = [1i8; 3];
+        let (t, x) = ([150i64, 160, 170], [0u16; 3]);
+        let frames = |anchor_every| {
+            let p = OnlineParams {
+                anchor_every,
+                theta_mode: ThetaMode::Fixed,
+                theta_init: 0.2,
+                ..OnlineParams::default()
+            };
+            let mut o = Online::new(Method::Fusion, p).unwrap();
+            let none = EventSlice {
+                t_ns: &[],
+                x: &[],
+                y: &[],
+                polarity: &[],
+            };
+            let mut out = Vec::new();
+            for (t_ref, isi, e) in [
+                (100, &isi_a, none),
+                (
+                    200,
+                    &isi_b,
+                    EventSlice {
+                        t_ns: &t,
+                        x: &x,
+                        y: &x,
+                        polarity: &on,
+                    },
+                ),
+            ] {
+                let w = Window {
+                    t_ref_ns: t_ref,
+                    spikes: Some(SpikeInput::Isi {
+                        isi: isi.view(),
+                        valid: valid.view(),
+                    }),
+                    lum_per_rate: Some(1.0),
+                    events: Some((e, (1, 1))),
+                };
+                out.push(o.frame(&w).unwrap()[[0, 0]]);
+            }
+            out
+        };
+        let every = frames(1);
+        assert_eq!(every, vec![1.0 / 8.0, 1.0 / 2.0]);
+        let carried = frames(2);
+        assert_eq!(carried[0], 1.0 / 8.0);
+        let want = (1.0f64 / 8.0 * (0.2f64 * 3.0).exp()) as f32;
+        assert!((carried[1] - want).abs() < 1e-6, "{carried:?} vs {want}");
+        let e = Online::new(
+            Method::Fusion,
+            OnlineParams {
+                anchor_every: 0,
+                ..OnlineParams::default()
+            },
+        )
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(e.contains("anchor-every"), "{e}");
     }
 
     #[test]
