@@ -9,5 +9,9 @@ fuzz_target!(|data: &[u8]| {
         let _ = e.to_string();
     }
     // A prefix of a longer file.
-    let _ = sniff_bytes(data, len.saturating_mul(3).saturating_add(7), std::path::Path::new("fuzz"));
+    let _ = sniff_bytes(
+        data,
+        len.saturating_mul(3).saturating_add(7),
+        std::path::Path::new("fuzz"),
+    );
 });

@@ -44,7 +44,11 @@ pub fn drain(reader: &mut dyn EventReader, n: usize) {
         match reader.read_into(&mut b, n) {
             Ok(0) => break,
             Ok(k) => {
-                assert!(k <= n && k == b.len(), "read {k} of at most {n}, batch {}", b.len());
+                assert!(
+                    k <= n && k == b.len(),
+                    "read {k} of at most {n}, batch {}",
+                    b.len()
+                );
                 for i in 0..k {
                     let e = b.get(i);
                     assert!(e.x < r.width && e.y < r.height, "{e:?} outside {r}");
