@@ -127,35 +127,37 @@ pub fn tfp_into(spikes: ArrayView3<u8>, dst: ArrayViewMut2<f32>) -> Result<(), R
     Ok(())
 }
 
-/// Byte `j` of `SPREAD[b]` is bit `j` of `b`: adding it to a `u64` adds one packed byte's eight
-/// spikes to eight byte-wide counters at once.
-const SPREAD: [u64; 256] = {
-    let mut t = [0u64; 256];
-    let mut b = 0;
-    while b < 256 {
-        let mut j = 0;
-        while j < 8 {
-            if b & (1 << j) != 0 {
-                t[b] |= 1 << (8 * j);
-            }
-            j += 1;
-        }
-        b += 1;
-    }
-    t
-};
-
 /// [`tfp_into`] straight from bit-packed planes, without unpacking them: `bits` holds planes of
 /// `ceil(H W / 8)` bytes each, pixel `i = y W + x` at bit `i & 7` of byte `i >> 3` (the
 /// `SpikeChunk` layout), and the TFP averages `planes` (a range of plane indices). `H` and `W`
-/// come from `dst`. Equal to unpacking and calling [`tfp_into`] (tested).
+/// come from `dst`. Equal to unpacking and calling [`tfp_into`] (tested, on every instruction
+/// set).
 ///
-/// Counting runs on byte-wide counters, eight pixels per `u64`, emptied every 255 planes.
+/// Counting is bit-sliced: each 64-pixel word of a plane is added into six bit planes of
+/// counters by carry-save logic (`AND` and `XOR` only, 64 pixels an operation, vectorised), for
+/// blocks of up to 63 planes; each block's counters are then read out eight pixels at a time
+/// into `u32` counts.
 ///
 /// # Errors
 /// - [`RepresentError::Param`] when the range is empty or longer than [`MAX_PLANES`].
 /// - [`RepresentError::Shape`] when `bits` holds fewer than `planes.end` planes.
 pub fn tfp_packed_into(
+    bits: &[u8],
+    planes: std::ops::Range<usize>,
+    dst: ArrayViewMut2<f32>,
+) -> Result<(), RepresentError> {
+    tfp_packed_into_with(neuspike_simd::detect(), bits, planes, dst)
+}
+
+/// Bit planes of the sliced counters: counts up to 63 per block.
+const SLICE_LEVELS: usize = 6;
+/// Planes per block of sliced counting.
+const SLICE_BLOCK: usize = (1 << SLICE_LEVELS) - 1;
+
+/// [`tfp_packed_into`] compiled for a chosen instruction set (tests and benchmarks).
+#[doc(hidden)]
+pub fn tfp_packed_into_with(
+    isa: neuspike_simd::Isa,
     bits: &[u8],
     planes: std::ops::Range<usize>,
     mut dst: ArrayViewMut2<f32>,
@@ -182,29 +184,75 @@ pub fn tfp_packed_into(
             actual: format!("{} bytes", bits.len()),
         });
     }
-    let mut counts = vec![0u32; per * 8];
-    let mut lanes = vec![0u64; per];
-    let flush = |lanes: &mut [u64], counts: &mut [u32]| {
-        for (lane, c) in lanes.iter_mut().zip(counts.chunks_exact_mut(8)) {
-            for (j, c) in c.iter_mut().enumerate() {
-                *c += ((*lane >> (8 * j)) & 0xff) as u32;
+    let words = per.div_ceil(8);
+    let mut counts = vec![0u32; words * 64];
+    // levels[b * words + i]: bit b of the counters of pixels 64 i .. 64 i + 63.
+    let mut levels = vec![0u64; SLICE_LEVELS * words];
+    let mut word_of_plane = vec![0u64; words];
+    let mut start = planes.start;
+    while start < planes.end {
+        let end = (start + SLICE_BLOCK).min(planes.end);
+        levels.fill(0);
+        for k in start..end {
+            let plane = &bits[k * per..(k + 1) * per];
+            let (whole, tail) = plane.split_at(per / 8 * 8);
+            for (d, c) in word_of_plane.iter_mut().zip(whole.chunks_exact(8)) {
+                let mut b = [0u8; 8];
+                b.copy_from_slice(c);
+                *d = u64::from_le_bytes(b);
             }
-            *lane = 0;
+            if !tail.is_empty() {
+                let mut b = [0u8; 8];
+                b[..tail.len()].copy_from_slice(tail);
+                word_of_plane[words - 1] = u64::from_le_bytes(b);
+            }
+            neuspike_simd::with_isa(
+                isa,
+                #[inline(always)]
+                || {
+                    let (l0, rest) = levels.split_at_mut(words);
+                    let (l1, rest) = rest.split_at_mut(words);
+                    let (l2, rest) = rest.split_at_mut(words);
+                    let (l3, rest) = rest.split_at_mut(words);
+                    let (l4, l5) = rest.split_at_mut(words);
+                    for (i, &x) in word_of_plane.iter().enumerate() {
+                        // Carry-save add of one bit per pixel into six bit planes.
+                        let mut c = x;
+                        for l in [&mut l0[i], &mut l1[i], &mut l2[i], &mut l3[i], &mut l4[i]] {
+                            let t = *l & c;
+                            *l ^= c;
+                            c = t;
+                        }
+                        l5[i] ^= c; // counts stay <= 63: no carry out of the top plane
+                    }
+                },
+            );
         }
-    };
-    let mut since_flush = 0;
-    for k in planes {
-        let plane = &bits[k * per..(k + 1) * per];
-        for (lane, &b) in lanes.iter_mut().zip(plane) {
-            *lane += SPREAD[usize::from(b)];
-        }
-        since_flush += 1;
-        if since_flush == 255 {
-            flush(&mut lanes, &mut counts);
-            since_flush = 0;
-        }
+        // Read out: 32 pixels at a time (one half of a word), each lane shifting its own bit
+        // out of the six planes (vectorised as variable shifts).
+        neuspike_simd::with_isa(
+            isa,
+            #[inline(always)]
+            || {
+                for (i, counts) in counts.chunks_exact_mut(64).enumerate() {
+                    for (half, counts) in counts.chunks_exact_mut(32).enumerate() {
+                        let mut bits = [0u32; SLICE_LEVELS];
+                        for (b, v) in bits.iter_mut().enumerate() {
+                            *v = (levels[b * words + i] >> (32 * half)) as u32;
+                        }
+                        for (p, c) in counts.iter_mut().enumerate() {
+                            let mut v = 0u32;
+                            for (b, &l) in bits.iter().enumerate() {
+                                v |= ((l >> p) & 1) << b;
+                            }
+                            *c += v;
+                        }
+                    }
+                }
+            },
+        );
+        start = end;
     }
-    flush(&mut lanes, &mut counts);
     match dst.as_slice_mut() {
         Some(out) => {
             for (o, &c) in out.iter_mut().zip(&counts) {
@@ -1029,9 +1077,11 @@ mod tests {
             let end = start + 1 + (cut * 7) % (total - start);
             let mut want = Array2::<f32>::zeros((h, w));
             tfp_reference(planes.slice(ndarray::s![start..end, .., ..]), want.view_mut()).unwrap();
-            let mut got = Array2::<f32>::from_elem((h, w), f32::NAN);
-            tfp_packed_into(&bits, start..end, got.view_mut()).unwrap();
-            proptest::prop_assert_eq!(got, want);
+            for isa in neuspike_simd::Isa::ALL {
+                let mut got = Array2::<f32>::from_elem((h, w), f32::NAN);
+                tfp_packed_into_with(isa, &bits, start..end, got.view_mut()).unwrap();
+                proptest::prop_assert_eq!(&got, &want, "{:?}", isa);
+            }
         }
     }
 
