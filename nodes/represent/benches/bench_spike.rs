@@ -9,9 +9,9 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array2, Array3};
 use neuspike_represent::{
-    EventSlice, event_integration_into, event_integration_reference, spike_representation_into,
-    spike_representation_reference, tfi_into, tfi_reference, tfp_into, tfp_packed_into,
-    tfp_reference,
+    EventSlice, event_integration_into, event_integration_reference, isi_packed_into,
+    spike_representation_into, spike_representation_reference, tfi_into, tfi_reference, tfp_into,
+    tfp_packed_into, tfp_reference,
 };
 use neuspike_schemas::pack_planes;
 use std::hint::black_box;
@@ -67,6 +67,16 @@ fn spike(c: &mut Criterion, one: &rayon::ThreadPool) {
     });
     g.bench_function("tfi_into", |b| {
         b.iter(|| one.install(|| tfi_into(planes.view(), C, dst.view_mut()).expect("tfi")))
+    });
+    // The ISI map and its mask straight from the packed planes (what the node sends; TFI is
+    // `1 / ISI` of it).
+    let mut valid = Array2::<bool>::from_elem((H, W), false);
+    g.bench_function("isi_packed_into", |b| {
+        b.iter(|| {
+            one.install(|| {
+                isi_packed_into(&bits, N, C, dst.view_mut(), valid.view_mut()).expect("isi")
+            })
+        })
     });
     let mut repr = Array3::<f32>::zeros((CHANNELS, H, W));
     let src = Array3::<f32>::from_elem((CHANNELS, H, W), 0.5);

@@ -38,9 +38,10 @@ pub use event::{
     event_integration_reference,
 };
 pub use spike::{
-    MAX_PLANES, MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK, isi_into, isi_reference, raw_block_start,
-    spike_representation_into, spike_representation_reference, tfi_into, tfi_reference, tfp_into,
-    tfp_packed_into, tfp_reference,
+    MAX_PLANES, MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK, isi_into, isi_packed_into,
+    isi_packed_into_with, isi_reference, raw_block_start, spike_representation_into,
+    spike_representation_reference, tfi_into, tfi_reference, tfp_into, tfp_packed_into,
+    tfp_packed_into_with, tfp_reference,
 };
 pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_reference};
 pub use voxel::{

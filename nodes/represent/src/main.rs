@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::{Array2, Array3, Axis};
 use neuspike_represent::{
-    EventSlice, event_integration_into, isi_into, spike_representation_into, tfp_packed_into,
+    EventSlice, event_integration_into, isi_packed_into, spike_representation_into, tfp_packed_into,
 };
 use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
@@ -89,7 +89,8 @@ fn represent(
         "isi" => {
             let mut isi = Array2::<f32>::zeros((h, wd));
             let mut valid = Array2::<bool>::from_elem((h, wd), false);
-            isi_into(planes.view(), c, isi.view_mut(), valid.view_mut())?;
+            // Straight from the packed planes: no unpacking.
+            isi_packed_into(&w.spikes.bits, n, c, isi.view_mut(), valid.view_mut())?;
             let mut out = Array3::<f32>::zeros((2, h, wd));
             out.index_axis_mut(Axis(0), 0).assign(&isi);
             out.index_axis_mut(Axis(0), 1)
@@ -148,8 +149,8 @@ fn run(
     let mut seq = SeqTracker::default();
     let mut sent = 0u64;
     let mut planes = Array3::<u8>::zeros((0, 0, 0));
-    // TFP reads the packed planes; the other spike kinds need them unpacked.
-    let needs_planes = active.iter().any(|(_, kind)| *kind != "tfp");
+    // TFP and ISI read the packed planes; the spike representation needs them unpacked.
+    let needs_planes = active.iter().any(|(_, kind)| *kind == "spike-repr");
     while let Some(event) = events.recv() {
         match event {
             Event::Input { id, metadata, data } if AsRef::<str>::as_ref(&id) == "windows" => {

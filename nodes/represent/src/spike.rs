@@ -476,6 +476,174 @@ pub fn isi_into(
     Ok(())
 }
 
+/// [`isi_into`] straight from bit-packed planes (the layout of [`tfp_packed_into`]): `bits` holds
+/// at least `n` planes, the window is planes `0..n`, the reference plane is `c`; `H` and `W` come
+/// from `isi`. Equal to unpacking and calling [`isi_into`] (tested, on every instruction set).
+///
+/// Bit-parallel: `ISI - 1` is the number of planes without a spike between the reference and
+/// the nearest spike on each side, so walking outwards from `c`, each plane adds the mask of
+/// pixels still waiting (64 pixels a word, carry-save into bit-sliced counters). The walk stops
+/// as soon as no pixel waits: a bright window costs a few planes.
+///
+/// # Errors
+/// As [`isi_into`], plus [`RepresentError::Shape`] when `bits` holds fewer than `n` planes.
+pub fn isi_packed_into(
+    bits: &[u8],
+    n: usize,
+    c: usize,
+    isi: ArrayViewMut2<f32>,
+    valid: ArrayViewMut2<bool>,
+) -> Result<(), RepresentError> {
+    isi_packed_into_with(neuspike_simd::detect(), bits, n, c, isi, valid)
+}
+
+/// [`isi_packed_into`] compiled for a chosen instruction set (tests and benchmarks).
+#[doc(hidden)]
+pub fn isi_packed_into_with(
+    isi_set: neuspike_simd::Isa,
+    bits: &[u8],
+    n: usize,
+    c: usize,
+    mut isi: ArrayViewMut2<f32>,
+    mut valid: ArrayViewMut2<bool>,
+) -> Result<(), RepresentError> {
+    if n == 0 || n > MAX_PLANES {
+        return Err(RepresentError::Param {
+            name: "spikes planes N",
+            value: n.to_string(),
+            reason: "between 1 and u32::MAX - 1 planes are needed",
+        });
+    }
+    check_reference_plane(c, n)?;
+    let (h, w) = isi.dim();
+    if valid.dim() != (h, w) {
+        return Err(RepresentError::Shape {
+            what: "isi valid",
+            expected: format!("[{h}, {w}]"),
+            actual: format!("{:?}", valid.dim()),
+        });
+    }
+    let per = (h * w).div_ceil(8);
+    if bits.len() < n * per {
+        return Err(RepresentError::Shape {
+            what: "packed spike planes",
+            expected: format!("at least {} bytes ({n} planes of {per})", n * per),
+            actual: format!("{} bytes", bits.len()),
+        });
+    }
+    let words = per.div_ceil(8);
+    // Counters up to N (the planes without a spike on both sides): `levels` bit planes.
+    let levels = (usize::BITS - n.leading_zeros()) as usize;
+    let mut sliced = vec![0u64; levels * words];
+    let mut plane_words = vec![0u64; words];
+    let load = |k: usize, dst: &mut [u64]| {
+        let plane = &bits[k * per..(k + 1) * per];
+        let (whole, tail) = plane.split_at(per / 8 * 8);
+        for (d, c) in dst.iter_mut().zip(whole.chunks_exact(8)) {
+            let mut b = [0u8; 8];
+            b.copy_from_slice(c);
+            *d = u64::from_le_bytes(b);
+        }
+        if !tail.is_empty() {
+            let mut b = [0u8; 8];
+            b[..tail.len()].copy_from_slice(tail);
+            dst[words - 1] = u64::from_le_bytes(b);
+        }
+    };
+    // Pixels past the image in the last word never wait.
+    let mut waiting_tail = vec![u64::MAX; words];
+    let rem = (h * w) % 64;
+    if rem != 0 {
+        waiting_tail[words - 1] = (1u64 << rem) - 1;
+    }
+    let mut found = [vec![0u64; words], vec![0u64; words]];
+    let mut carry = vec![0u64; words];
+    for (side, found) in found.iter_mut().enumerate() {
+        let mut waiting = waiting_tail.clone();
+        let (backward, forward) = ((0..=c).rev(), c + 1..n);
+        let order: &mut dyn Iterator<Item = usize> = if side == 0 {
+            &mut { backward }
+        } else {
+            &mut { forward }
+        };
+        for k in order {
+            load(k, &mut plane_words);
+            let any = neuspike_simd::with_isa(
+                isi_set,
+                #[inline(always)]
+                || {
+                    let mut any = 0u64;
+                    for ((wt, &x), c) in waiting.iter_mut().zip(&plane_words).zip(&mut carry) {
+                        *wt &= !x;
+                        *c = *wt;
+                        any |= *wt;
+                    }
+                    // Carry-save add of the waiting mask into the sliced counters, a level
+                    // at a time over all words.
+                    for level in sliced.chunks_exact_mut(words) {
+                        for (l, c) in level.iter_mut().zip(carry.iter_mut()) {
+                            let t = *l & *c;
+                            *l ^= *c;
+                            *c = t;
+                        }
+                    }
+                    any
+                },
+            );
+            if any == 0 {
+                break;
+            }
+        }
+        for ((f, &wt), &all) in found.iter_mut().zip(&waiting).zip(&waiting_tail) {
+            *f = all & !wt;
+        }
+    }
+    // Read out: 32 pixels at a time, each lane shifting its own bit out of every level.
+    let mut count = vec![0u32; words * 64];
+    neuspike_simd::with_isa(
+        isi_set,
+        #[inline(always)]
+        || {
+            for (i, count) in count.chunks_exact_mut(64).enumerate() {
+                for (half, count) in count.chunks_exact_mut(32).enumerate() {
+                    for (b, level) in sliced.chunks_exact(words).enumerate() {
+                        let l = (level[i] >> (32 * half)) as u32;
+                        for (p, o) in count.iter_mut().enumerate() {
+                            *o |= ((l >> p) & 1) << b;
+                        }
+                    }
+                }
+            }
+        },
+    );
+    // ISI = 1 + the count; valid where both sides found a spike.
+    let bit = |f: &[u64], p: usize| (f[p / 64] >> (p % 64)) & 1 == 1;
+    match (isi.as_slice_mut(), valid.as_slice_mut()) {
+        (Some(d), Some(v)) => neuspike_simd::with_isa(
+            isi_set,
+            #[inline(always)]
+            || {
+                let chunks = d.chunks_mut(64).zip(v.chunks_mut(64)).zip(count.chunks(64));
+                for (i, ((d, v), k)) in chunks.enumerate() {
+                    let both = found[0][i] & found[1][i];
+                    for (p, ((d, v), &k)) in d.iter_mut().zip(v).zip(k).enumerate() {
+                        *d = (k + 1) as f32;
+                        *v = (both >> p) & 1 == 1;
+                    }
+                }
+            },
+        ),
+        _ => {
+            for (((y, x), d), v) in isi.indexed_iter_mut().zip(valid.iter_mut()) {
+                let p = y * w + x;
+                *d = (count[p] + 1) as f32;
+                *v = bit(&found[0], p) && bit(&found[1], p);
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Checks shared by the ISI kernels: planes, reference plane, destination shape.
 fn check_isi_args(
     spikes: &ArrayView3<u8>,
@@ -1081,6 +1249,39 @@ mod tests {
                 let mut got = Array2::<f32>::from_elem((h, w), f32::NAN);
                 tfp_packed_into_with(isa, &bits, start..end, got.view_mut()).unwrap();
                 proptest::prop_assert_eq!(&got, &want, "{:?}", isa);
+            }
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn isi_packed_equals_unpacked(
+            h in 1usize..9,
+            w in 1usize..13,
+            n in 1usize..140,
+            seed in proptest::prelude::any::<u64>(),
+            c_at in 0usize..1000,
+        ) {
+            let mut state = seed | 1;
+            let mut next = move || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let threshold = next() >> (next() % 8);
+            let planes = Array3::from_shape_fn((n, h, w), |_| u8::from(next() < threshold));
+            let bits = neuspike_schemas::pack_planes(planes.view());
+            let c = c_at % n;
+            let mut want = Array2::<f32>::zeros((h, w));
+            let mut want_ok = Array2::<bool>::from_elem((h, w), false);
+            isi_reference(planes.view(), c, want.view_mut(), want_ok.view_mut()).unwrap();
+            for isa in neuspike_simd::Isa::ALL {
+                let mut got = Array2::<f32>::from_elem((h, w), f32::NAN);
+                let mut ok = Array2::<bool>::from_elem((h, w), true);
+                isi_packed_into_with(isa, &bits, n, c, got.view_mut(), ok.view_mut()).unwrap();
+                proptest::prop_assert_eq!(&got, &want, "{:?}", isa);
+                proptest::prop_assert_eq!(&ok, &want_ok, "{:?}", isa);
             }
         }
     }
