@@ -232,6 +232,69 @@ impl<R: EventReader> Iterator for EventChunks<R> {
     }
 }
 
+/// How a reader ended under [`drain_checked`].
+#[derive(Debug)]
+pub struct Drained {
+    /// Events delivered.
+    pub events: u64,
+    /// The error that stopped it, if it did not reach the end of its file.
+    pub error: Option<FormatError>,
+}
+
+/// Drains `reader` in batches of `n` and checks what every reader promises, whatever its bytes:
+/// each event inside the sensor, polarity ±1, time order, batches no longer than asked, and the
+/// reader's count equal to what it delivered. A reader that stops with an error is fine (the
+/// error is returned in [`Drained`]); a broken promise is `Err` naming it (a bug in the
+/// reader). The mutation tests and the fuzz targets use it.
+pub fn drain_checked(
+    reader: &mut dyn EventReader,
+    n: usize,
+) -> std::result::Result<Drained, String> {
+    let r = reader.resolution();
+    let mut last = i64::MIN;
+    let mut total = 0u64;
+    let mut error = None;
+    loop {
+        let mut b = EventBatch::default();
+        match reader.read_into(&mut b, n) {
+            Ok(0) => break,
+            Ok(k) => {
+                if k > n || k != b.len() {
+                    return Err(format!("read {k} of at most {n}, batch of {}", b.len()));
+                }
+                for i in 0..k {
+                    let e = b.get(i);
+                    if e.x >= r.width || e.y >= r.height {
+                        return Err(format!("{e:?} outside {r}"));
+                    }
+                    if e.polarity != 1 && e.polarity != -1 {
+                        return Err(format!("{e:?}: polarity"));
+                    }
+                    if e.t_ns < last {
+                        return Err(format!("{e:?} before {last}"));
+                    }
+                    last = e.t_ns;
+                }
+                total += k as u64;
+            }
+            Err(e) => {
+                error = Some(e);
+                break;
+            }
+        }
+    }
+    if reader.stats().events != total {
+        return Err(format!(
+            "the reader counts {} events but delivered {total}",
+            reader.stats().events
+        ));
+    }
+    Ok(Drained {
+        events: total,
+        error,
+    })
+}
+
 /// Reads a whole file into one batch. Convenient for tests and small files only: memory grows
 /// with the file.
 pub fn read_all(reader: &mut dyn EventReader) -> Result<EventBatch> {

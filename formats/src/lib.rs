@@ -52,7 +52,8 @@ use std::path::Path;
 pub use binary::WriteSummary;
 pub use error::{FormatError, Location, Result};
 pub use events::{
-    Disorder, EventChunks, EventReader, ReadOptions, ReadStats, Resolution, UnknownWords, read_all,
+    Disorder, Drained, EventChunks, EventReader, ReadOptions, ReadStats, Resolution, UnknownWords,
+    drain_checked, read_all,
 };
 pub use header::EvtVersion;
 pub use info::{EventInfo, Info, info};

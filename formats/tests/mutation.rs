@@ -19,7 +19,7 @@ use neuspike_formats::raw::{Evt2Writer, Evt3Writer, RawReader};
 use neuspike_formats::sniff::sniff_bytes;
 use neuspike_formats::text::TextReader;
 use neuspike_formats::{
-    Disorder, Event, EventBatch, EventReader, ReadOptions, Resolution, UnknownWords,
+    Disorder, Event, EventBatch, EventReader, ReadOptions, Resolution, UnknownWords, drain_checked,
 };
 use proptest::prelude::*;
 
@@ -210,33 +210,11 @@ fn options(disorder: bool, skip: bool) -> ReadOptions {
 /// Drains a reader, checking every delivered event; returns how many were delivered and whether
 /// it ended in an error.
 fn check(reader: &mut dyn EventReader, n: usize) -> (u64, bool) {
-    let r = reader.resolution();
-    let mut last = i64::MIN;
-    let mut total = 0u64;
-    loop {
-        let mut b = EventBatch::default();
-        match reader.read_into(&mut b, n) {
-            Ok(0) => break,
-            Ok(k) => {
-                assert!(k <= n && k == b.len());
-                for i in 0..k {
-                    let e = b.get(i);
-                    assert!(e.x < r.width && e.y < r.height, "{e:?} outside {r}");
-                    assert!(e.polarity == 1 || e.polarity == -1, "{e:?}");
-                    assert!(e.t_ns >= last, "{e:?} before {last}");
-                    last = e.t_ns;
-                }
-                total += k as u64;
-            }
-            Err(e) => {
-                let _ = e.to_string();
-                assert_eq!(reader.stats().events, total);
-                return (total, true);
-            }
-        }
+    let d = drain_checked(reader, n).unwrap_or_else(|bug| panic!("{bug}"));
+    if let Some(e) = &d.error {
+        let _ = e.to_string();
     }
-    assert_eq!(reader.stats().events, total);
-    (total, false)
+    (d.events, d.error.is_some())
 }
 
 /// Every event decoder on the same bytes (each format's bytes are also fed to the others).

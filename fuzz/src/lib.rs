@@ -3,7 +3,7 @@
 //! in time order; its counts agree with what it delivered. A violated check panics, which
 //! libFuzzer reports as a crash with the input that caused it.
 
-use neuspike_formats::{Disorder, EventBatch, EventReader, ReadOptions, Resolution, UnknownWords};
+use neuspike_formats::{Disorder, EventReader, ReadOptions, Resolution, UnknownWords};
 
 /// Reader options and a batch size chosen by the input's first byte, so the fuzzer explores
 /// them too; returns them with the remaining bytes.
@@ -34,35 +34,10 @@ pub fn options(data: &[u8]) -> (ReadOptions, usize, &[u8]) {
     (opts, batch, rest)
 }
 
-/// Drains `reader` in batches of `n`, checking every event and the reader's count.
+/// Drains `reader` in batches of `n`; a broken promise (see
+/// [`neuspike_formats::drain_checked`]) is a crash.
 pub fn drain(reader: &mut dyn EventReader, n: usize) {
-    let r = reader.resolution();
-    let mut last = i64::MIN;
-    let mut total = 0u64;
-    loop {
-        let mut b = EventBatch::default();
-        match reader.read_into(&mut b, n) {
-            Ok(0) => break,
-            Ok(k) => {
-                assert!(
-                    k <= n && k == b.len(),
-                    "read {k} of at most {n}, batch {}",
-                    b.len()
-                );
-                for i in 0..k {
-                    let e = b.get(i);
-                    assert!(e.x < r.width && e.y < r.height, "{e:?} outside {r}");
-                    assert!(e.polarity == 1 || e.polarity == -1, "{e:?}");
-                    assert!(e.t_ns >= last, "{e:?} before {last}");
-                    last = e.t_ns;
-                }
-                total += k as u64;
-            }
-            Err(e) => {
-                let _ = e.to_string();
-                break;
-            }
-        }
+    if let Err(bug) = neuspike_formats::drain_checked(reader, n) {
+        panic!("{bug}");
     }
-    assert_eq!(reader.stats().events, total, "counted vs delivered");
 }

@@ -1221,6 +1221,22 @@ mod tests {
         }
     }
 
+    /// Random planes (xorshift from `seed`) with a per-case firing threshold from sparse to
+    /// dense (`thin` more bits of shift make it sparser), and their packed form.
+    fn random_planes(seed: u64, shape: (usize, usize, usize), thin: bool) -> (Array3<u8>, Vec<u8>) {
+        let mut state = seed | 1;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let threshold = if thin { next() >> (next() % 8) } else { next() };
+        let planes = Array3::from_shape_fn(shape, |_| u8::from(next() < threshold));
+        let bits = neuspike_schemas::pack_planes(planes.view());
+        (planes, bits)
+    }
+
     proptest::proptest! {
         #[test]
         fn tfp_packed_equals_unpacked(
@@ -1230,17 +1246,7 @@ mod tests {
             seed in proptest::prelude::any::<u64>(),
             cut in 0usize..1000,
         ) {
-            // xorshift draws; a per-case firing threshold from sparse to dense
-            let mut state = seed | 1;
-            let mut next = move || {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                state
-            };
-            let threshold = next();
-            let planes = Array3::from_shape_fn((total, h, w), |_| u8::from(next() < threshold));
-            let bits = neuspike_schemas::pack_planes(planes.view());
+            let (planes, bits) = random_planes(seed, (total, h, w), false);
             let start = cut % total;
             let end = start + 1 + (cut * 7) % (total - start);
             let mut want = Array2::<f32>::zeros((h, w));
@@ -1262,16 +1268,7 @@ mod tests {
             seed in proptest::prelude::any::<u64>(),
             c_at in 0usize..1000,
         ) {
-            let mut state = seed | 1;
-            let mut next = move || {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                state
-            };
-            let threshold = next() >> (next() % 8);
-            let planes = Array3::from_shape_fn((n, h, w), |_| u8::from(next() < threshold));
-            let bits = neuspike_schemas::pack_planes(planes.view());
+            let (planes, bits) = random_planes(seed, (n, h, w), true);
             let c = c_at % n;
             let mut want = Array2::<f32>::zeros((h, w));
             let mut want_ok = Array2::<bool>::from_elem((h, w), false);
