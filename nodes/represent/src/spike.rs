@@ -149,6 +149,24 @@ pub fn tfp_packed_into(
     tfp_packed_into_with(neuspike_simd::detect(), bits, planes, dst)
 }
 
+/// One packed plane as little-endian 64-pixel words (`dst` is `ceil(plane.len() / 8)` long; the
+/// last word is zero-padded).
+fn plane_words(plane: &[u8], dst: &mut [u64]) {
+    let (whole, tail) = plane.split_at(plane.len() / 8 * 8);
+    for (d, c) in dst.iter_mut().zip(whole.chunks_exact(8)) {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(c);
+        *d = u64::from_le_bytes(b);
+    }
+    if let Some(last) = dst.last_mut()
+        && !tail.is_empty()
+    {
+        let mut b = [0u8; 8];
+        b[..tail.len()].copy_from_slice(tail);
+        *last = u64::from_le_bytes(b);
+    }
+}
+
 /// Bit planes of the sliced counters: counts up to 63 per block.
 const SLICE_LEVELS: usize = 6;
 /// Planes per block of sliced counting.
@@ -194,18 +212,7 @@ pub fn tfp_packed_into_with(
         let end = (start + SLICE_BLOCK).min(planes.end);
         levels.fill(0);
         for k in start..end {
-            let plane = &bits[k * per..(k + 1) * per];
-            let (whole, tail) = plane.split_at(per / 8 * 8);
-            for (d, c) in word_of_plane.iter_mut().zip(whole.chunks_exact(8)) {
-                let mut b = [0u8; 8];
-                b.copy_from_slice(c);
-                *d = u64::from_le_bytes(b);
-            }
-            if !tail.is_empty() {
-                let mut b = [0u8; 8];
-                b[..tail.len()].copy_from_slice(tail);
-                word_of_plane[words - 1] = u64::from_le_bytes(b);
-            }
+            plane_words(&bits[k * per..(k + 1) * per], &mut word_of_plane);
             neuspike_simd::with_isa(
                 isa,
                 #[inline(always)]
@@ -535,21 +542,7 @@ pub fn isi_packed_into_with(
     // Counters up to N (the planes without a spike on both sides): `levels` bit planes.
     let levels = (usize::BITS - n.leading_zeros()) as usize;
     let mut sliced = vec![0u64; levels * words];
-    let mut plane_words = vec![0u64; words];
-    let load = |k: usize, dst: &mut [u64]| {
-        let plane = &bits[k * per..(k + 1) * per];
-        let (whole, tail) = plane.split_at(per / 8 * 8);
-        for (d, c) in dst.iter_mut().zip(whole.chunks_exact(8)) {
-            let mut b = [0u8; 8];
-            b.copy_from_slice(c);
-            *d = u64::from_le_bytes(b);
-        }
-        if !tail.is_empty() {
-            let mut b = [0u8; 8];
-            b[..tail.len()].copy_from_slice(tail);
-            dst[words - 1] = u64::from_le_bytes(b);
-        }
-    };
+    let mut words_of_plane = vec![0u64; words];
     // Pixels past the image in the last word never wait.
     let mut waiting_tail = vec![u64::MAX; words];
     let rem = (h * w) % 64;
@@ -567,13 +560,13 @@ pub fn isi_packed_into_with(
             &mut { forward }
         };
         for k in order {
-            load(k, &mut plane_words);
+            plane_words(&bits[k * per..(k + 1) * per], &mut words_of_plane);
             let any = neuspike_simd::with_isa(
                 isi_set,
                 #[inline(always)]
                 || {
                     let mut any = 0u64;
-                    for ((wt, &x), c) in waiting.iter_mut().zip(&plane_words).zip(&mut carry) {
+                    for ((wt, &x), c) in waiting.iter_mut().zip(&words_of_plane).zip(&mut carry) {
                         *wt &= !x;
                         *c = *wt;
                         any |= *wt;
