@@ -142,6 +142,17 @@ fn events(c: &mut Criterion, one: &rayon::ThreadPool) {
             one.install(|| event_integration_into(ev, 0, &ts, 5e5, dst.view_mut()).expect("ei"))
         })
     });
+    // The same on two threads (below the four that split the sensor into bands: the bands were
+    // slower here).
+    let two = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("pool");
+    g.bench_function("event_integration_into_2_threads", |b| {
+        b.iter(|| {
+            two.install(|| event_integration_into(ev, 0, &ts, 5e5, dst.view_mut()).expect("ei"))
+        })
+    });
     g.finish();
 }
 
