@@ -301,11 +301,33 @@ fn add_pairs(
     pairs: &mut [[f64; 2]],
 ) {
     let (k, b) = (k as f64, (k + 1) as f64);
-    for (t, pixel, p) in pixels(events, range, w) {
-        let t_star = time.t_star(t);
-        let pair = &mut pairs[pixel];
-        pair[0] += p * (1.0 - (t_star - k));
-        pair[1] += p * (1.0 - (b - t_star));
+    // In runs: the pixels and weights of a run in one vectorised pass, then the scatter.
+    const RUN: usize = 2048;
+    let mut pixel = [0usize; RUN];
+    let mut lower = [0.0f64; RUN];
+    let mut upper = [0.0f64; RUN];
+    let mut start = range.start;
+    while start < range.end {
+        let end = (start + RUN).min(range.end);
+        let n = end - start;
+        let (pixel, lower, upper) = (&mut pixel[..n], &mut lower[..n], &mut upper[..n]);
+        neuspike_simd::dispatch(
+            #[inline(always)]
+            || {
+                for (j, (t, px, p)) in pixels(events, start..end, w).enumerate() {
+                    let t_star = time.t_star(t);
+                    pixel[j] = px;
+                    lower[j] = p * (1.0 - (t_star - k));
+                    upper[j] = p * (1.0 - (b - t_star));
+                }
+            },
+        );
+        for ((&px, &lo), &up) in pixel.iter().zip(lower.iter()).zip(upper.iter()) {
+            let pair = &mut pairs[px];
+            pair[0] += lo;
+            pair[1] += up;
+        }
+        start = end;
     }
 }
 
