@@ -120,7 +120,7 @@ pub(crate) fn open_event_format(
     format: Format,
     opts: &ReadOptions,
     allow_unknown_size: bool,
-) -> Result<(Box<dyn EventReader>, Option<Resolution>)> {
+) -> Result<(Box<dyn EventReader + Send>, Option<Resolution>)> {
     let open = |path: &Path| {
         File::open(path).map_err(|source| FormatError::Open {
             path: path.to_path_buf(),

@@ -78,7 +78,10 @@ pub trait EventWriter {
 /// Opens any event file: sniffs its format ([`sniff()`]) and returns the matching reader.
 /// Spike files and recognised-but-undecoded formats (AEDAT 4, HDF5) are
 /// [`FormatError::Unsupported`].
-pub fn open_events(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Box<dyn EventReader>> {
+pub fn open_events(
+    path: impl AsRef<Path>,
+    opts: &ReadOptions,
+) -> Result<Box<dyn EventReader + Send>> {
     let path = path.as_ref();
     let format = sniff(path)?;
     Ok(info::open_event_format(path, format, opts, false)?.0)

@@ -120,7 +120,7 @@ fn open_source(args: &Args) -> eyre::Result<Source> {
 
 /// An event recording cut into batches of consecutive `batch_ns` intervals.
 struct EventFile {
-    reader: Box<dyn EventReader>,
+    reader: Box<dyn EventReader + Send>,
     path: PathBuf,
     resolution: Resolution,
     /// Decoded events not yet batched: `pending[pos..]`.
@@ -311,7 +311,7 @@ fn main() -> eyre::Result<()> {
     let args: Args = node::parse_config("event-source")?;
     let source = open_source(&args)?;
     let (node, events) = DoraNode::init_from_env()?;
-    run(node, events, source, &args)
+    node::run_on_rayon("event-source", || run(node, events, source, &args))
 }
 
 fn run(node: DoraNode, events: EventStream, source: Source, args: &Args) -> eyre::Result<()> {

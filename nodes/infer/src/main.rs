@@ -110,7 +110,7 @@ fn main() -> eyre::Result<()> {
         .map(|k| k.to_string())
         .collect();
     args.check(&inputs)?;
-    run(node, events, &args)
+    node::run_on_rayon("infer", || run(node, events, &args))
 }
 
 /// The inputs of one window gathered so far.

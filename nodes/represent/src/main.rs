@@ -7,7 +7,8 @@ use std::collections::BTreeMap;
 use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::{Array2, Array3, Axis};
 use neuspike_represent::{
-    EventSlice, event_integration_into, isi_packed_into, spike_representation_into, tfp_packed_into,
+    EventSlice, event_integration_into, isi_packed_into, spike_representation_packed_into,
+    tfp_packed_into,
 };
 use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
@@ -60,16 +61,11 @@ fn main() -> eyre::Result<()> {
         .iter()
         .map(|o| o.to_string())
         .collect();
-    run(node, events, &args, &outputs)
+    node::run_on_rayon("represent", || run(node, events, &args, &outputs))
 }
 
 /// Computes the representation of one kind for a window.
-fn represent(
-    kind: &str,
-    w: &AlignedWindow,
-    planes: &Array3<u8>,
-    args: &Args,
-) -> eyre::Result<Representation> {
+fn represent(kind: &str, w: &AlignedWindow, args: &Args) -> eyre::Result<Representation> {
     let (n, h, wd) = (w.spikes.n_planes, w.spikes.height, w.spikes.width);
     let c = w.ref_index();
     let mut params = BTreeMap::new();
@@ -101,7 +97,8 @@ fn represent(
             let ch = args.repr_channels as usize;
             params.insert("channels".into(), ch as f64);
             let mut out = Array3::<f32>::zeros((ch, h, wd));
-            spike_representation_into(planes.view(), c, out.view_mut())?;
+            // Straight from the packed planes: no unpacking.
+            spike_representation_packed_into(&w.spikes.bits, n, c, out.view_mut())?;
             out
         }
         "event-integration" => {
@@ -148,9 +145,6 @@ fn run(
     tracing::info!(outputs = ?active.iter().map(|a| a.0).collect::<Vec<_>>(), "represent started");
     let mut seq = SeqTracker::default();
     let mut sent = 0u64;
-    let mut planes = Array3::<u8>::zeros((0, 0, 0));
-    // TFP and ISI read the packed planes; the spike representation needs them unpacked.
-    let needs_planes = active.iter().any(|(_, kind)| *kind == "spike-repr");
     while let Some(event) = events.recv() {
         match event {
             Event::Input { id, metadata, data } if AsRef::<str>::as_ref(&id) == "windows" => {
@@ -166,15 +160,8 @@ fn run(
                 if let SeqStatus::Gap { missing } = seq.observe(w.seq()) {
                     tracing::error!(seq = w.seq(), missing, "windows lost before this one");
                 }
-                if needs_planes {
-                    let dim = (w.spikes.n_planes, w.spikes.height, w.spikes.width);
-                    if planes.dim() != dim {
-                        planes = Array3::zeros(dim);
-                    }
-                    w.spikes.unpack_into(planes.view_mut());
-                }
                 for (id, kind) in &active {
-                    let r = represent(kind, &w, &planes, args)?;
+                    let r = represent(kind, &w, args)?;
                     send(&mut node, &output(id), &r)?;
                 }
                 // Sequence numbers follow the windows', so a lost window shows downstream too.

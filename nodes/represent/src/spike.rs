@@ -829,6 +829,79 @@ pub fn spike_representation_into(
     Ok(())
 }
 
+/// [`spike_representation_into`] straight from `n` bit-packed planes (the spike chunk's packing:
+/// plane `k` is `bits[k * per..(k + 1) * per]` with `per = ceil(H * W / 8)`, pixel `i` at bit
+/// `i % 8` of byte `i / 8`), as the node gets them: the ISI channel from [`isi_packed_into`]
+/// (`1 / ISI`, the same bits as [`tfi_into`]), the raw channels unpacked straight to 0.0/1.0.
+/// Single-threaded. Equal to the reference bit for bit (tested).
+///
+/// # Errors
+/// As [`spike_representation_into`], plus [`RepresentError::Shape`] when `bits` holds fewer
+/// than `n` planes.
+pub fn spike_representation_packed_into(
+    bits: &[u8],
+    n: usize,
+    c: usize,
+    mut dst: ArrayViewMut3<f32>,
+) -> Result<(), RepresentError> {
+    let (channels, h, w) = dst.dim();
+    if channels == 0 {
+        return Err(RepresentError::Shape {
+            what: "spike representation dst channels",
+            expected: "[n >= 1, H, W] (channel 0 is the ISI channel)".to_owned(),
+            actual: shape_str(&[channels, h, w]),
+        });
+    }
+    let raw = channels - 1;
+    if raw > n {
+        return Err(RepresentError::Shape {
+            what: "spike representation planes (N must be >= n - 1 raw channels)",
+            expected: format!("[N >= {raw}, H, W]"),
+            actual: shape_str(&[n, h, w]),
+        });
+    }
+    let mut valid = ndarray::Array2::<bool>::from_elem((h, w), false);
+    isi_packed_into(bits, n, c, dst.index_axis_mut(Axis(0), 0), valid.view_mut())?;
+    dst.index_axis_mut(Axis(0), 0)
+        .mapv_inplace(|isi| tfi_value(isi as u32));
+    let per = (h * w).div_ceil(8);
+    let start = raw_block_start(c, raw, n);
+    for ch in 1..channels {
+        let k = start + ch - 1;
+        let plane = &bits[k * per..(k + 1) * per];
+        let mut out = dst.index_axis_mut(Axis(0), ch);
+        match out.as_slice_mut() {
+            Some(out) => unpack_plane(plane, out),
+            None => {
+                for (i, d) in out.iter_mut().enumerate() {
+                    *d = f32::from((plane[i / 8] >> (i % 8)) & 1);
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// One packed plane to 0.0/1.0 per pixel (`out.len()` pixels), eight at a time.
+fn unpack_plane(plane: &[u8], out: &mut [f32]) {
+    neuspike_simd::dispatch(
+        #[inline(always)]
+        || {
+            let (whole, tail) = out.as_chunks_mut::<8>();
+            for (o, &byte) in whole.iter_mut().zip(plane) {
+                for (b, d) in o.iter_mut().enumerate() {
+                    *d = f32::from((byte >> b) & 1);
+                }
+            }
+            if let Some(&byte) = plane.get(whole.len()) {
+                for (b, d) in tail.iter_mut().enumerate() {
+                    *d = f32::from((byte >> b) & 1);
+                }
+            }
+        },
+    );
+}
+
 /// Checks for the spike representation; returns the first raw plane.
 fn check_representation(
     spikes: &ArrayView3<u8>,
@@ -944,6 +1017,29 @@ mod tests {
             let mut tfi = Array2::<f32>::zeros((1, 1));
             tfi_into(s.view(), c, tfi.view_mut()).expect("tfi");
             assert_eq!(tfi[[0, 0]], 0.25);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn spike_representation_packed_equals_the_reference(
+            (n, h, w, seed) in (1usize..40, 1usize..6, 1usize..20, any::<u64>()),
+            c_frac in 0.0f64..1.0,
+            channels in 1usize..34,
+        ) {
+            let channels = channels.min(n + 1);
+            let c = ((n as f64 * c_frac) as usize).min(n - 1);
+            let (planes, bits) = random_planes(seed, (n, h, w), false);
+            let mut want = Array3::<f32>::zeros((channels, h, w));
+            spike_representation_reference(planes.view(), c, want.view_mut()).expect("reference");
+            let mut got = Array3::<f32>::from_elem((channels, h, w), f32::NAN);
+            spike_representation_packed_into(&bits, n, c, got.view_mut()).expect("packed");
+            prop_assert_eq!(&got, &want);
+            // A strided destination takes the element-wise path to the same values.
+            let mut wide = Array3::<f32>::from_elem((channels, h, 2 * w), f32::NAN);
+            let mut strided = wide.slice_mut(s![.., .., ..;2]);
+            spike_representation_packed_into(&bits, n, c, strided.view_mut()).expect("strided");
+            prop_assert_eq!(&strided, &want);
         }
     }
 

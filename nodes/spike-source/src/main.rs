@@ -289,7 +289,7 @@ fn main() -> eyre::Result<()> {
     let args: Args = node::parse_config("spike-source")?;
     let source = open_source(&args)?;
     let (node, events) = DoraNode::init_from_env()?;
-    run(node, events, source, &args)
+    node::run_on_rayon("spike-source", || run(node, events, source, &args))
 }
 
 fn run(node: DoraNode, events: EventStream, source: Source, args: &Args) -> eyre::Result<()> {
