@@ -320,6 +320,9 @@ pub(crate) struct Sink {
     disorder: Disorder,
     pub(crate) unknown_words: UnknownWords,
     pub(crate) stats: ReadStats,
+    /// Time of the last event emitted (the disorder check).
+    last_t_ns: Option<i64>,
+    /// The last event counted by [`Sink::tally`] (the duplicate check across calls).
     last: Option<Event>,
     overflow: Vec<Event>,
     overflow_pos: usize,
@@ -350,6 +353,7 @@ impl Sink {
             disorder: opts.disorder,
             unknown_words: opts.unknown_words,
             stats: ReadStats::default(),
+            last_t_ns: None,
             last: None,
             overflow: Vec::new(),
             overflow_pos: 0,
@@ -370,8 +374,11 @@ impl Sink {
         self.finished = true;
     }
 
-    /// Checks one event and delivers it (or queues it when the request is full).
-    #[inline]
+    /// Checks one event and delivers it (or queues it when the request is full). The errors are
+    /// built out of line ([`Sink::out_of_bounds`], [`Sink::unsorted`]) and the statistics are
+    /// counted afterwards over the whole run ([`Sink::tally`]): the common path is three compares
+    /// and four pushes, small enough to inline into every decoder loop.
+    #[inline(always)]
     pub(crate) fn emit(
         &mut self,
         out: &mut EventBatch,
@@ -382,34 +389,21 @@ impl Sink {
         at: Location,
     ) -> Result<()> {
         if x >= self.width || y >= self.height {
-            return Err(FormatError::OutOfBounds {
-                path: self.path.clone(),
-                at,
-                x,
-                y,
-                width: self.width,
-                height: self.height,
-            });
+            return Err(self.out_of_bounds(at, x, y));
         }
         let mut t_ns = t_ns;
-        if let Some(last) = self.last
-            && t_ns < last.t_ns
+        if let Some(last) = self.last_t_ns
+            && t_ns < last
         {
             match self.disorder {
-                Disorder::Error => {
-                    return Err(FormatError::Unsorted {
-                        path: self.path.clone(),
-                        at,
-                        t_ns,
-                        previous_t_ns: last.t_ns,
-                    });
-                }
+                Disorder::Error => return Err(self.unsorted(at, t_ns, last)),
                 Disorder::Clamp => {
-                    t_ns = last.t_ns;
+                    t_ns = last;
                     self.stats.clamped_timestamps += 1;
                 }
             }
         }
+        self.last_t_ns = Some(t_ns);
         // Bounds were checked above, so both fit in u16.
         let e = Event {
             t_ns,
@@ -417,19 +411,6 @@ impl Sink {
             y: y as u16,
             polarity: if on { 1 } else { -1 },
         };
-        let s = &mut self.stats;
-        if self.last == Some(e) {
-            s.duplicate_events += 1;
-        }
-        if s.first_t_ns.is_none() {
-            s.first_t_ns = Some(t_ns);
-        }
-        s.last_t_ns = Some(t_ns);
-        s.events += 1;
-        s.on_events += u64::from(on);
-        s.max_x = s.max_x.max(e.x);
-        s.max_y = s.max_y.max(e.y);
-        self.last = Some(e);
         if self.room > 0 {
             out.push(e);
             self.room -= 1;
@@ -437,6 +418,78 @@ impl Sink {
             self.overflow.push(e);
         }
         Ok(())
+    }
+
+    /// Counts the events a decoder emitted, in emission order: those delivered into
+    /// `out[from..]` (column passes, which vectorise), then those queued in
+    /// `overflow[overflow_from..]`.
+    fn tally(&mut self, out: &EventBatch, from: usize, overflow_from: usize) {
+        let s = &mut self.stats;
+        let mut prev = self.last;
+        if from < out.len() {
+            let (t, x, y, p) = (
+                &out.t_ns[from..],
+                &out.x[from..],
+                &out.y[from..],
+                &out.polarity[from..],
+            );
+            let first = out.get(from);
+            s.first_t_ns.get_or_insert(first.t_ns);
+            s.duplicate_events += u64::from(prev == Some(first));
+            s.events += t.len() as u64;
+            s.on_events += p.iter().map(|&p| u64::from(p > 0)).sum::<u64>();
+            s.max_x = x.iter().copied().fold(s.max_x, u16::max);
+            s.max_y = y.iter().copied().fold(s.max_y, u16::max);
+            // Each event against the one before it, all four columns, without branches.
+            let n = t.len();
+            let pairs = (t[1..].iter().zip(&t[..n - 1]))
+                .zip(x[1..].iter().zip(&x[..n - 1]))
+                .zip(y[1..].iter().zip(&y[..n - 1]))
+                .zip(p[1..].iter().zip(&p[..n - 1]));
+            s.duplicate_events += pairs
+                .map(|(((t, x), y), p)| {
+                    u64::from((t.0 == t.1) & (x.0 == x.1) & (y.0 == y.1) & (p.0 == p.1))
+                })
+                .sum::<u64>();
+            prev = Some(out.get(out.len() - 1));
+        }
+        for &e in &self.overflow[overflow_from..] {
+            s.first_t_ns.get_or_insert(e.t_ns);
+            s.duplicate_events += u64::from(prev == Some(e));
+            s.events += 1;
+            s.on_events += u64::from(e.polarity > 0);
+            s.max_x = s.max_x.max(e.x);
+            s.max_y = s.max_y.max(e.y);
+            prev = Some(e);
+        }
+        self.last = prev;
+        if let Some(e) = prev {
+            s.last_t_ns = Some(e.t_ns);
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn out_of_bounds(&self, at: Location, x: u32, y: u32) -> FormatError {
+        FormatError::OutOfBounds {
+            path: self.path.clone(),
+            at,
+            x,
+            y,
+            width: self.width,
+            height: self.height,
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn unsorted(&self, at: Location, t_ns: i64, previous_t_ns: i64) -> FormatError {
+        FormatError::Unsorted {
+            path: self.path.clone(),
+            at,
+            t_ns,
+            previous_t_ns,
+        }
     }
 
     /// Counts or rejects a word of an undefined type.
@@ -493,14 +546,17 @@ impl Sink {
                     self.finished = true;
                     return Err(e);
                 }
-            } else if !self.finished
-                && let Err(e) = decode(self, out)
-            {
-                self.finished = true;
-                if out.len() > start || !self.overflow.is_empty() {
-                    self.pending = Some(e);
-                } else {
-                    return Err(e);
+            } else if !self.finished {
+                let (from, overflow_from) = (out.len(), self.overflow.len());
+                let decoded = decode(self, out);
+                self.tally(out, from, overflow_from);
+                if let Err(e) = decoded {
+                    self.finished = true;
+                    if out.len() > start || !self.overflow.is_empty() {
+                        self.pending = Some(e);
+                    } else {
+                        return Err(e);
+                    }
                 }
             }
         }

@@ -11,7 +11,7 @@ use neuspike_formats::evt3::CLOCK_PERIOD_US;
 use neuspike_formats::pku::{PkuGeometry, PkuOptions, PkuReader, PkuWriter};
 use neuspike_formats::raw::{Evt2Writer, Evt3Writer, RawReader};
 use neuspike_formats::text::{TextReader, TextWriter};
-use neuspike_formats::{Event, EventBatch, EventReader, ReadOptions, Resolution};
+use neuspike_formats::{Event, EventBatch, EventReader, ReadOptions, ReadStats, Resolution};
 use proptest::prelude::*;
 
 /// Sorted events on a `w x h` sensor, the first at `t0_us`, then with gaps drawn from `gap_us`.
@@ -59,6 +59,19 @@ fn read_in_chunks(r: &mut dyn EventReader, n: usize) -> Vec<Event> {
     got
 }
 
+/// The reader's statistics agree with a plain count over the events it delivered.
+fn assert_stats_match(s: &ReadStats, got: &[Event]) {
+    assert_eq!(s.events, got.len() as u64, "events");
+    let on = got.iter().filter(|e| e.polarity > 0).count() as u64;
+    assert_eq!(s.on_events, on, "on_events");
+    assert_eq!(s.max_x, got.iter().map(|e| e.x).max().unwrap_or(0), "max_x");
+    assert_eq!(s.max_y, got.iter().map(|e| e.y).max().unwrap_or(0), "max_y");
+    assert_eq!(s.first_t_ns, got.first().map(|e| e.t_ns), "first_t_ns");
+    assert_eq!(s.last_t_ns, got.last().map(|e| e.t_ns), "last_t_ns");
+    let dups = got.windows(2).filter(|p| p[0] == p[1]).count() as u64;
+    assert_eq!(s.duplicate_events, dups, "duplicate_events");
+}
+
 /// Gaps: mostly small, some of 0 (equal times), some up to `long` (exclusive), long enough to
 /// wrap the clocks.
 fn gaps(long: u64) -> impl Strategy<Value = u64> {
@@ -75,13 +88,18 @@ proptest! {
         long in prop::collection::vec(gaps(1 << 35), 300),
         n in 1usize..500,
     ) {
-        // Spread the events with the long gaps too.
+        // Spread the events with the long gaps too, then repeat every seventh (duplicates).
         let mut evs = evs;
         let mut shift = 0i64;
         for (e, g) in evs.iter_mut().zip(&long) {
             e.t_ns += shift;
             shift += *g as i64 * 1000;
         }
+        let evs: Vec<Event> = evs
+            .into_iter()
+            .enumerate()
+            .flat_map(|(i, e)| std::iter::repeat_n(e, 1 + usize::from(i % 7 == 3)))
+            .collect();
         let r = Resolution::new(640, 480);
         let mut w = Evt2Writer::new(Vec::new(), "mem", r).unwrap();
         w.write_batch(&batch(&evs, r)).unwrap();
@@ -90,6 +108,7 @@ proptest! {
         prop_assert_eq!(s.bytes, bytes.len() as u64);
         let mut reader = RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
         let got = read_in_chunks(&mut reader, n);
+        assert_stats_match(reader.stats(), &got);
         assert_same_events(&got, &evs);
     }
 
@@ -117,6 +136,7 @@ proptest! {
         let (bytes, _) = w.finish().unwrap();
         let mut reader = RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
         let got = read_in_chunks(&mut reader, n);
+        assert_stats_match(reader.stats(), &got);
         let period_ns = (CLOCK_PERIOD_US * 1000) as i64;
         let shift = evs.first().map_or(0, |e| e.t_ns / period_ns * period_ns);
         let want: Vec<Event> = evs.iter().map(|e| Event { t_ns: e.t_ns - shift, ..*e }).collect();

@@ -61,16 +61,19 @@ impl EventBatch {
     }
 
     /// Number of events.
+    #[inline]
     pub fn len(&self) -> usize {
         self.t_ns.len()
     }
 
     /// Whether the batch holds no event.
+    #[inline]
     pub fn is_empty(&self) -> bool {
         self.t_ns.is_empty()
     }
 
     /// Appends one event (the caller keeps time order).
+    #[inline]
     pub fn push(&mut self, e: Event) {
         self.t_ns.push(e.t_ns);
         self.x.push(e.x);
@@ -79,6 +82,7 @@ impl EventBatch {
     }
 
     /// Event `i`.
+    #[inline]
     pub fn get(&self, i: usize) -> Event {
         Event {
             t_ns: self.t_ns[i],
