@@ -79,7 +79,9 @@ enum Command {
         /// The PKU spike .dat.
         #[arg(long)]
         spikes: PathBuf,
-        /// An event file to align with the spikes (refused for now: the file-driven graph takes spikes only; see graphs/fusion.yml for the event methods).
+        /// An event recording of the same sensor size and clock, for the methods that read
+        /// events (hf, cf, fusion), e.g. the `events.raw` of `neuspike simulate` (with
+        /// `--dvs="--width 400 --height 250"`).
         #[arg(long)]
         events: Option<PathBuf>,
         /// Reconstruction method.
@@ -92,6 +94,13 @@ enum Command {
         /// --rate-hz 40000 --start-plane 1000 --max-planes 4000 --lum-per-rate 2"`.
         #[arg(long, default_value = "", allow_hyphen_values = true)]
         source: String,
+        /// Event-source settings for the event file, e.g. `--event-source="--file-width 400
+        /// --file-height 250"` for a file that does not state its sensor size.
+        #[arg(long, default_value = "", allow_hyphen_values = true)]
+        event_source: String,
+        /// Infer settings, e.g. `--infer="--contrast 0.25 --theta-mode per-pixel"`.
+        #[arg(long, default_value = "", allow_hyphen_values = true)]
+        infer: String,
         /// Planes per window.
         #[arg(long, default_value_t = 33)]
         window_planes: u32,
@@ -210,6 +219,8 @@ fn main() -> eyre::Result<()> {
             method,
             out,
             source,
+            event_source,
+            infer,
             window_planes,
             stride_planes,
             bit_depth,
@@ -224,6 +235,8 @@ fn main() -> eyre::Result<()> {
                 method,
                 out,
                 source_args: source,
+                event_source_args: event_source,
+                infer_args: infer,
                 window_planes,
                 stride_planes,
                 bit_depth,
