@@ -84,6 +84,11 @@ enum Command {
         /// `--dvs="--width 400 --height 250"`).
         #[arg(long)]
         events: Option<PathBuf>,
+        /// Ground truth recorded with the spikes (a folder with `timestamps.txt` and PNGs); by
+        /// default `ground-truth/` beside the spike file when it exists. The frames are then
+        /// scored (metrics.csv, summary.md).
+        #[arg(long)]
+        truth: Option<PathBuf>,
         /// Reconstruction method.
         #[arg(long, value_enum, default_value = "tfp")]
         method: neuspike::reconstruct::Method,
@@ -216,6 +221,7 @@ fn main() -> eyre::Result<()> {
         Command::Reconstruct {
             spikes,
             events,
+            truth,
             method,
             out,
             source,
@@ -232,6 +238,7 @@ fn main() -> eyre::Result<()> {
             let opts = neuspike::reconstruct::ReconstructOptions {
                 spikes,
                 events,
+                truth,
                 method,
                 out,
                 source_args: source,

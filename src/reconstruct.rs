@@ -59,6 +59,10 @@ pub struct ReconstructOptions {
     /// from the recording's start, as `neuspike simulate` writes them), for `hf`, `cf` and
     /// `fusion`.
     pub events: Option<PathBuf>,
+    /// Ground truth recorded with the spikes: a folder with `timestamps.txt` (`plane t_ns
+    /// file`) and PNGs. `None` looks for `ground-truth/` beside the spike file, as `neuspike
+    /// simulate` writes it; the sink scores the frames against it.
+    pub truth: Option<PathBuf>,
     /// The method.
     pub method: Method,
     /// Output folder.
@@ -90,6 +94,7 @@ pub fn graph_yaml(
     opts: &ReconstructOptions,
     spikes: &Path,
     events: Option<&Path>,
+    truth: Option<&Path>,
     out: &Path,
 ) -> String {
     let repo = repo();
@@ -119,18 +124,30 @@ pub fn graph_yaml(
         }
     };
     let t = |name: &str| format!("neuspike/messages/v1/{name}");
+    let truth_args = truth.map_or(String::new(), |d| format!("--truth {} ", d.display()));
+    let (source_outputs, source_types) = match truth {
+        Some(_) => (
+            "outputs: [spikes, ground_truth]".to_string(),
+            format!(
+                "output_types: {{ spikes: {}, ground_truth: {} }}",
+                t("SpikeChunk"),
+                t("Frame")
+            ),
+        ),
+        None => (
+            "outputs: [spikes]".to_string(),
+            format!("output_types: {{ spikes: {} }}", t("SpikeChunk")),
+        ),
+    };
     node(
         "spike-source",
         "spike-source",
         &format!(
-            "--file {} --chunk-planes 20 {}",
+            "--file {} {truth_args}--chunk-planes 20 {}",
             spikes.display(),
             opts.source_args
         ),
-        &[
-            "outputs: [spikes]".into(),
-            format!("output_types: {{ spikes: {} }}", t("SpikeChunk")),
-        ],
+        &[source_outputs, source_types],
     );
     if let Some(events) = events {
         node(
@@ -223,13 +240,20 @@ pub fn graph_yaml(
             format!("output_types: {{ frames: {} }}", t("Frame")),
         ],
     );
+    let (truth_in, truth_type) = match truth {
+        Some(_) => (
+            format!(", ground_truth: {{ source: spike-source/ground_truth, {queue} }}"),
+            format!(", ground_truth: {}", t("Frame")),
+        ),
+        None => (String::new(), String::new()),
+    };
     node(
         "sink",
         "sink",
         &format!("--out {} --bit-depth {}", out.display(), opts.bit_depth),
         &[
-            format!("inputs: {{ {m}: {{ source: infer-{m}/frames, {queue} }} }}"),
-            format!("input_types: {{ {m}: {} }}", t("Frame")),
+            format!("inputs: {{ {m}: {{ source: infer-{m}/frames, {queue} }}{truth_in} }}"),
+            format!("input_types: {{ {m}: {}{truth_type} }}", t("Frame")),
         ],
     );
     y
@@ -255,6 +279,19 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     };
     let spikes = std::fs::canonicalize(&opts.spikes)
         .wrap_err_with(|| format!("--spikes {}: cannot open", opts.spikes.display()))?;
+    let truth = match &opts.truth {
+        Some(dir) => Some(
+            std::fs::canonicalize(dir)
+                .wrap_err_with(|| format!("--truth {}: cannot open", dir.display()))?,
+        ),
+        None => spikes
+            .parent()
+            .map(|d| d.join("ground-truth"))
+            .filter(|d| d.join("timestamps.txt").is_file()),
+    };
+    if let Some(dir) = &truth {
+        tracing::info!(truth = %dir.display(), "scoring against the recorded ground truth");
+    }
     std::fs::create_dir_all(&opts.out)
         .wrap_err_with(|| format!("cannot create {}", opts.out.display()))?;
     let out = std::fs::canonicalize(&opts.out)?;
@@ -265,7 +302,7 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     let graph_path = out.join("graph.yml");
     std::fs::write(
         &graph_path,
-        graph_yaml(opts, &spikes, events.as_deref(), &out),
+        graph_yaml(opts, &spikes, events.as_deref(), truth.as_deref(), &out),
     )
     .wrap_err_with(|| format!("cannot write {}", graph_path.display()))?;
     graph::run(&graph_path, &[], opts.build, None, Some(out))
@@ -294,6 +331,7 @@ mod tests {
         ReconstructOptions {
             spikes: "x.dat".into(),
             events: None,
+            truth: None,
             method,
             out: "out".into(),
             source_args: "--file-width 40 --file-height 25".into(),
@@ -321,7 +359,13 @@ mod tests {
     #[test]
     fn the_graph_wires_the_method_to_its_representation() {
         for (method, repr) in [(Method::Tfp, "tfp"), (Method::Tfi, "isi")] {
-            let y = graph_yaml(&opts(method), Path::new("/d/x.dat"), None, Path::new("/o"));
+            let y = graph_yaml(
+                &opts(method),
+                Path::new("/d/x.dat"),
+                None,
+                None,
+                Path::new("/o"),
+            );
             let nodes = nodes(&y);
             assert_eq!(nodes.len(), 5);
             let m = method.name();
@@ -355,6 +399,7 @@ mod tests {
                 &o,
                 Path::new("/d/x.dat"),
                 Some(Path::new("/d/e.raw")),
+                Some(Path::new("/d/ground-truth")),
                 Path::new("/o"),
             );
             let nodes = nodes(&y);
@@ -371,6 +416,14 @@ mod tests {
                 Some("event-source/events")
             );
             assert_eq!(align["outputs"][1].as_str(), Some("events"));
+            let source = find(&nodes, "spike-source");
+            let src_args = source["args"].as_str().expect("args");
+            assert!(src_args.contains("--truth /d/ground-truth"), "{src_args}");
+            assert_eq!(source["outputs"][1].as_str(), Some("ground_truth"));
+            assert_eq!(
+                find(&nodes, "sink")["inputs"]["ground_truth"]["source"].as_str(),
+                Some("spike-source/ground_truth")
+            );
             let infer = find(&nodes, &format!("infer-{m}"));
             assert_eq!(
                 infer["inputs"]["events"]["source"].as_str(),

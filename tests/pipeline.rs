@@ -170,9 +170,11 @@ fn fusion_graph_runs_every_method_and_loses_nothing() {
     }
 }
 
-/// A paired recording from `neuspike simulate` (both cameras 400x250, on one clock), played back
-/// by `neuspike reconstruct --events` for each method that reads events: every window becomes a
-/// frame, nothing is lost, and the frames carry an image (not a constant).
+/// A paired recording from `neuspike simulate` (both cameras 400x250, on one clock, ground truth
+/// every 20 planes), played back by `neuspike reconstruct --events` for each method that reads
+/// events: every window becomes a frame, nothing is lost, the recorded ground truth (found beside
+/// the spike file) scores every frame, and the frames resemble it (the SSIM floor of the
+/// simulated graph's test).
 #[test]
 fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
     use neuspike::reconstruct::{Method, ReconstructOptions, reconstruct};
@@ -187,7 +189,7 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
         scene: "bright-slow".into(),
         out: rec.clone(),
         planes: Some(600),
-        gt_every_planes: 0,
+        gt_every_planes: 20,
         chunk_planes: 200,
         events: true,
         spike: Default::default(),
@@ -200,13 +202,14 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
         let opts = ReconstructOptions {
             spikes: rec.join("spikes.dat"),
             events: Some(rec.join("events.raw")),
+            truth: None,
             method,
             out: out.clone(),
             source_args: String::new(),
             event_source_args: String::new(),
             infer_args: String::new(),
             window_planes: 33,
-            stride_planes: 10,
+            stride_planes: 20,
             bit_depth: 8,
             build: true,
         };
@@ -215,12 +218,18 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
             assert!(r.is_ok(), "{method:?}: node {node} failed: {r:?}");
         }
         let summary = std::fs::read_to_string(out.join("summary.md")).expect("summary");
-        // (600 - 33) / 10 + 1 windows, each a frame, none missing.
+        // (600 - 33) / 20 + 1 windows, each a frame, none missing; 30 truth frames.
         let name = format!("{method:?}").to_lowercase();
         assert!(
-            summary.contains(&format!("| {name} | 57 | 57 | 0 | yes |")),
+            summary.contains(&format!("| {name} | 29 | 29 | 0 | yes |")),
             "{method:?}: {summary}"
         );
+        assert!(summary.contains("| ground_truth | 30 | 30 | 0 | yes |"), "{summary}");
+        let rows = read_metrics(&out);
+        let scored: Vec<f64> = rows.iter().filter_map(|r| r.ssim).collect();
+        assert_eq!(scored.len(), 29, "{method:?}: every frame scored");
+        let mean = scored.iter().sum::<f64>() / scored.len() as f64;
+        assert!(mean > 0.3, "{method:?}: mean SSIM {mean}");
         let frame = std::fs::read_dir(out.join(&name))
             .expect("frames folder")
             .filter_map(|e| e.ok().map(|e| e.path()))

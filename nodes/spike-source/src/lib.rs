@@ -574,6 +574,8 @@ fn ticks_blocked<const SUBTRACT: bool>(
 
 pub use neuspike_simd::Isa;
 
+pub mod truth;
+
 /// [`integrate_ticks`] compiled for a chosen instruction set (for tests and benchmarks); the
 /// widest one below it that the CPU supports runs.
 pub fn integrate_ticks_with(

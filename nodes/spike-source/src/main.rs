@@ -33,6 +33,7 @@ use neuspike_formats::pku::{HEAD_COLUMNS, PkuGeometry, PkuOptions, PkuReader};
 use neuspike_scene::Scene;
 use neuspike_schemas::node::{self, Pace, Pacer, output, send, send_end, stop_requested};
 use neuspike_schemas::{Frame, FrameKind, SpikeChunk};
+use neuspike_spike_source::truth::{TruthFolder, read_truth_png};
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
 
 /// Luminance per unit firing rate sent with the planes of a recording when the graph gives no
@@ -68,6 +69,11 @@ struct Args {
     /// First plane of the recording to play (the planes before it are skipped by seeking).
     #[arg(long, default_value_t = 0, requires = "file")]
     start_plane: u64,
+    /// Ground truth recorded with the file: a folder whose `timestamps.txt` lists `plane t_ns
+    /// file` (as `neuspike simulate` writes `ground-truth/`). Each listed plane that is played
+    /// sends its PNG on `ground_truth`, at that plane's time.
+    #[arg(long, requires = "file")]
+    truth: Option<PathBuf>,
     /// Luminance per unit firing rate sent with the recording's planes (default 1.0).
     #[arg(long, requires = "file")]
     lum_per_rate: Option<f64>,
@@ -126,8 +132,13 @@ fn open_source(args: &Args) -> eyre::Result<Source> {
                 height: args.file_height.into(),
                 head_columns: args.head_columns,
             };
-            let file = SpikeFile::open(path, geometry, args.start_plane, period_ns, lum_per_rate)
-                .wrap_err("spike-source: cannot play the recording")?;
+            let mut file =
+                SpikeFile::open(path, geometry, args.start_plane, period_ns, lum_per_rate)
+                    .wrap_err("spike-source: cannot play the recording")?;
+            if let Some(dir) = &args.truth {
+                file.truth =
+                    Some(TruthFolder::open(dir).map_err(|e| eyre::eyre!("spike-source: {e}"))?);
+            }
             Ok(Source::File(Box::new(file)))
         }
     }
@@ -146,6 +157,8 @@ struct SpikeFile {
     tail_bytes: u64,
     plane_period_ns: i64,
     lum_per_rate: f64,
+    /// Ground truth recorded with the file (`--truth`).
+    truth: Option<TruthFolder>,
 }
 
 impl SpikeFile {
@@ -218,6 +231,7 @@ impl SpikeFile {
             tail_bytes,
             plane_period_ns,
             lum_per_rate,
+            truth: None,
         })
     }
 
@@ -331,6 +345,8 @@ fn play(
     let pacer = Pacer::start(args.pace);
     let (mut seq, mut sent) = (0u64, 0u64);
     let mut failure = None;
+    let gt_out = output("ground_truth");
+    let mut gt_seq = 0u64;
     loop {
         let n = match args.max_planes {
             Some(max) if sent >= max => break,
@@ -346,6 +362,30 @@ fn play(
                 send(&mut node, &spikes, &chunk)?;
                 seq += 1;
                 sent += chunk.n_planes as u64;
+                if let Some(truth) = &file.truth {
+                    let first = chunk.first_plane;
+                    for (plane, path) in truth.in_range(first..first + chunk.n_planes as u64) {
+                        let data = match read_truth_png(path, chunk.height, chunk.width) {
+                            Ok(d) => d,
+                            Err(e) => {
+                                tracing::error!("{e}; no more ground truth is sent");
+                                file.truth = None;
+                                failure = Some(eyre::eyre!(e));
+                                break;
+                            }
+                        };
+                        let frame = Frame {
+                            kind: FrameKind::GroundTruth,
+                            method: "ground-truth".into(),
+                            t_ref_ns: chunk.plane_time_ns((plane - first) as usize),
+                            compute_ns: 0,
+                            seq: gt_seq,
+                            data,
+                        };
+                        send(&mut node, &gt_out, &frame)?;
+                        gt_seq += 1;
+                    }
+                }
             }
             Ok(None) => break,
             Err(e @ FormatError::PartialPlane { .. }) => {
@@ -354,13 +394,21 @@ fn play(
             }
             Err(e) => {
                 tracing::error!("{e}; the stream ends after the planes read before it");
-                failure = Some(e);
+                failure = Some(eyre::Report::new(e));
                 break;
             }
         }
     }
     send_end::<SpikeChunk>(&mut node, &spikes, seq)?;
-    tracing::info!(chunks = seq, planes = sent, "spike recording played");
+    if args.truth.is_some() {
+        send_end::<Frame>(&mut node, &gt_out, gt_seq)?;
+    }
+    tracing::info!(
+        chunks = seq,
+        planes = sent,
+        ground_truth = gt_seq,
+        "spike recording played"
+    );
     match failure {
         Some(e) => Err(e).wrap_err("spike-source: the recording could not be read to its end"),
         None => Ok(()),
