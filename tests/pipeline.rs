@@ -224,7 +224,10 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
             summary.contains(&format!("| {name} | 29 | 29 | 0 | yes |")),
             "{method:?}: {summary}"
         );
-        assert!(summary.contains("| ground_truth | 30 | 30 | 0 | yes |"), "{summary}");
+        assert!(
+            summary.contains("| ground_truth | 30 | 30 | 0 | yes |"),
+            "{summary}"
+        );
         let rows = read_metrics(&out);
         let scored: Vec<f64> = rows.iter().filter_map(|r| r.ssim).collect();
         assert_eq!(scored.len(), 29, "{method:?}: every frame scored");

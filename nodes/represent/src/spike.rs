@@ -845,21 +845,7 @@ pub fn spike_representation_packed_into(
     mut dst: ArrayViewMut3<f32>,
 ) -> Result<(), RepresentError> {
     let (channels, h, w) = dst.dim();
-    if channels == 0 {
-        return Err(RepresentError::Shape {
-            what: "spike representation dst channels",
-            expected: "[n >= 1, H, W] (channel 0 is the ISI channel)".to_owned(),
-            actual: shape_str(&[channels, h, w]),
-        });
-    }
-    let raw = channels - 1;
-    if raw > n {
-        return Err(RepresentError::Shape {
-            what: "spike representation planes (N must be >= n - 1 raw channels)",
-            expected: format!("[N >= {raw}, H, W]"),
-            actual: shape_str(&[n, h, w]),
-        });
-    }
+    let raw = check_channels(channels, n, (h, w))?;
     let mut valid = ndarray::Array2::<bool>::from_elem((h, w), false);
     isi_packed_into(bits, n, c, dst.index_axis_mut(Axis(0), 0), valid.view_mut())?;
     dst.index_axis_mut(Axis(0), 0)
@@ -910,22 +896,36 @@ fn check_representation(
 ) -> Result<usize, RepresentError> {
     let (channels, dh, dw) = dst_dim;
     if channels == 0 {
+        check_channels(channels, 0, (dh, dw))?;
+    }
+    let n = check_isi_args(spikes, c, (dh, dw))?;
+    let raw = check_channels(channels, n, (dh, dw))?;
+    Ok(raw_block_start(c, raw, n))
+}
+
+/// The spike representation's channel count against `n` planes of `(h, w)`: at least the ISI
+/// channel, and no more raw channels than planes. Returns the raw channels.
+fn check_channels(
+    channels: usize,
+    n: usize,
+    (h, w): (usize, usize),
+) -> Result<usize, RepresentError> {
+    if channels == 0 {
         return Err(RepresentError::Shape {
             what: "spike representation dst channels",
             expected: "[n >= 1, H, W] (channel 0 is the ISI channel)".to_owned(),
-            actual: shape_str(&[channels, dh, dw]),
+            actual: shape_str(&[channels, h, w]),
         });
     }
-    let n = check_isi_args(spikes, c, (dh, dw))?;
     let raw = channels - 1;
     if raw > n {
         return Err(RepresentError::Shape {
             what: "spike representation planes (N must be >= n - 1 raw channels)",
             expected: format!("[N >= {raw}, H, W]"),
-            actual: shape_str(&[n, dh, dw]),
+            actual: shape_str(&[n, h, w]),
         });
     }
-    Ok(raw_block_start(c, raw, n))
+    Ok(raw)
 }
 
 /// Scalar oracle for [`spike_representation_into`].
