@@ -5,6 +5,8 @@
 //! [`graph::run`] directly.
 #![deny(missing_docs)]
 
+pub mod bench_model;
+pub mod dataset;
 pub mod graph;
 pub mod reconstruct;
 pub mod record;

@@ -73,6 +73,64 @@ enum Command {
         #[arg(long, default_value = "", allow_hyphen_values = true)]
         dvs: String,
     },
+    /// Generate a training or held-out set for the learned reconstruction: 5 light scales x 5
+    /// speeds of small simulated scenes, each with the spike representation and the event
+    /// integration of one window, its ground truth and the TFP/TFI baselines, as .npy shards
+    /// (see training/README.md).
+    Dataset {
+        /// Output folder (must be empty or absent).
+        #[arg(long)]
+        out: PathBuf,
+        /// Which set: train and test never share a texture.
+        #[arg(long, value_enum)]
+        split: neuspike::dataset::Split,
+        /// Samples per (light, speed) cell of the 5 x 5 grid.
+        #[arg(long, default_value_t = 40)]
+        per_cell: usize,
+        /// Side of a sample, pixels.
+        #[arg(long, default_value_t = 64)]
+        size: usize,
+        /// Planes per window (as align's --window-planes).
+        #[arg(long, default_value_t = 33)]
+        window_planes: usize,
+        /// Channels of each representation.
+        #[arg(long, default_value_t = 32)]
+        channels: usize,
+        /// Event integration decay, nanoseconds (as represent's --tau-ns).
+        #[arg(long, default_value_t = 500_000.0)]
+        tau_ns: f64,
+        /// Spike plane rate, Hz.
+        #[arg(long, default_value_t = 20_000.0)]
+        rate_hz: f64,
+        /// A folder of PNG photographs for textures (half the samples), e.g. one split of
+        /// training/prepare_textures.py.
+        #[arg(long)]
+        textures: Option<PathBuf>,
+        /// Samples per .npy shard.
+        #[arg(long, default_value_t = 500)]
+        shard: usize,
+        /// Seed of every draw.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// Time a learned model (ONNX) under tract at a frame size, on 1 and 2 threads (as the infer
+    /// node runs it: shapes pinned, optimised once, padded to the network's stride).
+    BenchModel {
+        /// The ONNX file.
+        model: PathBuf,
+        /// Frame height (padded up to a multiple of 8).
+        #[arg(long, default_value_t = 250)]
+        height: usize,
+        /// Frame width.
+        #[arg(long, default_value_t = 400)]
+        width: usize,
+        /// Thread counts to time, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        threads: Vec<usize>,
+        /// Timed runs per thread count.
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+    },
     /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the
     /// output folder (`graph.yml`), e.g. `neuspike reconstruct --spikes car.dat --out out/car`.
     Reconstruct {
@@ -216,6 +274,60 @@ fn main() -> eyre::Result<()> {
                 rec.events,
                 rec.ground_truth
             );
+            Ok(())
+        }
+        Command::Dataset {
+            out,
+            split,
+            per_cell,
+            size,
+            window_planes,
+            channels,
+            tau_ns,
+            rate_hz,
+            textures,
+            shard,
+            seed,
+        } => {
+            let opts = neuspike::dataset::DatasetOptions {
+                out,
+                split,
+                per_cell,
+                size,
+                window_planes,
+                channels,
+                tau_ns,
+                rate_hz,
+                textures,
+                shard,
+                seed,
+            };
+            let sum = neuspike::dataset::generate(&opts, true)?;
+            println!(
+                "{}: {} samples ({} complex) in {} shards, {} photographs",
+                opts.out.display(),
+                sum.samples,
+                sum.complex,
+                sum.shards,
+                sum.photos
+            );
+            Ok(())
+        }
+        Command::BenchModel {
+            model,
+            height,
+            width,
+            threads,
+            runs,
+        } => {
+            let t = neuspike::bench_model::time_model(&model, height, width, &threads, runs)?;
+            println!("{}: {height}x{width}", model.display());
+            for x in t {
+                println!(
+                    "threads {}: median {:.2} ms, min {:.2} ms ({} runs)",
+                    x.threads, x.median_ms, x.min_ms, x.runs
+                );
+            }
             Ok(())
         }
         Command::Reconstruct {

@@ -33,6 +33,7 @@ use ndarray::{ArrayView2, ArrayViewMut2, Zip};
 mod fastmath;
 mod filter;
 mod fusion;
+pub mod learned;
 mod online;
 #[cfg(test)]
 mod testing;
@@ -110,6 +111,14 @@ pub enum InferError {
         value: String,
         /// The accepted names, comma-separated.
         accepted: &'static str,
+    },
+    /// A learned model that cannot be used: missing, corrupt, or not matching its inputs.
+    #[error("model {}: {reason}", path.display())]
+    Model {
+        /// The ONNX file.
+        path: std::path::PathBuf,
+        /// What is wrong.
+        reason: String,
     },
 }
 

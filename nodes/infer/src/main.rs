@@ -4,13 +4,22 @@
 //! `tfp`), `tfi` (needs `isi`), `hf` (events), `cf` (events and `tfp` or `isi`), `fusion` (events
 //! and `isi`). The two inputs of one window carry the window's sequence number; a window is
 //! reconstructed when both have arrived, in order.
+//!
+//! `--method learned --model FILE` runs a NeuSpike-Net exported to ONNX (`neuspike_infer::learned`)
+//! on the representations it reads, each its own input named as the represent output that makes
+//! it: `spike_repr` (spike representation) and/or `event_integration`. The model is loaded, checked
+//! against the graph's inputs and planned before the first message is read.
 
 use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::time::Instant;
 
 use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::Axis;
-use neuspike_infer::{EventSlice, Method, Online, OnlineParams, SpikeInput, ThetaMode, Window};
+use neuspike_infer::learned::LearnedModel;
+use neuspike_infer::{
+    EventSlice, Method, Online, OnlineParams, SpikeInput, ThetaMode, Window, luminance_from_rate_into,
+};
 use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
     EventBatch, Frame, FrameKind, Message, Representation, SeqStatus, SeqTracker, is_end_of_stream,
@@ -24,9 +33,12 @@ use neuspike_schemas::{
     args_override_self = true
 )]
 struct Args {
-    /// Reconstruction method: tfp, tfi, hf, cf or fusion.
-    #[arg(long, default_value = "tfp")]
-    method: Method,
+    /// Reconstruction method: tfp, tfi, hf, cf, fusion, or learned (with `--model`).
+    #[arg(long, default_value = "tfp", value_parser = parse_method)]
+    method: NodeMethod,
+    /// learned: the ONNX network (`models/*.onnx`).
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).
     #[arg(long)]
     lum_per_rate: Option<f64>,
@@ -51,6 +63,32 @@ struct Args {
     anchor_every: u32,
 }
 
+/// A classical method of the library, or the learned network.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum NodeMethod {
+    Classical(Method),
+    Learned,
+}
+
+impl std::fmt::Display for NodeMethod {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            NodeMethod::Classical(m) => m.fmt(f),
+            NodeMethod::Learned => f.write_str("learned"),
+        }
+    }
+}
+
+fn parse_method(s: &str) -> Result<NodeMethod, String> {
+    match s {
+        "learned" => Ok(NodeMethod::Learned),
+        _ => s
+            .parse()
+            .map(NodeMethod::Classical)
+            .map_err(|e| format!("{e}, learned")),
+    }
+}
+
 fn parse_theta_mode(s: &str) -> Result<ThetaMode, String> {
     match s {
         "fixed" => Ok(ThetaMode::Fixed),
@@ -72,30 +110,64 @@ impl Args {
         }
     }
 
-    /// Checks the settings and that the graph connects what the method reads.
-    fn check(&self, inputs: &[String]) -> eyre::Result<()> {
+    /// Checks the settings and that the graph connects what the method reads; loads the learned
+    /// model, checks it runs, and returns it.
+    fn check(&self, inputs: &[String]) -> eyre::Result<Option<LearnedModel>> {
         if let Some(g) = self.lum_per_rate
             && !(g.is_finite() && g > 0.0)
         {
             eyre::bail!("infer: `lum-per-rate` = {g} is invalid: must be finite and > 0");
         }
-        Online::new(self.method, self.online()).map_err(|e| eyre::eyre!("infer: {e}"))?;
-        let needs = self.method.inputs();
         let has = |id: &str| inputs.iter().any(|i| i == id);
+        let method = match self.method {
+            NodeMethod::Learned => return self.load_model(&has).map(Some),
+            NodeMethod::Classical(m) => m,
+        };
+        if self.model.is_some() {
+            eyre::bail!("infer: `--model` is for `--method learned`, not `{method}`");
+        }
+        Online::new(method, self.online()).map_err(|e| eyre::eyre!("infer: {e}"))?;
+        let needs = method.inputs();
         if !needs.representations.is_empty() && !has("representation") {
             eyre::bail!(
-                "infer: method `{}` needs an input `representation` ({} from the represent node)",
-                self.method,
+                "infer: method `{method}` needs an input `representation` ({} from the represent node)",
                 needs.representations.join(" or ")
             );
         }
         if needs.events && !has("events") {
             eyre::bail!(
-                "infer: method `{}` needs an input `events` (the align node's `events` output)",
-                self.method
+                "infer: method `{method}` needs an input `events` (the align node's `events` output)"
             );
         }
-        Ok(())
+        Ok(None)
+    }
+
+    /// Loads `--model`, checks that the graph feeds every input it reads, and plans it once on a
+    /// small frame so that a network tract cannot run fails now, not at the first window.
+    fn load_model(&self, has: &dyn Fn(&str) -> bool) -> eyre::Result<LearnedModel> {
+        let Some(path) = &self.model else {
+            eyre::bail!("infer: method `learned` needs `--model FILE` (an ONNX network, e.g. models/neuspike-fused-8.onnx)");
+        };
+        let mut model = LearnedModel::load(path).map_err(|e| eyre::eyre!("infer: {e}"))?;
+        for i in model.inputs() {
+            if !has(i.input_id()) {
+                eyre::bail!(
+                    "infer: model {} reads `{}`: connect an input `{}` (represent's `{}` output)",
+                    path.display(),
+                    i.onnx_name(),
+                    i.input_id(),
+                    i.input_id()
+                );
+            }
+        }
+        let probes: Vec<ndarray::Array3<f32>> = model
+            .channels()
+            .iter()
+            .map(|&c| ndarray::Array3::zeros((c, 8, 8)))
+            .collect();
+        let views: Vec<_> = probes.iter().map(|a| a.view()).collect();
+        model.run(&views).map_err(|e| eyre::eyre!("infer: {e}"))?;
+        Ok(model)
     }
 }
 
@@ -109,15 +181,22 @@ fn main() -> eyre::Result<()> {
         .keys()
         .map(|k| k.to_string())
         .collect();
-    args.check(&inputs)?;
-    node::run_on_rayon("infer", || run(node, events, &args))
+    let model = args.check(&inputs)?;
+    node::run_on_rayon("infer", || run(node, events, &args, model))
 }
 
-/// The inputs of one window gathered so far.
+/// The inputs of one window gathered so far: the representations by slot (see
+/// [`Reconstructor::rep_ids`]) and the event batch.
 #[derive(Default)]
 struct Pending {
-    representation: Option<Representation>,
+    reps: BTreeMap<usize, Representation>,
     events: Option<EventBatch>,
+}
+
+/// What makes the frames.
+enum Engine {
+    Online(Online),
+    Learned(Box<LearnedModel>),
 }
 
 /// One input's stream state.
@@ -136,10 +215,11 @@ impl Input {
 }
 
 struct Reconstructor {
-    online: Online,
+    engine: Engine,
     args_lum_per_rate: Option<f64>,
-    method: Method,
-    wants_rep: bool,
+    method: NodeMethod,
+    /// The input ids that carry representations, one slot each.
+    rep_ids: Vec<&'static str>,
     wants_events: bool,
     pending: BTreeMap<u64, Pending>,
     frames: u64,
@@ -148,8 +228,7 @@ struct Reconstructor {
 
 impl Reconstructor {
     fn complete(&self, p: &Pending) -> bool {
-        (!self.wants_rep || p.representation.is_some())
-            && (!self.wants_events || p.events.is_some())
+        p.reps.len() == self.rep_ids.len() && (!self.wants_events || p.events.is_some())
     }
 
     /// Reconstructs every window whose inputs are all in, in order. A window that is still
@@ -187,64 +266,16 @@ impl Reconstructor {
 
     fn reconstruct(&mut self, node: &mut DoraNode, seq: u64, p: &Pending) -> eyre::Result<()> {
         let start = Instant::now();
-        let rep = p.representation.as_ref();
-        let spikes = rep.map(|r| -> eyre::Result<SpikeInput<'_>> {
-            Ok(match r.kind.as_str() {
-                "tfp" => SpikeInput::Rate(r.data.index_axis(Axis(0), 0)),
-                "isi" if r.data.dim().0 >= 2 => SpikeInput::Isi {
-                    isi: r.data.index_axis(Axis(0), 0),
-                    valid: r.data.index_axis(Axis(0), 1),
-                },
-                other => eyre::bail!(
-                    "infer: method `{}` cannot use the `{other}` representation (seq {seq}); it takes {}",
-                    self.method,
-                    self.method.inputs().representations.join(" or ")
-                ),
-            })
-        });
-        let spikes = spikes.transpose()?;
-        let lum_per_rate = self
-            .args_lum_per_rate
-            .or_else(|| rep.and_then(|r| r.params.get("lum_per_rate").copied()));
-        let events = p.events.as_ref().map(|b| {
-            (
-                EventSlice {
-                    t_ns: &b.t_ns,
-                    x: &b.x,
-                    y: &b.y,
-                    polarity: &b.polarity,
-                },
-                (b.height, b.width),
-            )
-        });
-        let t_ref_ns = match (rep, &p.events) {
-            (Some(r), _) => r.t_ref_ns,
-            (None, Some(b)) => b.t_end_ns,
-            (None, None) => eyre::bail!("infer: window {seq} has no input"),
+        let (t_ref_ns, data) = match &mut self.engine {
+            Engine::Online(online) => {
+                let method = match self.method {
+                    NodeMethod::Classical(m) => m,
+                    NodeMethod::Learned => eyre::bail!("infer: internal: learned method without a model"),
+                };
+                classical(online, method, self.args_lum_per_rate, seq, p)?
+            }
+            Engine::Learned(model) => learned(model, self.args_lum_per_rate, seq, p)?,
         };
-        if let (Some(r), Some(b)) = (rep, &p.events)
-            && b.t_end_ns != r.t_ref_ns
-        {
-            eyre::bail!(
-                "infer: window {seq}: the event batch ends at {} ns but the representation is at t_ref {} ns (connect align's `events` output, which cuts the stream at each t_ref)",
-                b.t_end_ns,
-                r.t_ref_ns
-            );
-        }
-        let window = Window {
-            t_ref_ns,
-            spikes,
-            lum_per_rate,
-            events,
-        };
-        let data = self.online.frame(&window).map_err(|e| {
-            let hint = if lum_per_rate.is_none() && spikes.is_some() {
-                " (the representation carries no `lum_per_rate` and the graph sets no `--lum-per-rate`)"
-            } else {
-                ""
-            };
-            eyre::eyre!("infer: window {seq} at {t_ref_ns} ns: {e}{hint}")
-        })?;
         let frame = Frame {
             kind: FrameKind::Reconstruction,
             method: self.method.to_string(),
@@ -259,37 +290,168 @@ impl Reconstructor {
     }
 }
 
-fn run(mut node: DoraNode, mut events: EventStream, args: &Args) -> eyre::Result<()> {
-    let needs = args.method.inputs();
+/// One window of a classical method.
+fn classical(
+    online: &mut Online,
+    method: Method,
+    args_lum_per_rate: Option<f64>,
+    seq: u64,
+    p: &Pending,
+) -> eyre::Result<(i64, ndarray::Array2<f32>)> {
+    let rep = p.reps.get(&0);
+    let spikes = rep.map(|r| -> eyre::Result<SpikeInput<'_>> {
+        Ok(match r.kind.as_str() {
+            "tfp" => SpikeInput::Rate(r.data.index_axis(Axis(0), 0)),
+            "isi" if r.data.dim().0 >= 2 => SpikeInput::Isi {
+                isi: r.data.index_axis(Axis(0), 0),
+                valid: r.data.index_axis(Axis(0), 1),
+            },
+            other => eyre::bail!(
+                "infer: method `{}` cannot use the `{other}` representation (seq {seq}); it takes {}",
+                method,
+                method.inputs().representations.join(" or ")
+            ),
+        })
+    });
+    let spikes = spikes.transpose()?;
+    let lum_per_rate = args_lum_per_rate
+        .or_else(|| rep.and_then(|r| r.params.get("lum_per_rate").copied()));
+    let events = p.events.as_ref().map(|b| {
+        (
+            EventSlice {
+                t_ns: &b.t_ns,
+                x: &b.x,
+                y: &b.y,
+                polarity: &b.polarity,
+            },
+            (b.height, b.width),
+        )
+    });
+    let t_ref_ns = match (rep, &p.events) {
+        (Some(r), _) => r.t_ref_ns,
+        (None, Some(b)) => b.t_end_ns,
+        (None, None) => eyre::bail!("infer: window {seq} has no input"),
+    };
+    if let (Some(r), Some(b)) = (rep, &p.events)
+        && b.t_end_ns != r.t_ref_ns
+    {
+        eyre::bail!(
+            "infer: window {seq}: the event batch ends at {} ns but the representation is at t_ref {} ns (connect align's `events` output, which cuts the stream at each t_ref)",
+            b.t_end_ns,
+            r.t_ref_ns
+        );
+    }
+    let window = Window {
+        t_ref_ns,
+        spikes,
+        lum_per_rate,
+        events,
+    };
+    let data = online.frame(&window).map_err(|e| {
+        let hint = if lum_per_rate.is_none() && spikes.is_some() {
+            " (the representation carries no `lum_per_rate` and the graph sets no `--lum-per-rate`)"
+        } else {
+            ""
+        };
+        eyre::eyre!("infer: window {seq} at {t_ref_ns} ns: {e}{hint}")
+    })?;
+    Ok((t_ref_ns, data))
+}
+
+/// One window of the learned method: the network's rate, calibrated to luminance as TFP's.
+fn learned(
+    model: &mut LearnedModel,
+    args_lum_per_rate: Option<f64>,
+    seq: u64,
+    p: &Pending,
+) -> eyre::Result<(i64, ndarray::Array2<f32>)> {
+    let reps: Vec<&Representation> = p.reps.values().collect();
+    for (r, i) in reps.iter().zip(model.inputs()) {
+        if r.kind != i.representation() {
+            eyre::bail!(
+                "infer: input `{}` (seq {seq}) carries the `{}` representation; model {} reads `{}` there",
+                i.input_id(),
+                r.kind,
+                model.path().display(),
+                i.representation()
+            );
+        }
+    }
+    let t_ref_ns = reps[0].t_ref_ns;
+    if let Some(r) = reps.iter().find(|r| r.t_ref_ns != t_ref_ns) {
+        eyre::bail!(
+            "infer: window {seq}: representations at t_ref {} ns and {} ns",
+            t_ref_ns,
+            r.t_ref_ns
+        );
+    }
+    let views: Vec<_> = reps.iter().map(|r| r.data.view()).collect();
+    let rate = model
+        .run(&views)
+        .map_err(|e| eyre::eyre!("infer: window {seq} at {t_ref_ns} ns: {e}"))?;
+    let lum_per_rate = args_lum_per_rate
+        .or_else(|| reps.iter().find_map(|r| r.params.get("lum_per_rate").copied()))
+        .ok_or_else(|| {
+            eyre::eyre!(
+                "infer: window {seq}: no calibration (the representations carry no `lum_per_rate` and the graph sets no `--lum-per-rate`)"
+            )
+        })?;
+    let mut data = ndarray::Array2::<f32>::zeros(rate.dim());
+    luminance_from_rate_into(rate.view(), lum_per_rate, 1.0, data.view_mut())
+        .map_err(|e| eyre::eyre!("infer: window {seq}: {e}"))?;
+    Ok((t_ref_ns, data))
+}
+
+fn run(
+    mut node: DoraNode,
+    mut events: EventStream,
+    args: &Args,
+    model: Option<LearnedModel>,
+) -> eyre::Result<()> {
+    let (engine, rep_ids, wants_events) = match (args.method, model) {
+        (NodeMethod::Classical(m), _) => {
+            let needs = m.inputs();
+            let ids = if needs.representations.is_empty() {
+                vec![]
+            } else {
+                vec!["representation"]
+            };
+            (Engine::Online(Online::new(m, args.online())?), ids, needs.events)
+        }
+        (NodeMethod::Learned, Some(model)) => {
+            let ids = model.inputs().iter().map(|i| i.input_id()).collect();
+            (Engine::Learned(Box::new(model)), ids, false)
+        }
+        (NodeMethod::Learned, None) => eyre::bail!("infer: method `learned` needs `--model FILE`"),
+    };
     let mut r = Reconstructor {
-        online: Online::new(args.method, args.online())?,
+        engine,
         args_lum_per_rate: args.lum_per_rate,
         method: args.method,
-        wants_rep: !needs.representations.is_empty(),
-        wants_events: needs.events,
+        rep_ids,
+        wants_events,
         pending: BTreeMap::new(),
         frames: 0,
         incomplete: 0,
     };
-    let (mut rep_in, mut ev_in) = (Input::default(), Input::default());
+    // One stream state per representation slot, then the event stream's.
+    let mut inputs: Vec<Input> = (0..=r.rep_ids.len()).map(|_| Input::default()).collect();
+    let ev_slot = r.rep_ids.len();
     let mut announced = 0u64;
     while let Some(event) = events.recv() {
         match event {
             Event::Input { id, metadata, data } => {
                 let meta = &metadata.parameters;
                 let id: &str = id.as_ref();
-                let (input, wanted) = match id {
-                    "representation" => (&mut rep_in, r.wants_rep),
-                    "events" => (&mut ev_in, r.wants_events),
-                    other => {
-                        tracing::warn!(input = other, "unknown input ignored");
+                let slot = match r.rep_ids.iter().position(|&i| i == id) {
+                    Some(slot) => slot,
+                    None if id == "events" && r.wants_events => ev_slot,
+                    None => {
+                        tracing::warn!(input = id, method = %args.method, "input not used by the method");
                         continue;
                     }
                 };
-                if !wanted {
-                    tracing::warn!(input = id, method = %args.method, "input not used by the method");
-                    continue;
-                }
+                let input = &mut inputs[slot];
                 if let Some(n) = is_end_of_stream(meta) {
                     let lost = input.seq.end(n);
                     if lost > 0 {
@@ -297,11 +459,11 @@ fn run(mut node: DoraNode, mut events: EventStream, args: &Args) -> eyre::Result
                     }
                     input.ended = true;
                     announced = announced.max(n);
-                } else if id == "representation" {
+                } else if slot < ev_slot {
                     let rep = Representation::from_arrow(meta, data.as_array())?;
                     let seq = rep.seq;
                     input.observe(id, seq);
-                    r.pending.entry(seq).or_default().representation = Some(rep);
+                    r.pending.entry(seq).or_default().reps.insert(slot, rep);
                 } else {
                     let batch = EventBatch::from_arrow(meta, data.as_array())?;
                     let seq = batch.seq;
@@ -309,7 +471,8 @@ fn run(mut node: DoraNode, mut events: EventStream, args: &Args) -> eyre::Result
                     r.pending.entry(seq).or_default().events = Some(batch);
                 }
                 r.drain(&mut node, false)?;
-                if (!r.wants_rep || rep_in.ended) && (!r.wants_events || ev_in.ended) {
+                let ended = |slot: usize| inputs[slot].ended;
+                if (0..ev_slot).all(ended) && (!r.wants_events || ended(ev_slot)) {
                     break;
                 }
             }
@@ -323,18 +486,31 @@ fn run(mut node: DoraNode, mut events: EventStream, args: &Args) -> eyre::Result
     r.drain(&mut node, true)?;
     let count = r.frames.max(announced);
     send_end::<Frame>(&mut node, &output("frames"), count)?;
-    let s = r.online.stats();
-    tracing::info!(
-        frames = s.frames,
-        announced = count,
-        incomplete = r.incomplete,
-        lost = rep_in.seq.missing() + ev_in.seq.missing(),
-        events = s.events,
-        method = %args.method,
-        clamped = s.frame.clamped,
-        exp_overflow = s.frame.exp_overflow,
-        "infer finished"
-    );
+    let lost: u64 = inputs.iter().map(|i| i.seq.missing()).sum();
+    match &r.engine {
+        Engine::Online(online) => {
+            let s = online.stats();
+            tracing::info!(
+                frames = s.frames,
+                announced = count,
+                incomplete = r.incomplete,
+                lost,
+                events = s.events,
+                method = %args.method,
+                clamped = s.frame.clamped,
+                exp_overflow = s.frame.exp_overflow,
+                "infer finished"
+            );
+        }
+        Engine::Learned(model) => tracing::info!(
+            frames = r.frames,
+            announced = count,
+            incomplete = r.incomplete,
+            lost,
+            model = %model.path().display(),
+            "infer finished"
+        ),
+    }
     Ok(())
 }
 
@@ -376,7 +552,8 @@ mod tests {
 
     fn args(method: Method) -> Args {
         Args {
-            method,
+            method: NodeMethod::Classical(method),
+            model: None,
             lum_per_rate: None,
             contrast: 0.2,
             hf_cutoff_rad_s: 5.0,
@@ -404,7 +581,7 @@ mod tests {
         c.message("representation", &rep("tfp", 0.25, 1)).unwrap();
         c.end::<Representation>("representation", 2).unwrap();
         let out = c
-            .run(|node, events| run(node, events, &args(Method::Tfp)))
+            .run(|node, events| run(node, events, &args(Method::Tfp), None))
             .unwrap();
         assert_eq!(output_ids(&out), vec!["frames"; 3]);
         let v = values(&out[0]);
@@ -418,7 +595,7 @@ mod tests {
         let mut c = CannedInputs::new(dir.path());
         c.message("representation", &rep("tfp", 0.25, 0)).unwrap();
         let err = c
-            .run(|node, events| run(node, events, &args(Method::Tfi)))
+            .run(|node, events| run(node, events, &args(Method::Tfi), None))
             .unwrap_err()
             .to_string();
         assert!(
@@ -435,7 +612,7 @@ mod tests {
         c.message("events", &batch(1, 3, (3, 4))).unwrap();
         c.end::<EventBatch>("events", 2).unwrap();
         let out = c
-            .run(|node, events| run(node, events, &args(Method::Hf)))
+            .run(|node, events| run(node, events, &args(Method::Hf), None))
             .unwrap();
         assert_eq!(output_ids(&out), vec!["frames"; 3]);
         let (first, second) = (values(&out[0]), values(&out[1]));
@@ -464,7 +641,7 @@ mod tests {
         c.message("representation", &rep("isi", 8.0, 1)).unwrap();
         c.end::<Representation>("representation", 2).unwrap();
         let out = c
-            .run(|node, events| run(node, events, &args(Method::Fusion)))
+            .run(|node, events| run(node, events, &args(Method::Fusion), None))
             .unwrap();
         assert_eq!(output_ids(&out), vec!["frames"; 3]);
         for f in &out[..2] {
@@ -481,7 +658,7 @@ mod tests {
         c.message("events", &batch(0, 0, (260, 346))).unwrap();
         c.message("representation", &rep("isi", 8.0, 0)).unwrap();
         let err = c
-            .run(|node, events| run(node, events, &args(Method::Fusion)))
+            .run(|node, events| run(node, events, &args(Method::Fusion), None))
             .unwrap_err()
             .to_string();
         assert!(
@@ -512,5 +689,124 @@ mod tests {
         bad.contrast = -1.0;
         let err = bad.check(&only_events).unwrap_err().to_string();
         assert!(err.contains("contrast") && err.contains("-1"), "{err}");
+    }
+
+    fn models_dir() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../models")
+    }
+
+    /// The first shipped model that reads both representations.
+    fn fused_model() -> PathBuf {
+        let mut models: Vec<PathBuf> = std::fs::read_dir(models_dir())
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "onnx"))
+            .collect();
+        models.sort();
+        models
+            .into_iter()
+            .find(|p| LearnedModel::load(p).unwrap().inputs().len() == 2)
+            .expect("a fused model in models/")
+    }
+
+    fn learned_args(model: PathBuf) -> Args {
+        Args {
+            method: NodeMethod::Learned,
+            model: Some(model),
+            ..args(Method::Tfp)
+        }
+    }
+
+    /// A representation of `kind` whose values are a fixed pattern (16 x 24, 32 channels).
+    fn pattern(kind: &str, seq: u64) -> Representation {
+        let data = Array3::from_shape_fn((32, 16, 24), |(c, y, x)| {
+            ((c * 5 + y * 3 + x) % 7) as f32 / 6.0
+        });
+        Representation {
+            kind: kind.into(),
+            t_ref_ns: 1_000_000 * (seq as i64 + 1),
+            seq,
+            params: [("lum_per_rate".to_string(), 2.0)].into_iter().collect(),
+            data,
+        }
+    }
+
+    #[test]
+    fn learned_frames_are_the_network_rate_calibrated() {
+        let path = fused_model();
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = CannedInputs::new(dir.path());
+        // Window 0's two representations arrive in either order; window 1 is spike first.
+        c.message("event_integration", &pattern("event-integration", 0)).unwrap();
+        c.message("spike_repr", &pattern("spike-repr", 0)).unwrap();
+        c.message("spike_repr", &pattern("spike-repr", 1)).unwrap();
+        c.message("event_integration", &pattern("event-integration", 1)).unwrap();
+        c.end::<Representation>("spike_repr", 2).unwrap();
+        c.end::<Representation>("event_integration", 2).unwrap();
+        let inputs = ["spike_repr".to_string(), "event_integration".to_string()];
+        let a = learned_args(path.clone());
+        let model = a.check(&inputs).unwrap();
+        let out = c.run(|node, events| run(node, events, &a, model)).unwrap();
+        assert_eq!(output_ids(&out), vec!["frames"; 3]);
+        let mut direct = LearnedModel::load(&path).unwrap();
+        let (s, e) = (pattern("spike-repr", 0), pattern("event-integration", 0));
+        let rate = direct.run(&[s.data.view(), e.data.view()]).unwrap();
+        for f in &out[..2] {
+            let v = values(f);
+            assert_eq!(v.len(), 16 * 24);
+            for (got, r) in v.iter().zip(rate.iter()) {
+                let want = (f64::from(*r) * 2.0).clamp(0.0, 1.0);
+                assert!((got - want).abs() < 1e-6, "{got} vs {want}");
+            }
+        }
+    }
+
+    #[test]
+    fn learned_refuses_a_representation_on_the_wrong_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = CannedInputs::new(dir.path());
+        c.message("spike_repr", &pattern("event-integration", 0)).unwrap();
+        c.message("event_integration", &pattern("event-integration", 0)).unwrap();
+        let inputs = ["spike_repr".to_string(), "event_integration".to_string()];
+        let a = learned_args(fused_model());
+        let model = a.check(&inputs).unwrap();
+        let err = c
+            .run(|node, events| run(node, events, &a, model))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("`spike_repr`") && err.contains("`event-integration`") && err.contains("reads `spike-repr`"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn learned_is_checked_at_start_up() {
+        let both = ["spike_repr".to_string(), "event_integration".to_string()];
+        // No model.
+        let mut a = learned_args(fused_model());
+        a.model = None;
+        let err = a.check(&both).unwrap_err().to_string();
+        assert!(err.contains("--model"), "{err}");
+        // A missing file, named.
+        let err = learned_args(PathBuf::from("/nonexistent/net.onnx"))
+            .check(&both)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("/nonexistent/net.onnx") && err.contains("cannot read"), "{err}");
+        // A graph that does not feed an input the model reads.
+        let err = learned_args(fused_model())
+            .check(&["spike_repr".to_string()])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("connect an input `event_integration`"), "{err}");
+        // --model with a classical method.
+        let mut a = args(Method::Tfp);
+        a.model = Some(fused_model());
+        let err = a.check(&["representation".to_string()]).unwrap_err().to_string();
+        assert!(err.contains("`--model` is for `--method learned`"), "{err}");
+        // And the method names: learned is accepted, the list of names says so.
+        assert_eq!(parse_method("learned"), Ok(NodeMethod::Learned));
+        assert!(parse_method("nope").unwrap_err().contains("learned"));
     }
 }

@@ -301,6 +301,17 @@ pub fn event_integration_into(
     Ok(())
 }
 
+/// The `k` instants of event integration over a window `[t_start_ns, t_end_ns)`, as the
+/// represent node uses them: `t_start + round(i (t_end - t_start) / k)` for `i = 1..=k`, so the
+/// last instant is the window's end. The span is formed in `f64` (exact below 2^53 ns, 104 days);
+/// `k = 0` gives none, and an empty or reversed window gives `k` copies of `t_start_ns`.
+pub fn integration_instants(t_start_ns: i64, t_end_ns: i64, k: usize) -> Vec<i64> {
+    let span = (t_end_ns.saturating_sub(t_start_ns)).max(0) as f64;
+    (1..=k)
+        .map(|i| t_start_ns.saturating_add((span * i as f64 / k as f64).round() as i64))
+        .collect()
+}
+
 /// Checks for event integration; returns the decay and the range of events with
 /// `t0_ns <= t_i <= max(ts_ns)`.
 fn check_integration(

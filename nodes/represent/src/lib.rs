@@ -35,7 +35,7 @@ mod extremes;
 pub use error::RepresentError;
 pub use event::{
     EventSlice, event_count_into, event_count_reference, event_integration_into,
-    event_integration_reference,
+    event_integration_reference, integration_instants,
 };
 pub use spike::{
     MAX_PLANES, MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK, isi_into, isi_packed_into,

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::{Array2, Array3, Axis};
 use neuspike_represent::{
-    EventSlice, event_integration_into, isi_packed_into, spike_representation_packed_into,
+    EventSlice, event_integration_into, integration_instants, isi_packed_into, spike_representation_packed_into,
     tfp_packed_into,
 };
 use neuspike_schemas::node::{self, output, send, send_end};
@@ -105,10 +105,7 @@ fn represent(kind: &str, w: &AlignedWindow, args: &Args) -> eyre::Result<Represe
             let k = args.ei_channels as usize;
             let ev = &w.events;
             let (eh, ew) = (ev.height.max(1), ev.width.max(1));
-            let span = (ev.t_end_ns - ev.t_start_ns) as f64;
-            let ts: Vec<i64> = (1..=k)
-                .map(|i| ev.t_start_ns + (span * i as f64 / k as f64).round() as i64)
-                .collect();
+            let ts = integration_instants(ev.t_start_ns, ev.t_end_ns, k);
             params.insert("tau_ns".into(), args.tau_ns);
             let slice = EventSlice {
                 t_ns: &ev.t_ns,

@@ -1,0 +1,191 @@
+//! The shipped ONNX models under tract: each reproduces the PyTorch output `training/export.py`
+//! saved beside it, and bad models and bad inputs give errors that name the file.
+
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array3, Array4, ArrayView3, Axis, s};
+use ndarray_npy::read_npy;
+use neuspike_infer::InferError;
+use neuspike_infer::learned::{LearnedInput, LearnedModel, STRIDE, pad_edge};
+use prost::Message;
+use tract_onnx::prelude::Framework;
+
+fn models_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models")
+}
+
+/// Every `models/*.onnx`, sorted.
+fn shipped() -> Vec<PathBuf> {
+    let mut out: Vec<PathBuf> = std::fs::read_dir(models_dir())
+        .expect("models/")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "onnx"))
+        .collect();
+    out.sort();
+    out
+}
+
+fn reference(model: &Path, name: &str) -> Array4<f32> {
+    let path = model.with_extension("ref").join(format!("{name}.npy"));
+    read_npy(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+#[test]
+fn every_shipped_model_reproduces_its_pytorch_reference() {
+    let models = shipped();
+    assert!(!models.is_empty(), "no models in {}", models_dir().display());
+    for path in models {
+        let mut model = LearnedModel::load(&path).expect("load");
+        let inputs: Vec<Array4<f32>> = model
+            .inputs()
+            .iter()
+            .map(|i| reference(&path, i.onnx_name()))
+            .collect();
+        let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
+        let want = reference(&path, "rate");
+        let got = model.run(&views).expect("run");
+        assert_eq!(got.dim(), (want.shape()[2], want.shape()[3]), "{}", path.display());
+        let diff = got
+            .iter()
+            .zip(want.iter())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(diff < 1e-4, "{}: tract differs from PyTorch by {diff}", path.display());
+        // The rates are rates: in [0, 1], and not all the same.
+        assert!(got.iter().all(|r| (0.0..=1.0).contains(r)));
+        let (lo, hi) = got.iter().fold((1.0f32, 0.0f32), |(l, h), &r| (l.min(r), h.max(r)));
+        assert!(hi - lo > 1e-3, "{}: a flat output", path.display());
+    }
+}
+
+#[test]
+fn sizes_that_are_not_multiples_of_the_stride_are_padded_and_cropped() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let inputs: Vec<Array4<f32>> =
+        model.inputs().iter().map(|i| reference(path, i.onnx_name())).collect();
+    // 13 x 21 of the 16 x 24 reference: the network sees it padded back to 16 x 24 by repeating
+    // the last row and column, so the output is that of the padded input, cropped.
+    let cut: Vec<Array3<f32>> = inputs
+        .iter()
+        .map(|a| a.slice(s![0, .., ..13, ..21]).to_owned())
+        .collect();
+    let views: Vec<ArrayView3<f32>> = cut.iter().map(|a| a.view()).collect();
+    let got = model.run(&views).expect("run 13x21");
+    assert_eq!(got.dim(), (13, 21));
+    let padded: Vec<Array3<f32>> = cut
+        .iter()
+        .map(|a| {
+            let c = a.dim().0;
+            Array3::from_shape_vec((c, 16, 24), pad_edge(a.view(), 16, 24)).expect("shape")
+        })
+        .collect();
+    let views: Vec<ArrayView3<f32>> = padded.iter().map(|a| a.view()).collect();
+    let full = model.run(&views).expect("run 16x24");
+    let diff = full
+        .slice(s![..13, ..21])
+        .iter()
+        .zip(got.iter())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(diff < 1e-6, "crop differs by {diff}");
+    // A second size replans, and going back still works.
+    let small: Vec<Array3<f32>> = inputs.iter().map(|a| a.slice(s![0, .., ..8, ..8]).to_owned()).collect();
+    let views: Vec<ArrayView3<f32>> = small.iter().map(|a| a.view()).collect();
+    assert_eq!(model.run(&views).expect("8x8").dim(), (8, 8));
+    assert_eq!(STRIDE, 8);
+}
+
+#[test]
+fn pad_edge_repeats_the_last_row_and_column() {
+    let x = Array3::from_shape_fn((2, 2, 3), |(c, y, x)| (c * 100 + y * 10 + x) as f32);
+    let p = pad_edge(x.view(), 3, 4);
+    let p = Array3::from_shape_vec((2, 3, 4), p).expect("shape");
+    assert_eq!(p[[1, 0, 0]], 100.0);
+    assert_eq!(p[[0, 1, 3]], 12.0);
+    assert_eq!(p[[0, 2, 1]], 11.0);
+    assert_eq!(p[[1, 2, 3]], 112.0);
+}
+
+fn model_error(e: InferError) -> (PathBuf, String) {
+    match e {
+        InferError::Model { path, reason } => (path, reason),
+        other => panic!("expected a model error, got {other}"),
+    }
+}
+
+#[test]
+fn a_missing_or_corrupt_file_is_refused_by_name() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("nope.onnx");
+    let (path, reason) = model_error(LearnedModel::load(&missing).expect_err("missing"));
+    assert_eq!(path, missing);
+    assert!(reason.contains("cannot read"), "{reason}");
+
+    let bytes = std::fs::read(&shipped()[0]).expect("read");
+    for (name, data) in [
+        ("empty.onnx", Vec::new()),
+        ("truncated.onnx", bytes[..bytes.len() / 3].to_vec()),
+        ("text.onnx", b"not a model at all".to_vec()),
+    ] {
+        let p = dir.path().join(name);
+        std::fs::write(&p, &data).expect("write");
+        let err = LearnedModel::load(&p).expect_err(name);
+        let msg = err.to_string();
+        assert!(msg.contains(name), "{name}: {msg}");
+    }
+}
+
+#[test]
+fn a_model_whose_inputs_are_not_the_representations_is_refused() {
+    let source = &shipped()[0];
+    let mut proto = tract_onnx::onnx()
+        .proto_model_for_path(source)
+        .expect("proto");
+    let graph = proto.graph.as_mut().expect("graph");
+    let old = graph.input[0].name.clone();
+    graph.input[0].name = "voxels".into();
+    for node in &mut graph.node {
+        for i in &mut node.input {
+            if *i == old {
+                *i = "voxels".into();
+            }
+        }
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = dir.path().join("renamed.onnx");
+    std::fs::write(&p, proto.encode_to_vec()).expect("write");
+    let (path, reason) = model_error(LearnedModel::load(&p).expect_err("renamed"));
+    assert_eq!(path, p);
+    assert!(reason.contains("`voxels`") && reason.contains("spike"), "{reason}");
+}
+
+#[test]
+fn representations_of_the_wrong_shape_are_refused_before_running() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let n = model.inputs().len();
+    let c = model.channels()[0];
+    // Wrong channel count.
+    let x = Array3::<f32>::zeros((c + 1, 16, 16));
+    let views: Vec<ArrayView3<f32>> = (0..n).map(|_| x.view()).collect();
+    let (_, reason) = model_error(model.run(&views).expect_err("channels"));
+    assert!(reason.contains(&format!("[{}, 16, 16]", c + 1)) || reason.contains("shape"), "{reason}");
+    // Too few inputs.
+    let ok = Array3::<f32>::zeros((c, 16, 16));
+    if n > 1 {
+        let (_, reason) = model_error(model.run(&[ok.view()]).expect_err("count"));
+        assert!(reason.contains("1 representations given"), "{reason}");
+    }
+    // Inputs of different sizes.
+    if n > 1 {
+        let other = Array3::<f32>::zeros((model.channels()[1], 16, 24));
+        let (_, reason) = model_error(model.run(&[ok.view(), other.view()]).expect_err("sizes"));
+        assert!(reason.contains("[32, 16, 24]") || reason.contains("wants"), "{reason}");
+    }
+    // The inputs name the representations the represent node makes.
+    for i in model.inputs() {
+        assert!(matches!(i, LearnedInput::Spike | LearnedInput::Events));
+        assert!(["spike-repr", "event-integration"].contains(&i.representation()));
+    }
+}

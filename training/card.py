@@ -1,0 +1,139 @@
+"""Writes a model's card, `models/<name>.md`, from what was measured: the export's config
+(`models/<name>.json`), the held-out scores (`evaluate.py --json`), tract's latency
+(`neuspike bench-model`, run here) and onnxruntime's (`bench_ort.py`, run here) at 256x400 on 1
+and 2 threads, in the same run so that the ratio compares like with like.
+
+    python training/card.py models/neuspike-fused-8.onnx --eval runs/eval.json --run fused-8 \
+        [--aux-baseline fused-8-noaux]
+"""
+
+import argparse
+import json
+import pathlib
+import re
+import subprocess
+
+import bench_ort
+
+ARCH = {
+    "fused": "both paths (texture: spike representation; motion: event integration), fused by the "
+    "feature fusion module after each encoder layer",
+    "spike": "the texture path alone (spike representation); the paper's spike-only ablation",
+    "event": "the motion path alone (event integration); the paper's event-only ablation",
+}
+
+
+def tract_times(model: str, threads: str, runs: int) -> dict[int, float]:
+    out = subprocess.run(
+        ["./target/release/neuspike", "bench-model", model, "--height", "256", "--width", "400",
+         "--threads", threads, "--runs", str(runs)],
+        check=True, capture_output=True, text=True,
+    ).stdout
+    return {int(t): float(ms) for t, ms in re.findall(r"threads (\d+): median ([\d.]+) ms", out)}
+
+
+def row(name: str, r: dict) -> str:
+    n, c = r["normal"], r["complex"]
+    return f"| {name} | {n['psnr']:.2f} | {c['psnr']:.2f} | {n['ssim']:.3f} | {c['ssim']:.3f} |"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("model", type=pathlib.Path)
+    ap.add_argument("--eval", type=pathlib.Path, required=True)
+    ap.add_argument("--run", required=True, help="the model's entry in the evaluation")
+    ap.add_argument("--aux-baseline", help="the same model trained without the auxiliary loss")
+    ap.add_argument("--runs", type=int, default=10)
+    ap.add_argument("--note", default="", help="a line added to the training section")
+    args = ap.parse_args()
+    cfg = json.loads(args.model.with_suffix(".json").read_text())
+    ev = json.loads(args.eval.read_text())
+    me = ev[args.run]
+    tract = tract_times(str(args.model), "1,2", args.runs)
+    ort_ms = {t: bench_ort.time_model(str(args.model), 256, 400, t, args.runs)["median_ms"] for t in (1, 2)}
+    best = max(("tfp", "tfi"), key=lambda m: ev[m]["complex"]["psnr"])
+    best_n = max(("tfp", "tfi"), key=lambda m: ev[m]["normal"]["psnr"])
+    name = args.model.stem
+    n_all = me["all"]["n"]
+    lines = [
+        f"# {name}",
+        "",
+        f"NeuSpike-Net, {cfg['mode']} (base width {cfg['base']}): {ARCH[cfg['mode']]}. "
+        f"{cfg['parameters']:,} parameters; ONNX opset {cfg['opset']}, {cfg['onnx_mb']} MB, inputs "
+        f"{', '.join('`' + i + '`' for i in cfg['inputs'])} (`[1, {cfg['channels']}, H, W]`, H and W "
+        "multiples of 8: the infer node pads), output `rate` (spikes per tick; the node multiplies by "
+        "`lum_per_rate`). Built by `training/neuspike_net.py`: head convolution, 3 stride-2 encoder "
+        "layers doubling the width, channel and spatial attention fusion after each (Eq. 11-12), 2 "
+        "residual blocks, 3 transposed-convolution decoder layers with the fused skips, a depthwise "
+        "convolution and a sigmoid.",
+        "",
+        "## Training",
+        "",
+        f"- Data: `neuspike dataset --split train` ({cfg['train_samples']:,} samples of 64x64, 5 light "
+        "scales x 5 speeds, 120 a cell; half the textures procedural, half crops of 13 scikit-image "
+        "photos; see training/README.md).",
+        f"- {cfg['steps']:,} steps of {cfg['batch']} samples (Adam, one-cycle, max lr {cfg['lr']}), "
+        f"seed {cfg['seed']}, the 8 flips and quarter turns; {cfg['train_seconds'] / 60:.0f} min wall on "
+        f"{cfg['device']}" + (f", {cfg['cpu_seconds'] / 60:.0f} CPU-minutes" if "cpu_seconds" in cfg else "")
+        + " (a 2-core machine shared with builds and other runs, so the wall time overstates).",
+        f"- Loss: L2 on luminance + {cfg['aux_weight']} x {cfg['aux']} "
+        "(the paper's VGG perceptual term needs pretrained weights that cannot be downloaded here)."
+        if cfg["aux"] != "none"
+        else "- Loss: L2 on luminance only (the comparison run for the auxiliary term).",
+        f"- PyTorch {cfg['torch']}; exported and checked against onnxruntime (max |diff| < 1e-4) by "
+        "`training/export.py`; `models/" + name + ".ref/` is the reference tract must reproduce "
+        "(`nodes/infer/tests/learned.rs`).",
+    ] + ([f"- {args.note}"] if args.note else []) + [
+        "",
+        "## Accuracy (held-out set)",
+        "",
+        f"`neuspike dataset --split test`: {n_all} samples of 96x96 ({me['normal']['n']} normal, "
+        f"{me['complex']['n']} complex: light <= 0.1 or speed >= 3,000 px/s), textures never seen in "
+        "training (other procedural seeds; photos chelsea, coins, gravel, rocket). PSNR (dB) and "
+        "SSIM as REFERENCE.md defines them, luminance clipped to [0, 1].",
+        "",
+        "| method | PSNR normal | PSNR complex | SSIM normal | SSIM complex |",
+        "|---|---|---|---|---|",
+        row(f"**{name}**", me),
+        row("TFP (33 planes)", ev["tfp"]),
+        row("TFI", ev["tfi"]),
+    ]
+    for k, v in ev.items():
+        if k not in ("tfp", "tfi", args.run) and "config" in v:
+            lines.append(row(f"{k} (other run)", v))
+    lines += [
+        "",
+        f"Margin over the best classical method: {me['complex']['psnr'] - ev[best]['complex']['psnr']:+.2f} dB "
+        f"on complex scenes ({best}), {me['normal']['psnr'] - ev[best_n]['normal']['psnr']:+.2f} dB on normal "
+        f"ones ({best_n}).",
+    ]
+    if args.aux_baseline and args.aux_baseline in ev:
+        b = ev[args.aux_baseline]
+        lines += [
+            "",
+            f"Effect of the auxiliary loss: without it ({args.aux_baseline}) PSNR normal / complex "
+            f"{b['normal']['psnr']:.2f} / {b['complex']['psnr']:.2f} dB, SSIM {b['normal']['ssim']:.3f} / "
+            f"{b['complex']['ssim']:.3f}.",
+        ]
+    lines += [
+        "",
+        "## Speed (256x400, this machine, one run)",
+        "",
+        "| threads | tract (ms) | onnxruntime (ms) | tract / onnxruntime |",
+        "|---|---|---|---|",
+    ]
+    for t in (1, 2):
+        lines.append(f"| {t} | {tract[t]:.1f} | {ort_ms[t]:.1f} | {tract[t] / ort_ms[t]:.2f}x |")
+    lines += [
+        "",
+        f"`neuspike bench-model models/{name}.onnx --height 256 --width 400` and "
+        f"`python training/bench_ort.py models/{name}.onnx --height 256 --width 400`: median of "
+        f"{args.runs} runs after a warm-up, the same input pattern.",
+        "",
+    ]
+    args.model.with_suffix(".md").write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

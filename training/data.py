@@ -1,0 +1,76 @@
+"""Reading a `neuspike dataset` folder (see src/dataset.rs): its .npy shards and samples.csv."""
+
+import csv
+import pathlib
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Split:
+    spike: torch.Tensor  # [N, 32, S, S] float16
+    events: torch.Tensor  # [N, 32, S, S] float16
+    truth: torch.Tensor  # [N, 1, S, S] float32, luminance in [0, 1]
+    tfp: np.ndarray  # [N, S, S] luminance
+    tfi: np.ndarray
+    lum_per_rate: torch.Tensor  # [N] float32
+    complex: np.ndarray  # [N] bool
+    rows: list[dict]
+
+    def __len__(self) -> int:
+        return self.spike.shape[0]
+
+    def inputs(self, names: list[str], idx) -> list[torch.Tensor]:
+        return [getattr(self, n)[idx].float() for n in names]
+
+
+def load(folder: pathlib.Path) -> Split:
+    """Loads every shard, in order; the representations as float16 to halve the memory."""
+    folder = pathlib.Path(folder)
+    rows = list(csv.DictReader(open(folder / "samples.csv", newline="")))
+    shards = sorted(p for p in folder.iterdir() if p.is_dir())
+    if not shards:
+        raise SystemExit(f"{folder}: no shards (is it a `neuspike dataset` folder?)")
+
+    def cat(name: str, dtype) -> np.ndarray:
+        return np.concatenate([np.load(s / f"{name}.npy").astype(dtype) for s in shards])
+
+    spike, events = cat("spike", np.float16), cat("events", np.float16)
+    truth, tfp, tfi = cat("truth", np.float32), cat("tfp", np.float32), cat("tfi", np.float32)
+    if not (len(rows) == spike.shape[0] == events.shape[0] == truth.shape[0]):
+        raise SystemExit(f"{folder}: samples.csv has {len(rows)} rows, the shards {spike.shape[0]}")
+    return Split(
+        spike=torch.from_numpy(spike),
+        events=torch.from_numpy(events),
+        truth=torch.from_numpy(truth)[:, None],
+        tfp=tfp,
+        tfi=tfi,
+        lum_per_rate=torch.tensor([float(r["lum_per_rate"]) for r in rows], dtype=torch.float32),
+        complex=np.array([r["complex"] == "1" for r in rows]),
+        rows=rows,
+    )
+
+
+def psnr(x: np.ndarray, y: np.ndarray) -> float:
+    """REFERENCE.md: data range 1, MSE over the frame; identical frames give +inf."""
+    mse = float(np.mean((x.astype(np.float64) - y.astype(np.float64)) ** 2))
+    return float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)
+
+
+def ssim(x: np.ndarray, y: np.ndarray) -> float:
+    """REFERENCE.md: Gaussian 11x11 window, sigma 1.5, population covariance, data range 1 (the
+    sink's definition; scikit-image computes it with these settings)."""
+    from skimage.metrics import structural_similarity
+
+    return float(
+        structural_similarity(
+            x.astype(np.float64),
+            y.astype(np.float64),
+            gaussian_weights=True,
+            sigma=1.5,
+            use_sample_covariance=False,
+            data_range=1.0,
+        )
+    )

@@ -1,0 +1,70 @@
+"""Scores trained models and the classical baselines on a held-out `neuspike dataset` set, split
+into normal and complex (dark or fast) scenes, with REFERENCE.md's PSNR and SSIM.
+
+    python training/evaluate.py --test data/test runs/fused-8.pt runs/spike-8.pt --json eval.json
+
+Each model's rate is turned into luminance with the sample's calibration (`lum_per_rate`) and
+clipped to [0, 1], exactly as the infer node does; TFP (whole window) and TFI come from the set.
+"""
+
+import argparse
+import json
+import pathlib
+
+import numpy as np
+import torch
+
+import data
+from neuspike_net import NeuSpikeNet
+
+
+def load_model(path: pathlib.Path) -> tuple[NeuSpikeNet, dict]:
+    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    cfg = ckpt["config"]
+    model = NeuSpikeNet(base=cfg["base"], channels=cfg["channels"], mode=cfg["mode"])
+    model.load_state_dict(ckpt["state"])
+    return model.eval(), cfg
+
+
+@torch.no_grad()
+def predict(model: NeuSpikeNet, split: data.Split, batch: int = 32) -> np.ndarray:
+    out = []
+    for i in range(0, len(split), batch):
+        idx = torch.arange(i, min(i + batch, len(split)))
+        rate = model(*split.inputs(model.inputs(), idx))
+        lum = (rate * split.lum_per_rate[idx][:, None, None, None]).clamp(0, 1)
+        out.append(lum[:, 0].numpy())
+    return np.concatenate(out)
+
+
+def score(frames: np.ndarray, split: data.Split) -> dict:
+    truth = split.truth[:, 0].numpy()
+    p = np.array([data.psnr(f, t) for f, t in zip(frames, truth)])
+    s = np.array([data.ssim(f, t) for f, t in zip(frames, truth)])
+    groups = {"all": np.ones(len(split), bool), "normal": ~split.complex, "complex": split.complex}
+    return {g: {"psnr": float(p[m].mean()), "ssim": float(s[m].mean()), "n": int(m.sum())} for g, m in groups.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--test", type=pathlib.Path, required=True)
+    ap.add_argument("--json", type=pathlib.Path)
+    ap.add_argument("models", type=pathlib.Path, nargs="*")
+    args = ap.parse_args()
+    test = data.load(args.test)
+    results = {"tfp": score(test.tfp, test), "tfi": score(test.tfi, test)}
+    for path in args.models:
+        model, cfg = load_model(path)
+        results[path.stem] = score(predict(model, test), test) | {"config": cfg}
+    print(f"held-out: {args.test} ({len(test)} samples, {int(test.complex.sum())} complex)")
+    print("| method | PSNR normal | PSNR complex | SSIM normal | SSIM complex |")
+    print("|---|---|---|---|---|")
+    for name, r in results.items():
+        n, c = r["normal"], r["complex"]
+        print(f"| {name} | {n['psnr']:.2f} | {c['psnr']:.2f} | {n['ssim']:.3f} | {c['ssim']:.3f} |")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,135 @@
+"""Trains NeuSpike-Net on a `neuspike dataset` training set (CPU, or CUDA when present).
+
+    python training/train.py --train data/train --base 8 --mode fused --steps 6000 \
+        --out runs/fused-8.pt
+
+Loss: the prediction is a firing rate; it is compared as luminance (`rate * lum_per_rate`, the
+sample's calibration) with the ground truth, by L2 plus an auxiliary term standing in for the
+paper's VGG perceptual loss (no pretrained weights can be downloaded here): `ssim` (1 - SSIM,
+REFERENCE.md's window), `grad` (L1 between image gradients) or `none`. Augmentation: the 8 flips
+and quarter turns, the same for every input and the target. Everything is seeded; the step count,
+not the wall clock, ends training, so a run repeats.
+"""
+
+import argparse
+import json
+import pathlib
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+import data
+from neuspike_net import NeuSpikeNet, parameters
+
+
+def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    x = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    g = g / g.sum()
+    return (g[:, None] * g[None, :])[None, None]
+
+
+def ssim_loss(x: torch.Tensor, y: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
+    """1 - mean SSIM over the valid windows (REFERENCE.md: Gaussian 11x11, sigma 1.5, L = 1)."""
+    c1, c2 = 0.01**2, 0.03**2
+    mu_x, mu_y = F.conv2d(x, window), F.conv2d(y, window)
+    sxx = F.conv2d(x * x, window) - mu_x**2
+    syy = F.conv2d(y * y, window) - mu_y**2
+    sxy = F.conv2d(x * y, window) - mu_x * mu_y
+    s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x**2 + mu_y**2 + c1) * (sxx + syy + c2))
+    return 1 - s.mean()
+
+
+def grad_loss(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    dx = lambda t: t[..., :, 1:] - t[..., :, :-1]  # noqa: E731
+    dy = lambda t: t[..., 1:, :] - t[..., :-1, :]  # noqa: E731
+    return (dx(x) - dx(y)).abs().mean() + (dy(x) - dy(y)).abs().mean()
+
+
+def augment(tensors: list[torch.Tensor], k: int) -> list[torch.Tensor]:
+    """One of the 8 symmetries of the square, the same for all."""
+    out = [torch.rot90(t, k % 4, dims=(-2, -1)) for t in tensors]
+    return [t.flip(-1) for t in out] if k >= 4 else out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--train", type=pathlib.Path, required=True)
+    ap.add_argument("--base", type=int, default=16)
+    ap.add_argument("--mode", default="fused", choices=["fused", "spike", "event"])
+    ap.add_argument("--steps", type=int, default=4000)
+    ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--lr", type=float, default=2e-3)
+    ap.add_argument("--aux", default="ssim", choices=["ssim", "grad", "none"])
+    ap.add_argument("--aux-weight", type=float, default=0.1)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
+    ap.add_argument("--out", type=pathlib.Path, required=True)
+    args = ap.parse_args()
+
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    train = data.load(args.train)
+    model = NeuSpikeNet(base=args.base, channels=train.spike.shape[1], mode=args.mode).to(device)
+    names = model.inputs()
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.steps, pct_start=0.05)
+    window = gaussian_window().to(device)
+    print(
+        f"{args.mode} base {args.base}: {parameters(model):,} parameters, {len(train)} samples, "
+        f"{args.steps} steps of {args.batch} on {device} ({torch.get_num_threads()} threads)"
+    )
+    start, log_every, running = time.monotonic(), max(args.steps // 40, 1), 0.0
+    model.train()
+    for step in range(args.steps):
+        idx = torch.from_numpy(rng.integers(0, len(train), args.batch))
+        xs = [x.to(device) for x in train.inputs(names, idx)]
+        truth = train.truth[idx].to(device)
+        gain = train.lum_per_rate[idx].to(device)[:, None, None, None]
+        *xs, truth = augment([*xs, truth], int(rng.integers(0, 8)))
+        lum = model(*xs) * gain
+        loss = F.mse_loss(lum, truth)
+        if args.aux == "ssim":
+            loss = loss + args.aux_weight * ssim_loss(lum.clamp(0, 1), truth, window)
+        elif args.aux == "grad":
+            loss = loss + args.aux_weight * grad_loss(lum, truth)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        running += loss.item()
+        if (step + 1) % log_every == 0:
+            print(f"step {step + 1:6d}  loss {running / log_every:.5f}  {time.monotonic() - start:7.1f} s", flush=True)
+            running = 0.0
+    seconds = time.monotonic() - start
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    config = {
+        "base": args.base,
+        "mode": args.mode,
+        "channels": int(train.spike.shape[1]),
+        "steps": args.steps,
+        "batch": args.batch,
+        "lr": args.lr,
+        "aux": args.aux,
+        "aux_weight": args.aux_weight,
+        "seed": args.seed,
+        "train": str(args.train),
+        "train_samples": len(train),
+        "parameters": parameters(model),
+        "train_seconds": round(seconds, 1),
+        # CPU time of every thread: on a machine shared with builds, the wall clock overstates.
+        "cpu_seconds": round(time.process_time(), 1),
+        "device": str(device) if device.type == "cuda" else f"cpu x{torch.get_num_threads()}",
+        "torch": str(torch.__version__),
+    }
+    torch.save({"config": config, "state": model.state_dict()}, args.out)
+    print(json.dumps(config))
+
+
+if __name__ == "__main__":
+    main()
