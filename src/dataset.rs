@@ -510,3 +510,102 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
     fs::write(&yml_path, yml).wrap_err_with(|| format!("cannot write {}", yml_path.display()))?;
     Ok(summary)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn opts(split: Split, out: PathBuf) -> DatasetOptions {
+        DatasetOptions {
+            out,
+            split,
+            per_cell: 1,
+            size: 16,
+            window_planes: 33,
+            channels: 32,
+            tau_ns: 500_000.0,
+            rate_hz: 20_000.0,
+            textures: None,
+            shard: 10,
+            seed: 7,
+        }
+    }
+
+    #[test]
+    fn a_sample_is_deterministic_and_its_channels_are_what_represent_makes() {
+        let o = opts(Split::Train, PathBuf::from("unused"));
+        let (light, speed) = cell_of(23);
+        let a = sample(&o, &[], 23, light, speed).expect("sample");
+        let b = sample(&o, &[], 23, light, speed).expect("sample again");
+        assert_eq!(a.spike, b.spike);
+        assert_eq!(a.events, b.events);
+        assert_eq!(a.truth, b.truth);
+        assert_eq!(a.info, b.info);
+        assert_eq!(a.spike.dim(), (32, 16, 16));
+        // Channel 0 is 1/ISI in (0, 1]; the raw planes are 0 or 1 and the window has spikes.
+        assert!(a.spike.index_axis(Axis(0), 0).iter().all(|&v| v > 0.0 && v <= 1.0));
+        let raw = a.spike.slice(ndarray::s![1.., .., ..]);
+        assert!(raw.iter().all(|&v| v == 0.0 || v == 1.0));
+        assert!(raw.iter().any(|&v| v == 1.0));
+        // A moving scene makes events, and the last channel (at the window's end) has seen them.
+        assert!(speed > 0.0 && a.info.events > 0, "{:?}", a.info);
+        assert!(a.events.index_axis(Axis(0), 31).iter().any(|&v| v != 0.0));
+        assert!(a.truth.iter().all(|&v| (0.0..=1.0).contains(&v)));
+        assert_eq!(a.info.lum_per_rate, 1.0 / light);
+        // Another index is another sample.
+        let c = sample(&o, &[], 48, light, speed).expect("sample 48");
+        assert_ne!(a.truth, c.truth);
+    }
+
+    #[test]
+    fn train_and_test_draw_different_textures() {
+        let (tr, te) = (
+            opts(Split::Train, PathBuf::new()),
+            opts(Split::Test, PathBuf::new()),
+        );
+        let mut train = std::collections::BTreeSet::new();
+        let mut test = std::collections::BTreeSet::new();
+        for i in 0..50 {
+            let (l, s) = cell_of(i);
+            train.insert(sample(&tr, &[], i, l, s).expect("train").info.texture);
+            let t = sample(&te, &[], i, l, s).expect("test").info.texture;
+            // Parametric generators are for training only.
+            assert!(!t.starts_with("grating") && !t.starts_with("checkerboard"), "{t}");
+            test.insert(t);
+        }
+        assert!(train.is_disjoint(&test));
+        // Seeds: even for train, odd for test.
+        let odd = |t: &String| t.rsplit(':').next().and_then(|s| s.parse::<u64>().ok()).map(|s| s % 2);
+        assert!(train.iter().filter_map(odd).all(|p| p == 0));
+        assert!(test.iter().filter_map(odd).all(|p| p == 1));
+    }
+
+    #[test]
+    fn generate_writes_shards_csv_and_settings_and_refuses_bad_options() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let o = opts(Split::Test, dir.path().join("set"));
+        let sum = generate(&o, false).expect("generate");
+        assert_eq!(sum.samples, 25);
+        assert_eq!(sum.shards, 3);
+        let csv = fs::read_to_string(o.out.join("samples.csv")).expect("csv");
+        assert_eq!(csv.lines().count(), 26);
+        let spike: ndarray::Array4<f32> =
+            ndarray_npy::read_npy(o.out.join("002/spike.npy")).expect("npy");
+        assert_eq!(spike.dim(), (5, 32, 16, 16));
+        let truth: Array3<f32> = ndarray_npy::read_npy(o.out.join("000/truth.npy")).expect("npy");
+        assert_eq!(truth.dim(), (10, 16, 16));
+        assert!(fs::read_to_string(o.out.join("dataset.yml")).expect("yml").contains("samples: 25"));
+        // Not into a folder that holds something.
+        let err = generate(&o, false).expect_err("not empty").to_string();
+        assert!(err.contains("not empty"), "{err}");
+        for (bad, name) in [
+            (DatasetOptions { per_cell: 0, ..o.clone() }, "--per-cell"),
+            (DatasetOptions { size: 4, ..o.clone() }, "--size"),
+            (DatasetOptions { window_planes: 10, ..o.clone() }, "--window-planes"),
+            (DatasetOptions { tau_ns: f64::NAN, ..o.clone() }, "--tau-ns"),
+        ] {
+            let err = generate(&bad, false).expect_err(name).to_string();
+            assert!(err.contains(name), "{name}: {err}");
+        }
+    }
+}

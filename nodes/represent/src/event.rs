@@ -1118,4 +1118,15 @@ mod tests {
             prop_assert_eq!(inf, zero.mapv(|v| 2.0 * v));
         }
     }
+
+    #[test]
+    fn integration_instants_end_at_the_window_end_and_survive_degenerate_windows() {
+        assert_eq!(integration_instants(100, 500, 4), vec![200, 300, 400, 500]);
+        assert_eq!(integration_instants(0, 10, 3), vec![3, 7, 10]);
+        assert!(integration_instants(0, 10, 0).is_empty());
+        assert_eq!(integration_instants(50, 50, 2), vec![50, 50]);
+        assert_eq!(integration_instants(50, 10, 2), vec![50, 50]);
+        let far = integration_instants(i64::MAX - 10, i64::MAX, 2);
+        assert_eq!(far, vec![i64::MAX - 5, i64::MAX]);
+    }
 }
