@@ -67,30 +67,42 @@ pub enum Split {
     Test,
 }
 
-/// What to generate.
-#[derive(Clone, Debug)]
+/// What to generate (the `neuspike dataset` arguments).
+#[derive(Clone, Debug, clap::Args)]
 pub struct DatasetOptions {
-    /// Output folder (created; must be empty or absent).
+    /// Output folder (must be empty or absent).
+    #[arg(long)]
     pub out: PathBuf,
-    /// Train or test.
+    /// Which set: train and test never share a texture.
+    #[arg(long, value_enum)]
     pub split: Split,
-    /// Samples per (light, speed) cell.
+    /// Samples per (light, speed) cell of the 5 x 5 grid.
+    #[arg(long, default_value_t = 40)]
     pub per_cell: usize,
     /// Side of a sample, pixels.
+    #[arg(long, default_value_t = 64)]
     pub size: usize,
-    /// Planes per window (the graph's `--window-planes`).
+    /// Planes per window (as align's --window-planes).
+    #[arg(long, default_value_t = 33)]
     pub window_planes: usize,
     /// Channels of each representation (the paper's N_c = 32).
+    #[arg(long, default_value_t = 32)]
     pub channels: usize,
-    /// Event integration decay, nanoseconds (represent's `--tau-ns`).
+    /// Event integration decay, nanoseconds (as represent's --tau-ns).
+    #[arg(long, default_value_t = 500_000.0)]
     pub tau_ns: f64,
     /// Spike plane rate, Hz.
+    #[arg(long, default_value_t = 20_000.0)]
     pub rate_hz: f64,
-    /// Folder of PNG photographs to use as textures (half of the samples), or none.
+    /// A folder of PNG photographs for textures (half the samples), e.g. one split of
+    /// training/prepare_textures.py.
+    #[arg(long)]
     pub textures: Option<PathBuf>,
-    /// Samples per shard.
+    /// Samples per .npy shard.
+    #[arg(long, default_value_t = 500)]
     pub shard: usize,
     /// Seed of every draw.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
 }
 

@@ -77,42 +77,7 @@ enum Command {
     /// speeds of small simulated scenes, each with the spike representation and the event
     /// integration of one window, its ground truth and the TFP/TFI baselines, as .npy shards
     /// (see training/README.md).
-    Dataset {
-        /// Output folder (must be empty or absent).
-        #[arg(long)]
-        out: PathBuf,
-        /// Which set: train and test never share a texture.
-        #[arg(long, value_enum)]
-        split: neuspike::dataset::Split,
-        /// Samples per (light, speed) cell of the 5 x 5 grid.
-        #[arg(long, default_value_t = 40)]
-        per_cell: usize,
-        /// Side of a sample, pixels.
-        #[arg(long, default_value_t = 64)]
-        size: usize,
-        /// Planes per window (as align's --window-planes).
-        #[arg(long, default_value_t = 33)]
-        window_planes: usize,
-        /// Channels of each representation.
-        #[arg(long, default_value_t = 32)]
-        channels: usize,
-        /// Event integration decay, nanoseconds (as represent's --tau-ns).
-        #[arg(long, default_value_t = 500_000.0)]
-        tau_ns: f64,
-        /// Spike plane rate, Hz.
-        #[arg(long, default_value_t = 20_000.0)]
-        rate_hz: f64,
-        /// A folder of PNG photographs for textures (half the samples), e.g. one split of
-        /// training/prepare_textures.py.
-        #[arg(long)]
-        textures: Option<PathBuf>,
-        /// Samples per .npy shard.
-        #[arg(long, default_value_t = 500)]
-        shard: usize,
-        /// Seed of every draw.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-    },
+    Dataset(neuspike::dataset::DatasetOptions),
     /// Time a learned model (ONNX) under tract at a frame size, on 1 and 2 threads (as the infer
     /// node runs it: shapes pinned, optimised once, padded to the network's stride).
     BenchModel {
@@ -276,32 +241,7 @@ fn main() -> eyre::Result<()> {
             );
             Ok(())
         }
-        Command::Dataset {
-            out,
-            split,
-            per_cell,
-            size,
-            window_planes,
-            channels,
-            tau_ns,
-            rate_hz,
-            textures,
-            shard,
-            seed,
-        } => {
-            let opts = neuspike::dataset::DatasetOptions {
-                out,
-                split,
-                per_cell,
-                size,
-                window_planes,
-                channels,
-                tau_ns,
-                rate_hz,
-                textures,
-                shard,
-                seed,
-            };
+        Command::Dataset(opts) => {
             let sum = neuspike::dataset::generate(&opts, true)?;
             println!(
                 "{}: {} samples ({} complex) in {} shards, {} photographs",

@@ -55,6 +55,27 @@ fn read_metrics(dir: &Path) -> Vec<Row> {
         .collect()
 }
 
+/// Groups the metrics by method, checks that every method wrote frames `0..n` (the same `n`
+/// for all), each scored with a finite PSNR, and returns `n` and the methods' mean PSNR and SSIM.
+fn per_method_means(rows: &[Row]) -> (usize, BTreeMap<&str, f64>, BTreeMap<&str, f64>) {
+    let mut per_method: BTreeMap<&str, Vec<&Row>> = BTreeMap::new();
+    for r in rows {
+        per_method.entry(r.method.as_str()).or_default().push(r);
+    }
+    let n = per_method.values().next().map_or(0, Vec::len);
+    let (mut psnr, mut ssim) = (BTreeMap::new(), BTreeMap::new());
+    for (m, rows) in &per_method {
+        let seqs: Vec<u64> = rows.iter().map(|r| r.seq).collect();
+        assert_eq!(seqs, (0..n as u64).collect::<Vec<_>>(), "method {m}");
+        let p: Vec<f64> = rows.iter().map(|r| r.psnr_db.expect("scored")).collect();
+        assert!(p.iter().all(|p| p.is_finite()), "method {m}: {p:?}");
+        psnr.insert(*m, p.iter().sum::<f64>() / p.len() as f64);
+        let s: f64 = rows.iter().map(|r| r.ssim.expect("ssim")).sum();
+        ssim.insert(*m, s / rows.len() as f64);
+    }
+    (n, psnr, ssim)
+}
+
 fn graph(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("graphs")
@@ -143,26 +164,12 @@ fn fusion_graph_runs_every_method_and_loses_nothing() {
     let out = tempfile::tempdir().expect("tempdir");
     run("fusion.yml", out.path(), &[]);
     let rows = read_metrics(out.path());
-    let mut per_method: BTreeMap<&str, Vec<&Row>> = BTreeMap::new();
-    for r in &rows {
-        per_method.entry(r.method.as_str()).or_default().push(r);
-    }
+    let (n, psnr, ssim) = per_method_means(&rows);
     assert_eq!(
-        per_method.keys().copied().collect::<Vec<_>>(),
+        psnr.keys().copied().collect::<Vec<_>>(),
         vec!["cf", "fusion", "hf", "tfi", "tfp"]
     );
-    let n = per_method["tfp"].len();
     assert!(n >= 40, "only {n} frames");
-    let (mut psnr, mut ssim) = (BTreeMap::new(), BTreeMap::new());
-    for (m, rows) in &per_method {
-        let seqs: Vec<u64> = rows.iter().map(|r| r.seq).collect();
-        assert_eq!(seqs, (0..n as u64).collect::<Vec<_>>(), "method {m}");
-        let p: Vec<f64> = rows.iter().map(|r| r.psnr_db.expect("scored")).collect();
-        assert!(p.iter().all(|p| p.is_finite()), "method {m}: {p:?}");
-        psnr.insert(*m, p.iter().sum::<f64>() / p.len() as f64);
-        let s: f64 = rows.iter().map(|r| r.ssim.expect("ssim")).sum();
-        ssim.insert(*m, s / rows.len() as f64);
-    }
     assert!(psnr["tfp"] > 30.0, "{psnr:?}");
     assert!(psnr["fusion"] >= psnr["tfi"] - 0.1, "{psnr:?}");
     for m in ["hf", "cf", "fusion", "tfi"] {
@@ -258,23 +265,8 @@ fn learned_graph_runs_the_network_and_beats_tfp_in_the_dark() {
     let out = tempfile::tempdir().expect("tempdir");
     run("learned.yml", out.path(), &[]);
     let rows = read_metrics(out.path());
-    let mut per_method: BTreeMap<&str, Vec<&Row>> = BTreeMap::new();
-    for r in &rows {
-        per_method.entry(r.method.as_str()).or_default().push(r);
-    }
-    assert_eq!(
-        per_method.keys().copied().collect::<Vec<_>>(),
-        vec!["learned", "tfp"]
-    );
-    let n = per_method["tfp"].len();
+    let (n, psnr, _) = per_method_means(&rows);
+    assert_eq!(psnr.keys().copied().collect::<Vec<_>>(), vec!["learned", "tfp"]);
     assert!(n >= 40, "only {n} frames");
-    let mut psnr = BTreeMap::new();
-    for (m, rows) in &per_method {
-        let seqs: Vec<u64> = rows.iter().map(|r| r.seq).collect();
-        assert_eq!(seqs, (0..n as u64).collect::<Vec<_>>(), "method {m}");
-        let p: Vec<f64> = rows.iter().map(|r| r.psnr_db.expect("scored")).collect();
-        assert!(p.iter().all(|p| p.is_finite()), "method {m}: {p:?}");
-        psnr.insert(*m, p.iter().sum::<f64>() / p.len() as f64);
-    }
     assert!(psnr["learned"] > psnr["tfp"] + 1.0, "{psnr:?}");
 }
