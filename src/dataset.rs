@@ -203,8 +203,13 @@ fn check(opts: &DatasetOptions) -> eyre::Result<()> {
 fn photos_in(dir: &Path) -> eyre::Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for entry in fs::read_dir(dir).wrap_err_with(|| format!("--textures {}", dir.display()))? {
-        let path = entry.wrap_err_with(|| format!("--textures {}", dir.display()))?.path();
-        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        let path = entry
+            .wrap_err_with(|| format!("--textures {}", dir.display()))?
+            .path();
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+        {
             out.push(path);
         }
     }
@@ -241,9 +246,15 @@ fn scene_yaml(
     let use_photo = !photos.is_empty() && rng.random_bool(0.5);
     let (texture, label) = if use_photo {
         let p = &photos[rng.random_range(0..photos.len())];
-        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
         (
-            format!("{{ kind: png, path: {:?}, contrast: {contrast} }}", p.display().to_string()),
+            format!(
+                "{{ kind: png, path: {:?}, contrast: {contrast} }}",
+                p.display().to_string()
+            ),
             name,
         )
     } else {
@@ -276,7 +287,11 @@ fn scene_yaml(
             Split::Train => 0,
             Split::Test => 1,
         };
-    let label = if use_photo { label } else { format!("{label}:{seed}") };
+    let label = if use_photo {
+        label
+    } else {
+        format!("{label}:{seed}")
+    };
     let yaml = format!(
         "width: {s}\nheight: {s}\nduration_ns: {duration_ns}\nseed: {seed}\nlight_scale: {light}\n\
          texture: {texture}\nmotion: {{ vx_px_s: {vx}, vy_px_s: {vy}, rotation_deg_s: {rotation} }}\n",
@@ -468,11 +483,26 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
             .collect::<eyre::Result<_>>()?;
         let dir = out.join(format!("{shard:03}"));
         fs::create_dir_all(&dir).wrap_err_with(|| format!("cannot create {}", dir.display()))?;
-        save(&dir.join("spike.npy"), &stack3(&samples.iter().map(|s| &s.spike).collect::<Vec<_>>()))?;
-        save(&dir.join("events.npy"), &stack3(&samples.iter().map(|s| &s.events).collect::<Vec<_>>()))?;
-        save(&dir.join("truth.npy"), &stack2(&samples.iter().map(|s| &s.truth).collect::<Vec<_>>()))?;
-        save(&dir.join("tfp.npy"), &stack2(&samples.iter().map(|s| &s.tfp).collect::<Vec<_>>()))?;
-        save(&dir.join("tfi.npy"), &stack2(&samples.iter().map(|s| &s.tfi).collect::<Vec<_>>()))?;
+        save(
+            &dir.join("spike.npy"),
+            &stack3(&samples.iter().map(|s| &s.spike).collect::<Vec<_>>()),
+        )?;
+        save(
+            &dir.join("events.npy"),
+            &stack3(&samples.iter().map(|s| &s.events).collect::<Vec<_>>()),
+        )?;
+        save(
+            &dir.join("truth.npy"),
+            &stack2(&samples.iter().map(|s| &s.truth).collect::<Vec<_>>()),
+        )?;
+        save(
+            &dir.join("tfp.npy"),
+            &stack2(&samples.iter().map(|s| &s.tfp).collect::<Vec<_>>()),
+        )?;
+        save(
+            &dir.join("tfi.npy"),
+            &stack2(&samples.iter().map(|s| &s.tfi).collect::<Vec<_>>()),
+        )?;
         for (i, s) in (start..end).zip(&samples) {
             let f = &s.info;
             writeln!(
@@ -493,7 +523,8 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         summary.samples += samples.len();
         summary.shards += 1;
     }
-    csv.flush().wrap_err_with(|| format!("cannot write {}", csv_path.display()))?;
+    csv.flush()
+        .wrap_err_with(|| format!("cannot write {}", csv_path.display()))?;
     if let Some(bar) = bar {
         bar.finish_and_clear();
     }
@@ -555,7 +586,12 @@ mod tests {
         assert_eq!(a.info, b.info);
         assert_eq!(a.spike.dim(), (32, 16, 16));
         // Channel 0 is 1/ISI in (0, 1]; the raw planes are 0 or 1 and the window has spikes.
-        assert!(a.spike.index_axis(Axis(0), 0).iter().all(|&v| v > 0.0 && v <= 1.0));
+        assert!(
+            a.spike
+                .index_axis(Axis(0), 0)
+                .iter()
+                .all(|&v| v > 0.0 && v <= 1.0)
+        );
         let raw = a.spike.slice(ndarray::s![1.., .., ..]);
         assert!(raw.iter().all(|&v| v == 0.0 || v == 1.0));
         assert!(raw.iter().any(|&v| v == 1.0));
@@ -582,12 +618,20 @@ mod tests {
             train.insert(sample(&tr, &[], i, l, s).expect("train").info.texture);
             let t = sample(&te, &[], i, l, s).expect("test").info.texture;
             // Parametric generators are for training only.
-            assert!(!t.starts_with("grating") && !t.starts_with("checkerboard"), "{t}");
+            assert!(
+                !t.starts_with("grating") && !t.starts_with("checkerboard"),
+                "{t}"
+            );
             test.insert(t);
         }
         assert!(train.is_disjoint(&test));
         // Seeds: even for train, odd for test.
-        let odd = |t: &String| t.rsplit(':').next().and_then(|s| s.parse::<u64>().ok()).map(|s| s % 2);
+        let odd = |t: &String| {
+            t.rsplit(':')
+                .next()
+                .and_then(|s| s.parse::<u64>().ok())
+                .map(|s| s % 2)
+        };
         assert!(train.iter().filter_map(odd).all(|p| p == 0));
         assert!(test.iter().filter_map(odd).all(|p| p == 1));
     }
@@ -606,15 +650,43 @@ mod tests {
         assert_eq!(spike.dim(), (5, 32, 16, 16));
         let truth: Array3<f32> = ndarray_npy::read_npy(o.out.join("000/truth.npy")).expect("npy");
         assert_eq!(truth.dim(), (10, 16, 16));
-        assert!(fs::read_to_string(o.out.join("dataset.yml")).expect("yml").contains("samples: 25"));
+        assert!(
+            fs::read_to_string(o.out.join("dataset.yml"))
+                .expect("yml")
+                .contains("samples: 25")
+        );
         // Not into a folder that holds something.
         let err = generate(&o, false).expect_err("not empty").to_string();
         assert!(err.contains("not empty"), "{err}");
         for (bad, name) in [
-            (DatasetOptions { per_cell: 0, ..o.clone() }, "--per-cell"),
-            (DatasetOptions { size: 4, ..o.clone() }, "--size"),
-            (DatasetOptions { window_planes: 10, ..o.clone() }, "--window-planes"),
-            (DatasetOptions { tau_ns: f64::NAN, ..o.clone() }, "--tau-ns"),
+            (
+                DatasetOptions {
+                    per_cell: 0,
+                    ..o.clone()
+                },
+                "--per-cell",
+            ),
+            (
+                DatasetOptions {
+                    size: 4,
+                    ..o.clone()
+                },
+                "--size",
+            ),
+            (
+                DatasetOptions {
+                    window_planes: 10,
+                    ..o.clone()
+                },
+                "--window-planes",
+            ),
+            (
+                DatasetOptions {
+                    tau_ns: f64::NAN,
+                    ..o.clone()
+                },
+                "--tau-ns",
+            ),
         ] {
             let err = generate(&bad, false).expect_err(name).to_string();
             assert!(err.contains(name), "{name}: {err}");

@@ -266,7 +266,10 @@ fn learned_graph_runs_the_network_and_beats_tfp_in_the_dark() {
     run("learned.yml", out.path(), &[]);
     let rows = read_metrics(out.path());
     let (n, psnr, _) = per_method_means(&rows);
-    assert_eq!(psnr.keys().copied().collect::<Vec<_>>(), vec!["learned", "tfp"]);
+    assert_eq!(
+        psnr.keys().copied().collect::<Vec<_>>(),
+        vec!["learned", "tfp"]
+    );
     assert!(n >= 40, "only {n} frames");
     assert!(psnr["learned"] > psnr["tfp"] + 1.0, "{psnr:?}");
 }

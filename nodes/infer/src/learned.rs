@@ -93,13 +93,19 @@ impl LearnedModel {
     /// # Errors
     /// [`InferError::Model`] naming the file and the problem.
     pub fn load(path: &Path) -> Result<LearnedModel, InferError> {
-        let bytes = std::fs::read(path).map_err(|e| model_error(path, format!("cannot read: {e}")))?;
+        let bytes =
+            std::fs::read(path).map_err(|e| model_error(path, format!("cannot read: {e}")))?;
         let model = tract_onnx::onnx()
             .model_for_read(&mut bytes.as_slice())
             .map_err(|e| model_error(path, format!("not a readable ONNX model: {}", chain(&e))))?;
         let mut inputs = Vec::new();
         let mut channels = Vec::new();
-        for (i, outlet) in model.input_outlets().map_err(|e| model_error(path, chain(&e)))?.iter().enumerate() {
+        for (i, outlet) in model
+            .input_outlets()
+            .map_err(|e| model_error(path, chain(&e)))?
+            .iter()
+            .enumerate()
+        {
             let name = &model.node(outlet.node).name;
             let input = match name.as_str() {
                 "spike" => LearnedInput::Spike,
@@ -107,11 +113,15 @@ impl LearnedModel {
                 other => {
                     return Err(model_error(
                         path,
-                        format!("input {i} is `{other}`; a NeuSpike-Net reads `spike` and/or `events`"),
+                        format!(
+                            "input {i} is `{other}`; a NeuSpike-Net reads `spike` and/or `events`"
+                        ),
                     ));
                 }
             };
-            let fact = model.input_fact(i).map_err(|e| model_error(path, chain(&e)))?;
+            let fact = model
+                .input_fact(i)
+                .map_err(|e| model_error(path, chain(&e)))?;
             let c = fact
                 .shape
                 .dims()
@@ -121,7 +131,10 @@ impl LearnedModel {
                 .and_then(|d| usize::try_from(d).ok())
                 .filter(|_| fact.shape.rank().concretize() == Some(4))
                 .ok_or_else(|| {
-                    model_error(path, format!("input `{name}` is {fact:?}, not [1, C, H, W] with a fixed C"))
+                    model_error(
+                        path,
+                        format!("input `{name}` is {fact:?}, not [1, C, H, W] with a fixed C"),
+                    )
                 })?;
             if inputs.contains(&input) {
                 return Err(model_error(path, format!("input `{name}` appears twice")));
@@ -132,9 +145,15 @@ impl LearnedModel {
         if inputs.is_empty() {
             return Err(model_error(path, "the model has no inputs"));
         }
-        let outputs = model.output_outlets().map_err(|e| model_error(path, chain(&e)))?.len();
+        let outputs = model
+            .output_outlets()
+            .map_err(|e| model_error(path, chain(&e)))?
+            .len();
         if outputs != 1 {
-            return Err(model_error(path, format!("{outputs} outputs; a NeuSpike-Net has one (`rate`)")));
+            return Err(model_error(
+                path,
+                format!("{outputs} outputs; a NeuSpike-Net has one (`rate`)"),
+            ));
         }
         Ok(LearnedModel {
             path: path.to_path_buf(),
@@ -176,7 +195,12 @@ impl LearnedModel {
         let plan = model
             .into_optimized()
             .and_then(|m| m.into_runnable())
-            .map_err(|e| model_error(&self.path, format!("cannot be planned at {h}x{w}: {}", chain(&e))))?;
+            .map_err(|e| {
+                model_error(
+                    &self.path,
+                    format!("cannot be planned at {h}x{w}: {}", chain(&e)),
+                )
+            })?;
         self.plan = Some(((h, w), plan.clone()));
         Ok(plan)
     }
@@ -191,7 +215,11 @@ impl LearnedModel {
         if xs.len() != self.inputs.len() {
             return Err(model_error(
                 &self.path,
-                format!("{} representations given, the network reads {}", xs.len(), self.inputs.len()),
+                format!(
+                    "{} representations given, the network reads {}",
+                    xs.len(),
+                    self.inputs.len()
+                ),
             ));
         }
         let (_, h, w) = xs[0].dim();
@@ -217,7 +245,8 @@ impl LearnedModel {
         for x in xs {
             let padded = pad_edge(*x, hp, wp);
             let c = x.dim().0;
-            let t = Tensor::from_shape(&[1, c, hp, wp], &padded).map_err(|e| model_error(&self.path, chain(&e)))?;
+            let t = Tensor::from_shape(&[1, c, hp, wp], &padded)
+                .map_err(|e| model_error(&self.path, chain(&e)))?;
             values.push(t.into_tvalue());
         }
         let out = plan

@@ -18,7 +18,8 @@ use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::Axis;
 use neuspike_infer::learned::LearnedModel;
 use neuspike_infer::{
-    EventSlice, Method, Online, OnlineParams, SpikeInput, ThetaMode, Window, luminance_from_rate_into,
+    EventSlice, Method, Online, OnlineParams, SpikeInput, ThetaMode, Window,
+    luminance_from_rate_into,
 };
 use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
@@ -146,7 +147,9 @@ impl Args {
     /// small frame so that a network tract cannot run fails now, not at the first window.
     fn load_model(&self, has: &dyn Fn(&str) -> bool) -> eyre::Result<LearnedModel> {
         let Some(path) = &self.model else {
-            eyre::bail!("infer: method `learned` needs `--model FILE` (an ONNX network, e.g. models/neuspike-fused-8.onnx)");
+            eyre::bail!(
+                "infer: method `learned` needs `--model FILE` (an ONNX network, e.g. models/neuspike-fused-8.onnx)"
+            );
         };
         let mut model = LearnedModel::load(path).map_err(|e| eyre::eyre!("infer: {e}"))?;
         for i in model.inputs() {
@@ -270,7 +273,9 @@ impl Reconstructor {
             Engine::Online(online) => {
                 let method = match self.method {
                     NodeMethod::Classical(m) => m,
-                    NodeMethod::Learned => eyre::bail!("infer: internal: learned method without a model"),
+                    NodeMethod::Learned => {
+                        eyre::bail!("infer: internal: learned method without a model")
+                    }
                 };
                 classical(online, method, self.args_lum_per_rate, seq, p)?
             }
@@ -314,8 +319,8 @@ fn classical(
         })
     });
     let spikes = spikes.transpose()?;
-    let lum_per_rate = args_lum_per_rate
-        .or_else(|| rep.and_then(|r| r.params.get("lum_per_rate").copied()));
+    let lum_per_rate =
+        args_lum_per_rate.or_else(|| rep.and_then(|r| r.params.get("lum_per_rate").copied()));
     let events = p.events.as_ref().map(|b| {
         (
             EventSlice {
@@ -416,7 +421,11 @@ fn run(
             } else {
                 vec!["representation"]
             };
-            (Engine::Online(Online::new(m, args.online())?), ids, needs.events)
+            (
+                Engine::Online(Online::new(m, args.online())?),
+                ids,
+                needs.events,
+            )
         }
         (NodeMethod::Learned, Some(model)) => {
             let ids = model.inputs().iter().map(|i| i.input_id()).collect();
@@ -737,10 +746,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut c = CannedInputs::new(dir.path());
         // Window 0's two representations arrive in either order; window 1 is spike first.
-        c.message("event_integration", &pattern("event-integration", 0)).unwrap();
+        c.message("event_integration", &pattern("event-integration", 0))
+            .unwrap();
         c.message("spike_repr", &pattern("spike-repr", 0)).unwrap();
         c.message("spike_repr", &pattern("spike-repr", 1)).unwrap();
-        c.message("event_integration", &pattern("event-integration", 1)).unwrap();
+        c.message("event_integration", &pattern("event-integration", 1))
+            .unwrap();
         c.end::<Representation>("spike_repr", 2).unwrap();
         c.end::<Representation>("event_integration", 2).unwrap();
         let inputs = ["spike_repr".to_string(), "event_integration".to_string()];
@@ -765,8 +776,10 @@ mod tests {
     fn learned_refuses_a_representation_on_the_wrong_input() {
         let dir = tempfile::tempdir().unwrap();
         let mut c = CannedInputs::new(dir.path());
-        c.message("spike_repr", &pattern("event-integration", 0)).unwrap();
-        c.message("event_integration", &pattern("event-integration", 0)).unwrap();
+        c.message("spike_repr", &pattern("event-integration", 0))
+            .unwrap();
+        c.message("event_integration", &pattern("event-integration", 0))
+            .unwrap();
         let inputs = ["spike_repr".to_string(), "event_integration".to_string()];
         let a = learned_args(fused_model());
         let model = a.check(&inputs).unwrap();
@@ -775,7 +788,9 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            err.contains("`spike_repr`") && err.contains("`event-integration`") && err.contains("reads `spike-repr`"),
+            err.contains("`spike_repr`")
+                && err.contains("`event-integration`")
+                && err.contains("reads `spike-repr`"),
             "{err}"
         );
     }
@@ -793,17 +808,26 @@ mod tests {
             .check(&both)
             .unwrap_err()
             .to_string();
-        assert!(err.contains("/nonexistent/net.onnx") && err.contains("cannot read"), "{err}");
+        assert!(
+            err.contains("/nonexistent/net.onnx") && err.contains("cannot read"),
+            "{err}"
+        );
         // A graph that does not feed an input the model reads.
         let err = learned_args(fused_model())
             .check(&["spike_repr".to_string()])
             .unwrap_err()
             .to_string();
-        assert!(err.contains("connect an input `event_integration`"), "{err}");
+        assert!(
+            err.contains("connect an input `event_integration`"),
+            "{err}"
+        );
         // --model with a classical method.
         let mut a = args(Method::Tfp);
         a.model = Some(fused_model());
-        let err = a.check(&["representation".to_string()]).unwrap_err().to_string();
+        let err = a
+            .check(&["representation".to_string()])
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("`--model` is for `--method learned`"), "{err}");
         // And the method names: learned is accepted, the list of names says so.
         assert_eq!(parse_method("learned"), Ok(NodeMethod::Learned));

@@ -33,7 +33,11 @@ fn reference(model: &Path, name: &str) -> Array4<f32> {
 #[test]
 fn every_shipped_model_reproduces_its_pytorch_reference() {
     let models = shipped();
-    assert!(!models.is_empty(), "no models in {}", models_dir().display());
+    assert!(
+        !models.is_empty(),
+        "no models in {}",
+        models_dir().display()
+    );
     for path in models {
         let mut model = LearnedModel::load(&path).expect("load");
         let inputs: Vec<Array4<f32>> = model
@@ -44,16 +48,27 @@ fn every_shipped_model_reproduces_its_pytorch_reference() {
         let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
         let want = reference(&path, "rate");
         let got = model.run(&views).expect("run");
-        assert_eq!(got.dim(), (want.shape()[2], want.shape()[3]), "{}", path.display());
+        assert_eq!(
+            got.dim(),
+            (want.shape()[2], want.shape()[3]),
+            "{}",
+            path.display()
+        );
         let diff = got
             .iter()
             .zip(want.iter())
             .map(|(a, b)| (a - b).abs())
             .fold(0.0f32, f32::max);
-        assert!(diff < 1e-4, "{}: tract differs from PyTorch by {diff}", path.display());
+        assert!(
+            diff < 1e-4,
+            "{}: tract differs from PyTorch by {diff}",
+            path.display()
+        );
         // The rates are rates: in [0, 1], and not all the same.
         assert!(got.iter().all(|r| (0.0..=1.0).contains(r)));
-        let (lo, hi) = got.iter().fold((1.0f32, 0.0f32), |(l, h), &r| (l.min(r), h.max(r)));
+        let (lo, hi) = got
+            .iter()
+            .fold((1.0f32, 0.0f32), |(l, h), &r| (l.min(r), h.max(r)));
         assert!(hi - lo > 1e-3, "{}: a flat output", path.display());
     }
 }
@@ -62,8 +77,11 @@ fn every_shipped_model_reproduces_its_pytorch_reference() {
 fn sizes_that_are_not_multiples_of_the_stride_are_padded_and_cropped() {
     let path = &shipped()[0];
     let mut model = LearnedModel::load(path).expect("load");
-    let inputs: Vec<Array4<f32>> =
-        model.inputs().iter().map(|i| reference(path, i.onnx_name())).collect();
+    let inputs: Vec<Array4<f32>> = model
+        .inputs()
+        .iter()
+        .map(|i| reference(path, i.onnx_name()))
+        .collect();
     // 13 x 21 of the 16 x 24 reference: the network sees it padded back to 16 x 24 by repeating
     // the last row and column, so the output is that of the padded input, cropped.
     let cut: Vec<Array3<f32>> = inputs
@@ -90,7 +108,10 @@ fn sizes_that_are_not_multiples_of_the_stride_are_padded_and_cropped() {
         .fold(0.0f32, f32::max);
     assert!(diff < 1e-6, "crop differs by {diff}");
     // A second size replans, and going back still works.
-    let small: Vec<Array3<f32>> = inputs.iter().map(|a| a.slice(s![0, .., ..8, ..8]).to_owned()).collect();
+    let small: Vec<Array3<f32>> = inputs
+        .iter()
+        .map(|a| a.slice(s![0, .., ..8, ..8]).to_owned())
+        .collect();
     let views: Vec<ArrayView3<f32>> = small.iter().map(|a| a.view()).collect();
     assert_eq!(model.run(&views).expect("8x8").dim(), (8, 8));
     assert_eq!(STRIDE, 8);
@@ -157,7 +178,10 @@ fn a_model_whose_inputs_are_not_the_representations_is_refused() {
     std::fs::write(&p, proto.encode_to_vec()).expect("write");
     let (path, reason) = model_error(LearnedModel::load(&p).expect_err("renamed"));
     assert_eq!(path, p);
-    assert!(reason.contains("`voxels`") && reason.contains("spike"), "{reason}");
+    assert!(
+        reason.contains("`voxels`") && reason.contains("spike"),
+        "{reason}"
+    );
 }
 
 #[test]
@@ -170,7 +194,10 @@ fn representations_of_the_wrong_shape_are_refused_before_running() {
     let x = Array3::<f32>::zeros((c + 1, 16, 16));
     let views: Vec<ArrayView3<f32>> = (0..n).map(|_| x.view()).collect();
     let (_, reason) = model_error(model.run(&views).expect_err("channels"));
-    assert!(reason.contains(&format!("[{}, 16, 16]", c + 1)) || reason.contains("shape"), "{reason}");
+    assert!(
+        reason.contains(&format!("[{}, 16, 16]", c + 1)) || reason.contains("shape"),
+        "{reason}"
+    );
     // Too few inputs.
     let ok = Array3::<f32>::zeros((c, 16, 16));
     if n > 1 {
@@ -181,7 +208,10 @@ fn representations_of_the_wrong_shape_are_refused_before_running() {
     if n > 1 {
         let other = Array3::<f32>::zeros((model.channels()[1], 16, 24));
         let (_, reason) = model_error(model.run(&[ok.view(), other.view()]).expect_err("sizes"));
-        assert!(reason.contains("[32, 16, 24]") || reason.contains("wants"), "{reason}");
+        assert!(
+            reason.contains("[32, 16, 24]") || reason.contains("wants"),
+            "{reason}"
+        );
     }
     // The inputs name the representations the represent node makes.
     for i in model.inputs() {

@@ -7,8 +7,8 @@ use std::collections::BTreeMap;
 use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::{Array2, Array3, Axis};
 use neuspike_represent::{
-    EventSlice, event_integration_into, integration_instants, isi_packed_into, spike_representation_packed_into,
-    tfp_packed_into,
+    EventSlice, event_integration_into, integration_instants, isi_packed_into,
+    spike_representation_packed_into, tfp_packed_into,
 };
 use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
