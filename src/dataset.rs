@@ -33,7 +33,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use eyre::{WrapErr, bail, eyre};
-use ndarray::{Array2, Array3, Array4, Axis};
+use ndarray::{Array2, Array3, Axis};
 use ndarray_npy::write_npy;
 use neuspike_event_source::{DvsConfig, EventCamera};
 use neuspike_infer::{luminance_from_isi_into, luminance_from_rate_into};
@@ -407,23 +407,15 @@ pub fn cell_of(index: usize) -> (f64, f64) {
     )
 }
 
-/// Stacks samples along a new first axis.
-fn stack3(items: &[&Array3<f32>]) -> Array4<f32> {
-    let (c, h, w) = items.first().map_or((0, 0, 0), |a| a.dim());
-    let mut out = Array4::<f32>::zeros((items.len(), c, h, w));
-    for (mut dst, src) in out.axis_iter_mut(Axis(0)).zip(items) {
-        dst.assign(src);
-    }
-    out
-}
-
-fn stack2(items: &[&Array2<f32>]) -> Array3<f32> {
-    let (h, w) = items.first().map_or((0, 0), |a| a.dim());
-    let mut out = Array3::<f32>::zeros((items.len(), h, w));
-    for (mut dst, src) in out.axis_iter_mut(Axis(0)).zip(items) {
-        dst.assign(src);
-    }
-    out
+/// Stacks one array of every sample along a new first axis and writes it.
+fn save_stacked<D>(path: &Path, items: &[ndarray::ArrayView<f32, D>]) -> eyre::Result<()>
+where
+    D: ndarray::Dimension,
+    D::Larger: ndarray::RemoveAxis,
+{
+    let stacked = ndarray::stack(Axis(0), items)
+        .wrap_err_with(|| format!("cannot stack the samples of {}", path.display()))?;
+    save(path, &stacked)
 }
 
 fn save<A: ndarray_npy::WritableElement, D: ndarray::Dimension>(
@@ -483,26 +475,23 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
             .collect::<eyre::Result<_>>()?;
         let dir = out.join(format!("{shard:03}"));
         fs::create_dir_all(&dir).wrap_err_with(|| format!("cannot create {}", dir.display()))?;
-        save(
+        let views = |f: fn(&Sample) -> ndarray::ArrayViewD<'_, f32>| {
+            samples.iter().map(f).collect::<Vec<_>>()
+        };
+        save_stacked(
             &dir.join("spike.npy"),
-            &stack3(&samples.iter().map(|s| &s.spike).collect::<Vec<_>>()),
+            &views(|s| s.spike.view().into_dyn()),
         )?;
-        save(
+        save_stacked(
             &dir.join("events.npy"),
-            &stack3(&samples.iter().map(|s| &s.events).collect::<Vec<_>>()),
+            &views(|s| s.events.view().into_dyn()),
         )?;
-        save(
+        save_stacked(
             &dir.join("truth.npy"),
-            &stack2(&samples.iter().map(|s| &s.truth).collect::<Vec<_>>()),
+            &views(|s| s.truth.view().into_dyn()),
         )?;
-        save(
-            &dir.join("tfp.npy"),
-            &stack2(&samples.iter().map(|s| &s.tfp).collect::<Vec<_>>()),
-        )?;
-        save(
-            &dir.join("tfi.npy"),
-            &stack2(&samples.iter().map(|s| &s.tfi).collect::<Vec<_>>()),
-        )?;
+        save_stacked(&dir.join("tfp.npy"), &views(|s| s.tfp.view().into_dyn()))?;
+        save_stacked(&dir.join("tfi.npy"), &views(|s| s.tfi.view().into_dyn()))?;
         for (i, s) in (start..end).zip(&samples) {
             let f = &s.info;
             writeln!(
