@@ -245,8 +245,10 @@ impl LearnedModel {
         for x in xs {
             let padded = pad_edge(*x, hp, wp);
             let c = x.dim().0;
-            let t = Tensor::from_shape(&[1, c, hp, wp], &padded)
-                .map_err(|e| model_error(&self.path, chain(&e)))?;
+            // The padded buffer becomes the tensor's storage: no second copy.
+            let t = tract_ndarray::Array4::from_shape_vec((1, c, hp, wp), padded)
+                .map_err(|e| model_error(&self.path, e))?
+                .into_tensor();
             values.push(t.into_tvalue());
         }
         let out = plan
