@@ -95,6 +95,13 @@ enum Command {
         /// Timed runs per thread count.
         #[arg(long, default_value_t = 10)]
         runs: usize,
+        /// Also print the time per operator kind (median of the runs, on the last thread count).
+        #[arg(long)]
+        profile: bool,
+        /// How tract runs the convolutions: auto (as the infer node: time both, keep the
+        /// faster), direct or im2col.
+        #[arg(long, default_value = "auto")]
+        conv: neuspike_infer::learned::ConvPath,
     },
     /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the
     /// output folder (`graph.yml`), e.g. `neuspike reconstruct --spikes car.dat --out out/car`.
@@ -182,6 +189,11 @@ fn settings<P: Parser>(what: &str, args: &str) -> eyre::Result<P> {
     P::try_parse_from(args.split_whitespace()).map_err(|e| eyre::eyre!("{what}: {e}"))
 }
 
+/// The infer node's allocator (see nodes/infer/src/main.rs), so that `bench-model` times the
+/// network as the node runs it.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn main() -> eyre::Result<()> {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,neuspike=info"));
@@ -259,14 +271,32 @@ fn main() -> eyre::Result<()> {
             width,
             threads,
             runs,
+            profile,
+            conv,
         } => {
-            let t = neuspike::bench_model::time_model(&model, height, width, &threads, runs)?;
+            let t = neuspike::bench_model::time_model(&model, height, width, &threads, runs, conv)?;
             println!("{}: {height}x{width}", model.display());
             for x in t {
                 println!(
-                    "threads {}: median {:.2} ms, min {:.2} ms ({} runs)",
-                    x.threads, x.median_ms, x.min_ms, x.runs
+                    "threads {}: median {:.2} ms, min {:.2} ms ({} runs, {} convolutions)",
+                    x.threads, x.median_ms, x.min_ms, x.runs, x.conv
                 );
+            }
+            if profile {
+                let n = threads.last().copied().unwrap_or(1);
+                let p = neuspike::bench_model::profile_model(&model, height, width, n, runs, conv)?;
+                let total = p.total_ms().max(f64::MIN_POSITIVE);
+                println!("per operator, {n} thread(s), median of {runs} runs (sum {total:.2} ms):");
+                for (op, ms, k) in p.by_op() {
+                    println!(
+                        "  {op:<28} {ms:>9.2} ms {:>5.1}%  {k} nodes",
+                        100.0 * ms / total
+                    );
+                }
+                println!("slowest nodes:");
+                for t in p.slowest(12) {
+                    println!("  {:<48} {:<22} {:>8.2} ms", t.node, t.op, t.ms);
+                }
             }
             Ok(())
         }

@@ -22,6 +22,12 @@ class Split:
     def __len__(self) -> int:
         return self.spike.shape[0]
 
+    def to(self, device: torch.device) -> "Split":
+        """The tensors on `device` (a GPU holds the whole set: no copy per step)."""
+        for name in ("spike", "events", "truth", "lum_per_rate"):
+            setattr(self, name, getattr(self, name).to(device))
+        return self
+
     def inputs(self, names: list[str], idx) -> list[torch.Tensor]:
         return [getattr(self, n)[idx].float() for n in names]
 

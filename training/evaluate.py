@@ -3,8 +3,8 @@ into normal and complex (dark or fast) scenes, with REFERENCE.md's PSNR and SSIM
 
     python training/evaluate.py --test data/test runs/fused-8.pt runs/spike-8.pt --json eval.json
 
-Each model's rate is turned into luminance with the sample's calibration (`lum_per_rate`) and
-clipped to [0, 1], exactly as the infer node does; TFP (whole window) and TFI come from the set.
+Each model's rate is turned into luminance with the sample's calibration (`lum_per_rate`; an
+event-only model predicts luminance itself) and clipped to [0, 1], exactly as the infer node does; TFP (whole window) and TFI come from the set.
 """
 
 import argparse
@@ -28,13 +28,13 @@ def load_model(path: pathlib.Path) -> tuple[NeuSpikeNet, dict]:
 
 @torch.no_grad()
 def predict(model: NeuSpikeNet, split: data.Split, batch: int = 32) -> np.ndarray:
-    out = []
+    frames = []
     for i in range(0, len(split), batch):
         idx = torch.arange(i, min(i + batch, len(split)))
-        rate = model(*split.inputs(model.inputs(), idx))
-        lum = (rate * split.lum_per_rate[idx][:, None, None, None]).clamp(0, 1)
-        out.append(lum[:, 0].numpy())
-    return np.concatenate(out)
+        out = model(*split.inputs(model.inputs(), idx))
+        lum = (out * model.gain(split.lum_per_rate[idx])).clamp(0, 1)
+        frames.append(lum[:, 0].numpy())
+    return np.concatenate(frames)
 
 
 def score(frames: np.ndarray, split: data.Split) -> dict:

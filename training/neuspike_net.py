@@ -12,10 +12,13 @@ camera's texture with the event camera's motion.
   convolutions) each taking its scale's skip connection, then a depthwise convolution, a 1x1
   convolution and a sigmoid.
 
-The output is the spike camera's firing rate (spikes per tick, in [0, 1]), not luminance: the rate
-is what the inputs can tell, and `luminance = rate * phi / light_scale` is the camera's
-calibration, applied by the infer node (`lum_per_rate`) exactly as for TFP. Inputs need heights and
-widths that are multiples of 8 (`STRIDE`); the infer node pads.
+The output of a model that reads spikes is the spike camera's firing rate (spikes per tick, in
+[0, 1]), not luminance: the rate is what the inputs can tell, and `luminance = rate * phi /
+light_scale` is the camera's calibration, applied by the infer node (`lum_per_rate`) exactly as for
+TFP. Events carry no absolute level (only log-intensity changes, whatever the light), so the
+event-only model cannot know that calibration: it predicts luminance itself. `output` names which
+(`rate` or `luminance`); the ONNX output carries that name and the infer node reads it. Inputs need
+heights and widths that are multiples of 8 (`STRIDE`); the infer node pads.
 
 `mode` builds the paper's Table 2 ablations with the same blocks: `fused` (both paths),
 `spike` (texture path alone) and `event` (motion path alone).
@@ -117,14 +120,15 @@ class Residual(nn.Module):
 
 
 class NeuSpikeNet(nn.Module):
-    """`forward(spike, events)` -> firing rate `[B, 1, H, W]`; an ablation ignores the input it
-    does not use (it is not even an input of its ONNX export)."""
+    """`forward(spike, events)` -> firing rate (or, event-only, luminance) `[B, 1, H, W]`; an
+    ablation ignores the input it does not use (it is not even an input of its ONNX export)."""
 
     def __init__(self, base: int = 16, channels: int = 32, mode: str = "fused"):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
         self.mode, self.base, self.channels = mode, base, channels
+        self.output = "luminance" if mode == "event" else "rate"
         paths = 2 if mode == "fused" else 1
         self.encoders = nn.ModuleList(Encoder(channels, base) for _ in range(paths))
         # One fusion module per encoder scale (the head's scale included, for the last skip).
@@ -138,9 +142,15 @@ class NeuSpikeNet(nn.Module):
         self.merge = nn.ModuleList(conv(2 * (base << i), base << i) for i in reversed(range(ENCODER_LAYERS)))
         self.depthwise = nn.Conv2d(base, base, 3, padding=1, groups=base)
         self.out = nn.Conv2d(base, 1, 1)
-        # Start dim (rate 0.02 a tick): a dark sample's calibration multiplies the rate by up to
-        # 20, and starting at 0.5 sent its first gradients so far that the sigmoid saturated at 0.
-        nn.init.constant_(self.out.bias, -4.0)
+        # A rate starts dim (0.02 a tick): a dark sample's calibration multiplies the rate by up
+        # to 20, and starting at 0.5 sent its first gradients so far that the sigmoid saturated
+        # at 0. Luminance has no gain and starts at mid-grey.
+        nn.init.constant_(self.out.bias, -4.0 if self.output == "rate" else 0.0)
+
+    def gain(self, lum_per_rate: torch.Tensor) -> torch.Tensor:
+        """What turns the output into luminance, per sample `[B, 1, 1, 1]`."""
+        g = lum_per_rate if self.output == "rate" else torch.ones_like(lum_per_rate)
+        return g[:, None, None, None]
 
     def inputs(self) -> list[str]:
         return {"fused": ["spike", "events"], "spike": ["spike"], "event": ["events"]}[self.mode]

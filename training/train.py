@@ -74,7 +74,7 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    train = data.load(args.train)
+    train = data.load(args.train).to(device)
     model = NeuSpikeNet(base=args.base, channels=train.spike.shape[1], mode=args.mode).to(device)
     names = model.inputs()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
@@ -87,10 +87,10 @@ def main() -> None:
     start, log_every, running = time.monotonic(), max(args.steps // 40, 1), 0.0
     model.train()
     for step in range(args.steps):
-        idx = torch.from_numpy(rng.integers(0, len(train), args.batch))
+        idx = torch.from_numpy(rng.integers(0, len(train), args.batch)).to(device)
         xs = [x.to(device) for x in train.inputs(names, idx)]
         truth = train.truth[idx].to(device)
-        gain = train.lum_per_rate[idx].to(device)[:, None, None, None]
+        gain = model.gain(train.lum_per_rate[idx])
         *xs, truth = augment([*xs, truth], int(rng.integers(0, 8)))
         lum = model(*xs) * gain
         loss = F.mse_loss(lum, truth)

@@ -3,12 +3,14 @@
 //!
 //! A model reads one or both of the network's representations by input name: `spike` (the
 //! spike representation, represent's `spike-repr`) and `events` (the event integration,
-//! represent's `event-integration`), each `[1, C, H, W]` float32, and writes `rate`
-//! (`[1, 1, H, W]`, spikes per tick). [`LearnedModel::load`] reads and checks the file once;
-//! [`LearnedModel::run`] pins the input shapes to the frame's size padded up to [`STRIDE`],
-//! optimises and keeps that plan until the size changes, pads each input by repeating its last
-//! row and column, runs, and crops the rate back. The infer node turns the rate into luminance
-//! with the camera's calibration, as it does TFP's rate.
+//! represent's `event-integration`), each `[1, C, H, W]` float32, and writes one image
+//! `[1, 1, H, W]` whose name is its unit ([`LearnedOutput`]): `rate` (spikes per tick, for
+//! networks that read spikes) or `luminance` (the event-only network: events carry no absolute
+//! level, so it cannot use the camera's calibration). [`LearnedModel::load`] reads and checks the
+//! file once; [`LearnedModel::run`] pins the input shapes to the frame's size padded up to
+//! [`STRIDE`], optimises and keeps that plan until the size changes, pads each input by repeating
+//! its last row and column, runs, and crops the image back. The infer node turns a rate into
+//! luminance with the camera's calibration, as it does TFP's rate.
 //!
 //! Every failure is an [`InferError::Model`] naming the file and what is wrong: a missing,
 //! unreadable or corrupt file, inputs the network does not know, a representation of the wrong
@@ -62,7 +64,81 @@ impl LearnedInput {
     }
 }
 
+/// What the network's one output is, by its ONNX name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LearnedOutput {
+    /// `rate`: spikes per tick; luminance is `rate * lum_per_rate`.
+    Rate,
+    /// `luminance`: already in [0, 1] units of the scene.
+    Luminance,
+}
+
+impl LearnedOutput {
+    /// The ONNX output name.
+    pub fn onnx_name(self) -> &'static str {
+        match self {
+            LearnedOutput::Rate => "rate",
+            LearnedOutput::Luminance => "luminance",
+        }
+    }
+}
+
 type Plan = Arc<TypedRunnableModel>;
+
+/// How tract computes the network's spatial convolutions. Measured at 256x400 on one thread
+/// (`neuspike bench-model --conv`): the direct convolution was faster for base width 8 and im2col
+/// with a matrix product faster for base 24 (563 against 757 ms), so the default measures both
+/// on the first frame of each size and keeps the faster.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ConvPath {
+    /// Plan both, time each on the frame, keep the faster (the default).
+    #[default]
+    Auto,
+    /// tract's direct spatial convolution where it applies.
+    Direct,
+    /// im2col and a matrix product everywhere (`TRACT_DISABLE_DIRECT_SPATIAL`).
+    Im2col,
+}
+
+impl std::fmt::Display for ConvPath {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ConvPath::Auto => "auto",
+            ConvPath::Direct => "direct",
+            ConvPath::Im2col => "im2col",
+        })
+    }
+}
+
+impl std::str::FromStr for ConvPath {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "auto" => Ok(ConvPath::Auto),
+            "direct" => Ok(ConvPath::Direct),
+            "im2col" => Ok(ConvPath::Im2col),
+            other => Err(format!(
+                "convolution path `{other}`: expected auto, direct or im2col"
+            )),
+        }
+    }
+}
+
+/// Runs of each candidate plan [`ConvPath::Auto`] times (the fastest counts: the machines here
+/// are noisy, and noise only ever adds time).
+const AUTO_RUNS: usize = 2;
+
+/// Time one run spent in one node of the optimised plan ([`LearnedModel::profile`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodeTime {
+    /// The node's name in the optimised plan (derived from the ONNX node it came from).
+    pub node: String,
+    /// tract's operator name (e.g. `DirectSpatialConv`, `OptMatMul`, `Reduce<Max>`).
+    pub op: String,
+    /// Milliseconds.
+    pub ms: f64,
+}
 
 /// A loaded network, with its plan for the last frame size.
 #[derive(Debug)]
@@ -71,7 +147,10 @@ pub struct LearnedModel {
     model: InferenceModel,
     inputs: Vec<LearnedInput>,
     channels: Vec<usize>,
-    plan: Option<((usize, usize), Plan)>,
+    output: LearnedOutput,
+    conv: ConvPath,
+    /// The plan for the last padded size, and the path it uses (never `Auto`).
+    plan: Option<((usize, usize), Plan, ConvPath)>,
 }
 
 fn model_error(path: &Path, reason: impl std::fmt::Display) -> InferError {
@@ -88,7 +167,7 @@ fn chain(e: &TractError) -> String {
 
 impl LearnedModel {
     /// Reads and checks `path`: every input is `spike` or `events` with a known channel count,
-    /// the output is one image.
+    /// the output is one image named `rate` or `luminance`.
     ///
     /// # Errors
     /// [`InferError::Model`] naming the file and the problem.
@@ -145,21 +224,38 @@ impl LearnedModel {
         if inputs.is_empty() {
             return Err(model_error(path, "the model has no inputs"));
         }
-        let outputs = model
+        let outlets = model
             .output_outlets()
-            .map_err(|e| model_error(path, chain(&e)))?
-            .len();
-        if outputs != 1 {
+            .map_err(|e| model_error(path, chain(&e)))?;
+        let [outlet] = outlets else {
             return Err(model_error(
                 path,
-                format!("{outputs} outputs; a NeuSpike-Net has one (`rate`)"),
+                format!(
+                    "{} outputs; a NeuSpike-Net has one (`rate` or `luminance`)",
+                    outlets.len()
+                ),
             ));
-        }
+        };
+        let name = model
+            .outlet_label(*outlet)
+            .unwrap_or(&model.node(outlet.node).name);
+        let output = match name {
+            "rate" => LearnedOutput::Rate,
+            "luminance" => LearnedOutput::Luminance,
+            other => {
+                return Err(model_error(
+                    path,
+                    format!("the output is `{other}`; a NeuSpike-Net writes `rate` or `luminance`"),
+                ));
+            }
+        };
         Ok(LearnedModel {
             path: path.to_path_buf(),
             model,
             inputs,
             channels,
+            output,
+            conv: ConvPath::Auto,
             plan: None,
         })
     }
@@ -167,6 +263,24 @@ impl LearnedModel {
     /// The inputs, in the order [`run`](Self::run) takes them.
     pub fn inputs(&self) -> &[LearnedInput] {
         &self.inputs
+    }
+
+    /// What [`run`](Self::run) returns: a rate or luminance.
+    pub fn output(&self) -> LearnedOutput {
+        self.output
+    }
+
+    /// Chooses how the convolutions run (the next plan uses it).
+    pub fn set_conv_path(&mut self, conv: ConvPath) {
+        if conv != self.conv {
+            self.conv = conv;
+            self.plan = None;
+        }
+    }
+
+    /// The path the current plan uses (`None` before the first run).
+    pub fn conv_path_in_use(&self) -> Option<ConvPath> {
+        self.plan.as_ref().map(|p| p.2)
     }
 
     /// Channels each input expects.
@@ -179,39 +293,72 @@ impl LearnedModel {
         &self.path
     }
 
-    /// Builds (or reuses) the plan for padded size `(h, w)`.
-    fn plan_for(&mut self, h: usize, w: usize) -> Result<Plan, InferError> {
-        if let Some((size, plan)) = &self.plan
-            && *size == (h, w)
-        {
-            return Ok(plan.clone());
-        }
+    /// Optimises the model for padded size `(h, w)` with convolutions on `path` (not `Auto`).
+    fn build_plan(&self, h: usize, w: usize, path: ConvPath) -> Result<Plan, InferError> {
         let mut model = self.model.clone();
         for (i, &c) in self.channels.iter().enumerate() {
             model
                 .set_input_fact(i, f32::fact([1, c, h, w]).into())
                 .map_err(|e| model_error(&self.path, chain(&e)))?;
         }
-        let plan = model
-            .into_optimized()
-            .and_then(|m| m.into_runnable())
+        let disable = if path == ConvPath::Im2col {
+            "true"
+        } else {
+            "false"
+        };
+        let scope = tract_onnx::tract_core::knobs::KnobScope::new([(
+            "TRACT_DISABLE_DIRECT_SPATIAL",
+            disable,
+        )])
+        .map_err(|e| model_error(&self.path, chain(&e)))?;
+        scope
+            .enter(|| model.into_optimized().and_then(|m| m.into_runnable()))
             .map_err(|e| {
                 model_error(
                     &self.path,
-                    format!("cannot be planned at {h}x{w}: {}", chain(&e)),
+                    format!("cannot be planned at {h}x{w} ({path}): {}", chain(&e)),
                 )
-            })?;
-        self.plan = Some(((h, w), plan.clone()));
+            })
+    }
+
+    /// The fastest of [`AUTO_RUNS`] runs of `plan` on `values`, seconds.
+    fn fastest_run(&self, plan: &Plan, values: &TVec<TValue>) -> Result<f64, InferError> {
+        let mut fastest = f64::INFINITY;
+        for _ in 0..AUTO_RUNS {
+            let start = std::time::Instant::now();
+            plan.run(values.clone())
+                .map_err(|e| model_error(&self.path, format!("run: {}", chain(&e))))?;
+            fastest = fastest.min(start.elapsed().as_secs_f64());
+        }
+        Ok(fastest)
+    }
+
+    /// The plan for padded size `(h, w)`: the kept one, or a new one (for [`ConvPath::Auto`],
+    /// the faster of both paths on `values`).
+    fn plan_for(&mut self, h: usize, w: usize, values: &TVec<TValue>) -> Result<Plan, InferError> {
+        if let Some((size, plan, _)) = &self.plan
+            && *size == (h, w)
+        {
+            return Ok(plan.clone());
+        }
+        let (plan, path) = match self.conv {
+            ConvPath::Auto => {
+                let direct = self.build_plan(h, w, ConvPath::Direct)?;
+                let im2col = self.build_plan(h, w, ConvPath::Im2col)?;
+                if self.fastest_run(&direct, values)? <= self.fastest_run(&im2col, values)? {
+                    (direct, ConvPath::Direct)
+                } else {
+                    (im2col, ConvPath::Im2col)
+                }
+            }
+            path => (self.build_plan(h, w, path)?, path),
+        };
+        self.plan = Some(((h, w), plan.clone(), path));
         Ok(plan)
     }
 
-    /// Runs the network on one frame's representations, in [`inputs`](Self::inputs) order, each
-    /// `[C, H, W]`; returns the rate `[H, W]`.
-    ///
-    /// # Errors
-    /// [`InferError::Model`] for a wrong number of inputs, a wrong channel count, inputs of
-    /// different sizes, or a failure inside the network.
-    pub fn run(&mut self, xs: &[ArrayView3<f32>]) -> Result<Array2<f32>, InferError> {
+    /// Checks `xs` against the network's inputs; returns the frame's `(h, w)`.
+    fn check_inputs(&self, xs: &[ArrayView3<f32>]) -> Result<(usize, usize), InferError> {
         if xs.len() != self.inputs.len() {
             return Err(model_error(
                 &self.path,
@@ -239,8 +386,16 @@ impl LearnedModel {
         if h == 0 || w == 0 {
             return Err(model_error(&self.path, format!("empty frame {h}x{w}")));
         }
-        let (hp, wp) = (h.next_multiple_of(STRIDE), w.next_multiple_of(STRIDE));
-        let plan = self.plan_for(hp, wp)?;
+        Ok((h, w))
+    }
+
+    /// Each input padded to `hp x wp` as a `[1, C, hp, wp]` tensor.
+    fn padded_inputs(
+        &self,
+        xs: &[ArrayView3<f32>],
+        hp: usize,
+        wp: usize,
+    ) -> Result<TVec<TValue>, InferError> {
         let mut values = TVec::new();
         for x in xs {
             let padded = pad_edge(*x, hp, wp);
@@ -251,22 +406,77 @@ impl LearnedModel {
                 .into_tensor();
             values.push(t.into_tvalue());
         }
+        Ok(values)
+    }
+
+    /// Runs the network once on `xs` (as [`run`](Self::run)) and returns the time each node of
+    /// the plan took, in evaluation order, after two pseudo-nodes for the work around it
+    /// (`(pad inputs)`, `(plan state)`): what to look at when tract is slower than it should be
+    /// (`neuspike bench-model --profile`).
+    ///
+    /// # Errors
+    /// As [`run`](Self::run).
+    pub fn profile(&mut self, xs: &[ArrayView3<f32>]) -> Result<Vec<NodeTime>, InferError> {
+        let (h, w) = self.check_inputs(xs)?;
+        let (hp, wp) = (h.next_multiple_of(STRIDE), w.next_multiple_of(STRIDE));
+        let mut times = Vec::new();
+        let step = |name: &str, start: std::time::Instant, times: &mut Vec<NodeTime>| {
+            times.push(NodeTime {
+                node: name.to_string(),
+                op: name.to_string(),
+                ms: start.elapsed().as_secs_f64() * 1e3,
+            })
+        };
+        let start = std::time::Instant::now();
+        let values = self.padded_inputs(xs, hp, wp)?;
+        step("(pad inputs)", start, &mut times);
+        let plan = self.plan_for(hp, wp, &values)?;
+        let start = std::time::Instant::now();
+        let mut state =
+            TypedSimpleState::new(&plan).map_err(|e| model_error(&self.path, chain(&e)))?;
+        step("(plan state)", start, &mut times);
+        state
+            .run_plan_with_eval(values, |ctx, st, node, input| {
+                let start = std::time::Instant::now();
+                let out = tract_onnx::tract_core::plan::eval(ctx, st, node, input);
+                times.push(NodeTime {
+                    node: node.name.clone(),
+                    op: node.op().name().into_owned(),
+                    ms: start.elapsed().as_secs_f64() * 1e3,
+                });
+                out
+            })
+            .map_err(|e| model_error(&self.path, format!("run at {hp}x{wp}: {}", chain(&e))))?;
+        Ok(times)
+    }
+
+    /// Runs the network on one frame's representations, in [`inputs`](Self::inputs) order, each
+    /// `[C, H, W]`; returns the [`output`](Self::output) image `[H, W]`.
+    ///
+    /// # Errors
+    /// [`InferError::Model`] for a wrong number of inputs, a wrong channel count, inputs of
+    /// different sizes, or a failure inside the network.
+    pub fn run(&mut self, xs: &[ArrayView3<f32>]) -> Result<Array2<f32>, InferError> {
+        let (h, w) = self.check_inputs(xs)?;
+        let (hp, wp) = (h.next_multiple_of(STRIDE), w.next_multiple_of(STRIDE));
+        let values = self.padded_inputs(xs, hp, wp)?;
+        let plan = self.plan_for(hp, wp, &values)?;
         let out = plan
             .run(values)
             .map_err(|e| model_error(&self.path, format!("run at {hp}x{wp}: {}", chain(&e))))?;
         let plain = out[0]
             .try_as_plain_ram()
             .map_err(|e| model_error(&self.path, chain(&e)))?;
-        let rate = plain
+        let image = plain
             .as_slice::<f32>()
             .map_err(|e| model_error(&self.path, chain(&e)))?;
-        if rate.len() != hp * wp {
+        if image.len() != hp * wp {
             return Err(model_error(
                 &self.path,
-                format!("output has {} values, expected {hp}x{wp}", rate.len()),
+                format!("output has {} values, expected {hp}x{wp}", image.len()),
             ));
         }
-        Ok(Array2::from_shape_fn((h, w), |(y, x)| rate[y * wp + x]))
+        Ok(Array2::from_shape_fn((h, w), |(y, x)| image[y * wp + x]))
     }
 }
 
@@ -289,7 +499,10 @@ pub fn pad_edge(x: ArrayView3<f32>, hp: usize, wp: usize) -> Vec<f32> {
     for ch in 0..c {
         for y in 0..hp {
             let row = x.slice(ndarray::s![ch, y.min(h.saturating_sub(1)), ..]);
-            out.extend(row.iter().copied());
+            match row.as_slice() {
+                Some(r) => out.extend_from_slice(r),
+                None => out.extend(row.iter().copied()),
+            }
             let last = row.last().copied().unwrap_or(0.0);
             out.extend(std::iter::repeat_n(last, wp - w));
         }

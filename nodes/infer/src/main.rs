@@ -16,7 +16,7 @@ use std::time::Instant;
 
 use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::Axis;
-use neuspike_infer::learned::LearnedModel;
+use neuspike_infer::learned::{ConvPath, LearnedModel, LearnedOutput};
 use neuspike_infer::{
     EventSlice, Method, Online, OnlineParams, SpikeInput, ThetaMode, Window,
     luminance_from_rate_into,
@@ -25,6 +25,13 @@ use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
     EventBatch, Frame, FrameKind, Message, Representation, SeqStatus, SeqTracker, is_end_of_stream,
 };
+
+/// tract allocates every intermediate tensor afresh on each run; with the system allocator those
+/// megabytes went back to the kernel and came back as page faults on every frame (measured with
+/// `neuspike bench-model`: about a quarter of a base-8 network's time at 256x400). mimalloc keeps
+/// them for the next frame.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
@@ -40,6 +47,10 @@ struct Args {
     /// learned: the ONNX network (`models/*.onnx`).
     #[arg(long)]
     model: Option<PathBuf>,
+    /// learned: how tract runs the convolutions: auto (time both on the first frame of each size,
+    /// keep the faster), direct or im2col.
+    #[arg(long, default_value = "auto")]
+    conv: ConvPath,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).
     #[arg(long)]
     lum_per_rate: Option<f64>,
@@ -152,6 +163,7 @@ impl Args {
             );
         };
         let mut model = LearnedModel::load(path).map_err(|e| eyre::eyre!("infer: {e}"))?;
+        model.set_conv_path(self.conv);
         for i in model.inputs() {
             if !has(i.input_id()) {
                 eyre::bail!(
@@ -363,7 +375,8 @@ fn classical(
     Ok((t_ref_ns, data))
 }
 
-/// One window of the learned method: the network's rate, calibrated to luminance as TFP's.
+/// One window of the learned method: the network's rate, calibrated to luminance as TFP's (or
+/// the event-only network's luminance, clipped to [0, 1] the same way).
 fn learned(
     model: &mut LearnedModel,
     args_lum_per_rate: Option<f64>,
@@ -391,18 +404,21 @@ fn learned(
         );
     }
     let views: Vec<_> = reps.iter().map(|r| r.data.view()).collect();
-    let rate = model
+    let image = model
         .run(&views)
         .map_err(|e| eyre::eyre!("infer: window {seq} at {t_ref_ns} ns: {e}"))?;
-    let lum_per_rate = args_lum_per_rate
-        .or_else(|| reps.iter().find_map(|r| r.params.get("lum_per_rate").copied()))
-        .ok_or_else(|| {
-            eyre::eyre!(
-                "infer: window {seq}: no calibration (the representations carry no `lum_per_rate` and the graph sets no `--lum-per-rate`)"
-            )
-        })?;
-    let mut data = ndarray::Array2::<f32>::zeros(rate.dim());
-    luminance_from_rate_into(rate.view(), lum_per_rate, 1.0, data.view_mut())
+    let gain = match model.output() {
+        LearnedOutput::Luminance => 1.0,
+        LearnedOutput::Rate => args_lum_per_rate
+            .or_else(|| reps.iter().find_map(|r| r.params.get("lum_per_rate").copied()))
+            .ok_or_else(|| {
+                eyre::eyre!(
+                    "infer: window {seq}: no calibration (the representations carry no `lum_per_rate` and the graph sets no `--lum-per-rate`)"
+                )
+            })?,
+    };
+    let mut data = ndarray::Array2::<f32>::zeros(image.dim());
+    luminance_from_rate_into(image.view(), gain, 1.0, data.view_mut())
         .map_err(|e| eyre::eyre!("infer: window {seq}: {e}"))?;
     Ok((t_ref_ns, data))
 }
@@ -517,6 +533,7 @@ fn run(
             incomplete = r.incomplete,
             lost,
             model = %model.path().display(),
+            conv = %model.conv_path_in_use().unwrap_or_default(),
             "infer finished"
         ),
     }
@@ -527,6 +544,7 @@ fn run(
 mod tests {
     use super::*;
     use ndarray::Array3;
+    use neuspike_infer::learned::LearnedInput;
     use neuspike_schemas::testing::{CannedInputs, output_ids};
 
     fn rep(kind: &str, value: f32, seq: u64) -> Representation {
@@ -563,6 +581,7 @@ mod tests {
         Args {
             method: NodeMethod::Classical(method),
             model: None,
+            conv: ConvPath::Auto,
             lum_per_rate: None,
             contrast: 0.2,
             hf_cutoff_rad_s: 5.0,
@@ -704,18 +723,22 @@ mod tests {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../models")
     }
 
-    /// The first shipped model that reads both representations.
-    fn fused_model() -> PathBuf {
+    /// The smallest shipped model whose inputs are `inputs`.
+    fn shipped_model(inputs: &[LearnedInput]) -> PathBuf {
         let mut models: Vec<PathBuf> = std::fs::read_dir(models_dir())
             .unwrap()
             .map(|e| e.unwrap().path())
             .filter(|p| p.extension().is_some_and(|e| e == "onnx"))
             .collect();
-        models.sort();
+        models.sort_by_key(|p| (std::fs::metadata(p).unwrap().len(), p.clone()));
         models
             .into_iter()
-            .find(|p| LearnedModel::load(p).unwrap().inputs().len() == 2)
-            .expect("a fused model in models/")
+            .find(|p| LearnedModel::load(p).unwrap().inputs() == inputs)
+            .unwrap_or_else(|| panic!("a model reading {inputs:?} in models/"))
+    }
+
+    fn fused_model() -> PathBuf {
+        shipped_model(&[LearnedInput::Spike, LearnedInput::Events])
     }
 
     fn learned_args(model: PathBuf) -> Args {
@@ -769,6 +792,33 @@ mod tests {
                 let want = (f64::from(*r) * 2.0).clamp(0.0, 1.0);
                 assert!((got - want).abs() < 1e-6, "{got} vs {want}");
             }
+        }
+    }
+
+    #[test]
+    fn the_event_only_network_gives_luminance_without_the_spike_calibration() {
+        let path = shipped_model(&[LearnedInput::Events]);
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = CannedInputs::new(dir.path());
+        c.message("event_integration", &pattern("event-integration", 0))
+            .unwrap();
+        c.end::<Representation>("event_integration", 1).unwrap();
+        let inputs = ["event_integration".to_string()];
+        let a = learned_args(path.clone());
+        let model = a.check(&inputs).unwrap();
+        assert_eq!(model.as_ref().unwrap().output(), LearnedOutput::Luminance);
+        let out = c.run(|node, events| run(node, events, &a, model)).unwrap();
+        assert_eq!(output_ids(&out), vec!["frames"; 2]);
+        let e = pattern("event-integration", 0);
+        let lum = LearnedModel::load(&path)
+            .unwrap()
+            .run(&[e.data.view()])
+            .unwrap();
+        let v = values(&out[0]);
+        assert_eq!(v.len(), lum.len());
+        // The pattern says lum_per_rate 2; a luminance output must not be doubled.
+        for (got, l) in v.iter().zip(lum.iter()) {
+            assert!((got - f64::from(*l)).abs() < 1e-6, "{got} vs {l}");
         }
     }
 

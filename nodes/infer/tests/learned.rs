@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array3, Array4, ArrayView3, Axis, s};
 use ndarray_npy::read_npy;
 use neuspike_infer::InferError;
-use neuspike_infer::learned::{LearnedInput, LearnedModel, STRIDE, pad_edge};
+use neuspike_infer::learned::{
+    ConvPath, LearnedInput, LearnedModel, LearnedOutput, STRIDE, pad_edge,
+};
 use prost::Message;
 use tract_onnx::prelude::Framework;
 
@@ -46,7 +48,7 @@ fn every_shipped_model_reproduces_its_pytorch_reference() {
             .map(|i| reference(&path, i.onnx_name()))
             .collect();
         let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
-        let want = reference(&path, "rate");
+        let want = reference(&path, model.output().onnx_name());
         let got = model.run(&views).expect("run");
         assert_eq!(
             got.dim(),
@@ -64,7 +66,7 @@ fn every_shipped_model_reproduces_its_pytorch_reference() {
             "{}: tract differs from PyTorch by {diff}",
             path.display()
         );
-        // The rates are rates: in [0, 1], and not all the same.
+        // Rates and luminances both come out of a sigmoid: in [0, 1], and not all the same.
         assert!(got.iter().all(|r| (0.0..=1.0).contains(r)));
         let (lo, hi) = got
             .iter()
@@ -218,4 +220,102 @@ fn representations_of_the_wrong_shape_are_refused_before_running() {
         assert!(matches!(i, LearnedInput::Spike | LearnedInput::Events));
         assert!(["spike-repr", "event-integration"].contains(&i.representation()));
     }
+}
+
+#[test]
+fn the_output_name_says_its_unit_and_an_unknown_one_is_refused() {
+    // Networks that read spikes predict a rate; the event-only one predicts luminance.
+    for path in shipped() {
+        let model = LearnedModel::load(&path).expect("load");
+        let want = if model.inputs().contains(&LearnedInput::Spike) {
+            LearnedOutput::Rate
+        } else {
+            LearnedOutput::Luminance
+        };
+        assert_eq!(model.output(), want, "{}", path.display());
+    }
+    let source = &shipped()[0];
+    let mut proto = tract_onnx::onnx()
+        .proto_model_for_path(source)
+        .expect("proto");
+    let graph = proto.graph.as_mut().expect("graph");
+    let old = graph.output[0].name.clone();
+    graph.output[0].name = "depth".into();
+    for node in &mut graph.node {
+        for o in &mut node.output {
+            if *o == old {
+                *o = "depth".into();
+            }
+        }
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = dir.path().join("depth.onnx");
+    std::fs::write(&p, proto.encode_to_vec()).expect("write");
+    let (path, reason) = model_error(LearnedModel::load(&p).expect_err("renamed output"));
+    assert_eq!(path, p);
+    assert!(
+        reason.contains("`depth`") && reason.contains("luminance"),
+        "{reason}"
+    );
+}
+
+#[test]
+fn both_convolution_paths_reproduce_the_reference_and_auto_keeps_one() {
+    for path in shipped() {
+        let inputs: Vec<Array4<f32>> = LearnedModel::load(&path)
+            .expect("load")
+            .inputs()
+            .iter()
+            .map(|i| reference(&path, i.onnx_name()))
+            .collect();
+        let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
+        for conv in [ConvPath::Direct, ConvPath::Im2col, ConvPath::Auto] {
+            let mut model = LearnedModel::load(&path).expect("load");
+            model.set_conv_path(conv);
+            assert_eq!(model.conv_path_in_use(), None);
+            let want = reference(&path, model.output().onnx_name());
+            let got = model.run(&views).expect("run");
+            let diff = got
+                .iter()
+                .zip(want.iter())
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(
+                diff < 1e-4,
+                "{} ({conv}): differs by {diff}",
+                path.display()
+            );
+            let used = model.conv_path_in_use().expect("planned");
+            if conv == ConvPath::Auto {
+                assert!(matches!(used, ConvPath::Direct | ConvPath::Im2col));
+            } else {
+                assert_eq!(used, conv);
+            }
+        }
+    }
+    assert_eq!("im2col".parse::<ConvPath>(), Ok(ConvPath::Im2col));
+    assert_eq!(ConvPath::default().to_string(), "auto");
+    let err = "fast".parse::<ConvPath>().unwrap_err();
+    assert!(err.contains("`fast`") && err.contains("im2col"), "{err}");
+}
+
+#[test]
+fn a_profile_times_every_node_of_the_plan_and_the_padding() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let inputs: Vec<Array4<f32>> = model
+        .inputs()
+        .iter()
+        .map(|i| reference(path, i.onnx_name()))
+        .collect();
+    let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
+    let nodes = model.profile(&views).expect("profile");
+    assert_eq!(nodes[0].op, "(pad inputs)");
+    assert!(nodes.iter().all(|n| n.ms >= 0.0 && n.ms.is_finite()));
+    // A network of convolutions: most of the plan is convolution or matrix product nodes.
+    let convs = nodes
+        .iter()
+        .filter(|n| n.op.contains("Conv") || n.op.contains("MatMul"))
+        .count();
+    assert!(convs >= 10, "{convs} convolution nodes of {}", nodes.len());
 }
