@@ -123,12 +123,15 @@ pub fn time_model(
     runs: usize,
     conv: ConvPath,
 ) -> eyre::Result<Vec<Timing>> {
-    let mut model = LearnedModel::load(path).wrap_err("bench-model")?;
-    model.set_conv_path(conv);
-    let inputs = pattern_inputs(&model, height, width);
+    let loaded = LearnedModel::load(path).wrap_err("bench-model")?;
+    let inputs = pattern_inputs(&loaded, height, width);
     let views: Vec<_> = inputs.iter().map(|a| a.view()).collect();
     let mut out = Vec::new();
     for &n in threads {
+        // A fresh plan per thread count, as a node started with that many threads makes: `auto`
+        // may choose another convolution path (tract's direct convolution runs on one thread).
+        let mut model = loaded.clone();
+        model.set_conv_path(conv);
         set_threads(n);
         model.run(&views).wrap_err("bench-model: warm-up run")?;
         let mut ms = Vec::with_capacity(runs);

@@ -3,8 +3,11 @@
 (`neuspike bench-model`, run here) and onnxruntime's (`bench_ort.py`, run here) at 256x400 on 1
 and 2 threads, in the same run so that the ratio compares like with like.
 
-    python training/card.py models/neuspike-fused-8.onnx --eval runs/eval.json --run fused-8 \
-        [--aux-baseline fused-8-noaux]
+    python training/card.py models/neuspike-fused-8.onnx --eval runs/eval.json --run fused-8
+
+Other runs of the same configuration in the evaluation (another seed or device) are listed as the
+spread a retraining gives; runs of the same width and mode trained without the auxiliary loss
+measure its effect. `training/summary.py` tabulates every run.
 """
 
 import argparse
@@ -23,13 +26,28 @@ ARCH = {
 }
 
 
-def tract_times(model: str, threads: str, runs: int) -> dict[int, float]:
+def tract_times(model: str, threads: str, runs: int) -> tuple[dict[int, float], dict[int, str]]:
     out = subprocess.run(
         ["./target/release/neuspike", "bench-model", model, "--height", "256", "--width", "400",
          "--threads", threads, "--runs", str(runs)],
         check=True, capture_output=True, text=True,
     ).stdout
-    return {int(t): float(ms) for t, ms in re.findall(r"threads (\d+): median ([\d.]+) ms", out)}
+    found = re.findall(r"threads (\d+): median ([\d.]+) ms.*?(\w+) convolutions", out)
+    return {int(t): float(ms) for t, ms, _ in found}, {int(t): c for t, _, c in found}
+
+
+def same(a: dict, b: dict, *keys: str) -> bool:
+    return all(a.get(k) == b.get(k) for k in keys)
+
+
+def mean_row(runs: list[dict]) -> dict:
+    return {g: {m: sum(r[g][m] for r in runs) / len(runs) for m in ("psnr", "ssim")} for g in ("normal", "complex")}
+
+
+def device(cfg: dict) -> str:
+    if cfg["device"] == "cuda":
+        return "one H100 GPU (nine runs sharing it)"
+    return f"{cfg['device']} (a 2-core machine shared with builds and other runs, so the wall time overstates)"
 
 
 def row(name: str, r: dict) -> str:
@@ -42,14 +60,13 @@ def main() -> None:
     ap.add_argument("model", type=pathlib.Path)
     ap.add_argument("--eval", type=pathlib.Path, required=True)
     ap.add_argument("--run", required=True, help="the model's entry in the evaluation")
-    ap.add_argument("--aux-baseline", help="the same model trained without the auxiliary loss")
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--note", default="", help="a line added to the training section")
     args = ap.parse_args()
     cfg = json.loads(args.model.with_suffix(".json").read_text())
     ev = json.loads(args.eval.read_text())
     me = ev[args.run]
-    tract = tract_times(str(args.model), "1,2", args.runs)
+    tract, conv = tract_times(str(args.model), "1,2", args.runs)
     ort_ms = {t: bench_ort.time_model(str(args.model), 256, 400, t, args.runs)["median_ms"] for t in (1, 2)}
     best = max(("tfp", "tfi"), key=lambda m: ev[m]["complex"]["psnr"])
     best_n = max(("tfp", "tfi"), key=lambda m: ev[m]["normal"]["psnr"])
@@ -61,11 +78,16 @@ def main() -> None:
         f"NeuSpike-Net, {cfg['mode']} (base width {cfg['base']}): {ARCH[cfg['mode']]}. "
         f"{cfg['parameters']:,} parameters; ONNX opset {cfg['opset']}, {cfg['onnx_mb']} MB, inputs "
         f"{', '.join('`' + i + '`' for i in cfg['inputs'])} (`[1, {cfg['channels']}, H, W]`, H and W "
-        "multiples of 8: the infer node pads), output `rate` (spikes per tick; the node multiplies by "
-        "`lum_per_rate`). Built by `training/neuspike_net.py`: head convolution, 3 stride-2 encoder "
+        "multiples of 8: the infer node pads), output "
+        + ("`rate` (spikes per tick; the node multiplies by `lum_per_rate`). "
+           if cfg.get("output", "rate") == "rate"
+           else "`luminance` (events carry no absolute level, so this model cannot use the spike "
+           "camera's calibration: it predicts luminance itself). ")
+        + "Built by `training/neuspike_net.py`: head convolution, 3 stride-2 encoder "
         "layers doubling the width, channel and spatial attention fusion after each (Eq. 11-12), 2 "
         "residual blocks, 3 transposed-convolution decoder layers with the fused skips, a depthwise "
-        "convolution and a sigmoid.",
+        "convolution and a sigmoid. The channel maximum of the spatial attention is exported as a "
+        "tree of `Max` (`training/onnx_passes.py`, exact).",
         "",
         "## Training",
         "",
@@ -73,9 +95,8 @@ def main() -> None:
         "scales x 5 speeds, 120 a cell; half the textures procedural, half crops of 13 scikit-image "
         "photos; see training/README.md).",
         f"- {cfg['steps']:,} steps of {cfg['batch']} samples (Adam, one-cycle, max lr {cfg['lr']}), "
-        f"seed {cfg['seed']}, the 8 flips and quarter turns; {cfg['train_seconds'] / 60:.0f} min wall on "
-        f"{cfg['device']}" + (f", {cfg['cpu_seconds'] / 60:.0f} CPU-minutes" if "cpu_seconds" in cfg else "")
-        + " (a 2-core machine shared with builds and other runs, so the wall time overstates).",
+        f"seed {cfg['seed']}, the 8 flips and quarter turns; {cfg['train_seconds'] / 60:.1f} min wall on "
+        f"{device(cfg)}.",
         f"- Loss: L2 on luminance + {cfg['aux_weight']} x {cfg['aux']} "
         "(the paper's VGG perceptual term needs pretrained weights that cannot be downloaded here)."
         if cfg["aux"] != "none"
@@ -98,37 +119,55 @@ def main() -> None:
         row("TFP (33 planes)", ev["tfp"]),
         row("TFI", ev["tfi"]),
     ]
-    for k, v in ev.items():
-        if k not in ("tfp", "tfi", args.run) and "config" in v:
-            lines.append(row(f"{k} (other run)", v))
+    repeats = [(k, v) for k, v in ev.items()
+               if k != args.run and "config" in v and same(v["config"], me["config"], "base", "mode", "aux")]
+    for k, v in repeats:
+        c = v["config"]
+        lines.append(row(f"same configuration, seed {c['seed']} on {c['device']} ({k})", v))
     lines += [
         "",
         f"Margin over the best classical method: {me['complex']['psnr'] - ev[best]['complex']['psnr']:+.2f} dB "
         f"on complex scenes ({best}), {me['normal']['psnr'] - ev[best_n]['normal']['psnr']:+.2f} dB on normal "
         f"ones ({best_n}).",
     ]
-    if args.aux_baseline and args.aux_baseline in ev:
-        b = ev[args.aux_baseline]
+    if repeats:
         lines += [
             "",
-            f"Effect of the auxiliary loss: without it ({args.aux_baseline}) PSNR normal / complex "
-            f"{b['normal']['psnr']:.2f} / {b['complex']['psnr']:.2f} dB, SSIM {b['normal']['ssim']:.3f} / "
-            f"{b['complex']['ssim']:.3f}.",
+            "The shipped model is the seed-0 run, chosen before scoring; the other runs of the same "
+            "configuration show how much retraining alone moves the scores.",
         ]
+    if me["config"]["aux"] != "none":
+        base_runs = [v for k, v in ev.items() if "config" in v and same(v["config"], me["config"], "base", "mode", "aux")]
+        noaux = [v for k, v in ev.items() if "config" in v and same(v["config"], me["config"], "base", "mode")
+                 and v["config"]["aux"] == "none"]
+        if noaux:
+            a, b = mean_row(base_runs), mean_row(noaux)
+            lines += [
+                "",
+                f"Effect of the auxiliary loss (mean of {len(base_runs)} runs with it, {len(noaux)} without, "
+                f"same width and mode): PSNR normal / complex {a['normal']['psnr']:.2f} / "
+                f"{a['complex']['psnr']:.2f} dB against {b['normal']['psnr']:.2f} / {b['complex']['psnr']:.2f}, "
+                f"SSIM {a['normal']['ssim']:.3f} / {a['complex']['ssim']:.3f} against "
+                f"{b['normal']['ssim']:.3f} / {b['complex']['ssim']:.3f}.",
+            ]
+    lines += ["", "Every run, the ablations and the widths side by side: [models/README.md](README.md)."]
     lines += [
         "",
         "## Speed (256x400, this machine, one run)",
         "",
-        "| threads | tract (ms) | onnxruntime (ms) | tract / onnxruntime |",
-        "|---|---|---|---|",
+        "| threads | tract (ms) | tract convolutions | onnxruntime (ms) | tract / onnxruntime |",
+        "|---|---|---|---|---|",
     ]
     for t in (1, 2):
-        lines.append(f"| {t} | {tract[t]:.1f} | {ort_ms[t]:.1f} | {tract[t] / ort_ms[t]:.2f}x |")
+        lines.append(f"| {t} | {tract[t]:.1f} | {conv[t]} | {ort_ms[t]:.1f} | {tract[t] / ort_ms[t]:.2f}x |")
     lines += [
         "",
         f"`neuspike bench-model models/{name}.onnx --height 256 --width 400` and "
         f"`python training/bench_ort.py models/{name}.onnx --height 256 --width 400`: median of "
-        f"{args.runs} runs after a warm-up, the same input pattern.",
+        f"{args.runs} runs after a warm-up, the same input pattern. tract's convolutions are those the infer node's default "
+        "`--conv auto` chose (it times both paths on the first frame and keeps the faster) "
+        "with mimalloc, and its time includes copying the inputs into the padded tensor, as the node "
+        "does; onnxruntime's does not.",
         "",
     ]
     args.model.with_suffix(".md").write_text("\n".join(lines))

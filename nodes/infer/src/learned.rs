@@ -141,7 +141,7 @@ pub struct NodeTime {
 }
 
 /// A loaded network, with its plan for the last frame size.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub struct LearnedModel {
     path: PathBuf,
     model: InferenceModel,

@@ -1,0 +1,46 @@
+"""Tabulates every evaluated run (`evaluate.py --json`) by configuration: the widths, the paper's
+Table 2 ablations (fused, spike-only, event-only) and the auxiliary loss, each configuration's
+runs (seeds, devices) with their mean, against the classical baselines.
+
+    python training/summary.py --eval runs/eval.json > models/RUNS.md
+"""
+
+import argparse
+import json
+import pathlib
+from collections import defaultdict
+
+
+def fmt(r: dict) -> str:
+    n, c = r["normal"], r["complex"]
+    return f"{n['psnr']:.2f} | {c['psnr']:.2f} | {n['ssim']:.3f} | {c['ssim']:.3f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--eval", type=pathlib.Path, required=True)
+    args = ap.parse_args()
+    ev = json.loads(args.eval.read_text())
+    groups = defaultdict(list)
+    for name, r in ev.items():
+        if "config" in r:
+            c = r["config"]
+            groups[(c["mode"], c["base"], c["aux"])].append((name, r))
+    order = {"fused": 0, "spike": 1, "event": 2}
+    print("| configuration | run | device | PSNR normal | PSNR complex | SSIM normal | SSIM complex |")
+    print("|---|---|---|---|---|---|---|")
+    for k in ("tfp", "tfi"):
+        print(f"| {k.upper()} (classical) | | | {fmt(ev[k])} |")
+    for (mode, base, aux), runs in sorted(groups.items(), key=lambda g: (order[g[0][0]], g[0][1], ["ssim", "grad", "none"].index(g[0][2]))):
+        label = f"{mode}, base {base}, aux {aux}"
+        for name, r in sorted(runs, key=lambda x: (x[1]["config"]["seed"], x[0])):
+            c = r["config"]
+            print(f"| {label} | {name} (seed {c['seed']}) | {c['device']} | {fmt(r)} |")
+        if len(runs) > 1:
+            mean = {g: {m: sum(r[g][m] for _, r in runs) / len(runs) for m in ("psnr", "ssim")}
+                    for g in ("normal", "complex")}
+            print(f"| {label} | **mean of {len(runs)}** | | {fmt(mean)} |")
+
+
+if __name__ == "__main__":
+    main()
