@@ -122,6 +122,9 @@ enum Command {
         /// Reconstruction method.
         #[arg(long, value_enum, default_value = "tfp")]
         method: neuspike::reconstruct::Method,
+        /// The ONNX network for `--method learned`, e.g. models/neuspike-spike-8.onnx.
+        #[arg(long)]
+        model: Option<PathBuf>,
         /// Output folder: frames, metrics, summary, and the graph that made them.
         #[arg(long)]
         out: PathBuf,
@@ -305,6 +308,7 @@ fn main() -> eyre::Result<()> {
             events,
             truth,
             method,
+            model,
             out,
             source,
             event_source,
@@ -322,6 +326,7 @@ fn main() -> eyre::Result<()> {
                 events,
                 truth,
                 method,
+                model,
                 out,
                 source_args: source,
                 event_source_args: event_source,

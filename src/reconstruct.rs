@@ -8,8 +8,9 @@ use std::path::{Path, PathBuf};
 use eyre::WrapErr;
 
 use crate::graph;
+use neuspike_infer::learned::{LearnedInput, LearnedModel};
 
-/// Classical reconstructions a recording can go through.
+/// Reconstructions a recording can go through.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Method {
     /// Texture from playback: mean firing over the window.
@@ -22,6 +23,9 @@ pub enum Method {
     Cf,
     /// Events with ISI maps: NeuSpike-Net's Eq. 5-7 (needs `--events`).
     Fusion,
+    /// A learned NeuSpike-Net (`--model models/<name>.onnx`; `--events` too when the model
+    /// reads events).
+    Learned,
 }
 
 impl Method {
@@ -32,21 +36,55 @@ impl Method {
             Method::Hf => "hf",
             Method::Cf => "cf",
             Method::Fusion => "fusion",
+            Method::Learned => "learned",
         }
     }
 
-    /// The representation the method reads (the represent node's output), if any.
+    /// The representation a classical method reads (the represent node's output), if any; the
+    /// learned method reads its model's ([`Learned`]).
     fn representation(self) -> Option<&'static str> {
         match self {
             Method::Tfp => Some("tfp"),
             Method::Tfi | Method::Cf | Method::Fusion => Some("isi"),
-            Method::Hf => None,
+            Method::Hf | Method::Learned => None,
         }
     }
 
-    /// Whether the method reads the event stream.
+    /// Whether a classical method reads align's event stream.
     fn needs_events(self) -> bool {
         matches!(self, Method::Hf | Method::Cf | Method::Fusion)
+    }
+}
+
+/// What the graph needs to know of a learned model: its file and the representations it reads.
+#[derive(Clone, Debug)]
+pub struct Learned {
+    /// The ONNX file (absolute: the graph lives in the output folder).
+    pub model: PathBuf,
+    /// Its inputs, in order, with their channel counts.
+    pub inputs: Vec<(LearnedInput, usize)>,
+}
+
+impl Learned {
+    /// Loads and checks the model (the infer node checks it again at start-up).
+    ///
+    /// # Errors
+    /// The file is missing, unreadable or not a NeuSpike-Net.
+    pub fn load(path: &Path) -> eyre::Result<Learned> {
+        let model = std::fs::canonicalize(path)
+            .wrap_err_with(|| format!("--model {}: cannot open", path.display()))?;
+        let net = LearnedModel::load(&model).map_err(|e| eyre::eyre!("--model: {e}"))?;
+        let inputs = net
+            .inputs()
+            .iter()
+            .copied()
+            .zip(net.channels().iter().copied())
+            .collect();
+        Ok(Learned { model, inputs })
+    }
+
+    fn reads_events(&self) -> bool {
+        self.inputs.iter().any(|(i, _)| *i == LearnedInput::Events)
     }
 }
 
@@ -65,6 +103,8 @@ pub struct ReconstructOptions {
     pub truth: Option<PathBuf>,
     /// The method.
     pub method: Method,
+    /// The ONNX network, for [`Method::Learned`].
+    pub model: Option<PathBuf>,
     /// Output folder.
     pub out: PathBuf,
     /// Extra spike-source arguments (resolution, head columns, rate, start, calibration).
@@ -95,6 +135,7 @@ pub fn graph_yaml(
     spikes: &Path,
     events: Option<&Path>,
     truth: Option<&Path>,
+    learned: Option<&Learned>,
     out: &Path,
 ) -> String {
     let repo = repo();
@@ -169,6 +210,23 @@ pub fn graph_yaml(
         opts.window_planes, opts.stride_planes
     );
     if events.is_some() {
+        // A classical event method reads align's event stream; the learned one reads the events
+        // inside the windows (represent's event integration).
+        let (outputs, types) = if opts.method.needs_events() {
+            (
+                "outputs: [windows, events]".to_string(),
+                format!(
+                    "output_types: {{ windows: {}, events: {} }}",
+                    t("AlignedWindow"),
+                    t("EventBatch")
+                ),
+            )
+        } else {
+            (
+                "outputs: [windows]".to_string(),
+                format!("output_types: {{ windows: {} }}", t("AlignedWindow")),
+            )
+        };
         node(
             "align",
             "align",
@@ -182,12 +240,8 @@ pub fn graph_yaml(
                     t("SpikeChunk"),
                     t("EventBatch")
                 ),
-                "outputs: [windows, events]".into(),
-                format!(
-                    "output_types: {{ windows: {}, events: {} }}",
-                    t("AlignedWindow"),
-                    t("EventBatch")
-                ),
+                outputs,
+                types,
             ],
         );
     } else {
@@ -203,36 +257,72 @@ pub fn graph_yaml(
             ],
         );
     }
-    let repr = opts.method.representation();
-    if let Some(r) = repr {
+    // The represent outputs the infer node reads, each the input of the same name.
+    let reprs: Vec<&str> = match learned {
+        Some(l) => l.inputs.iter().map(|(i, _)| i.input_id()).collect(),
+        None => opts.method.representation().into_iter().collect(),
+    };
+    if !reprs.is_empty() {
+        let mut args = format!("--tfp-planes {}", opts.window_planes);
+        if let Some(l) = learned {
+            for (i, c) in &l.inputs {
+                let _ = match i {
+                    LearnedInput::Spike => write!(args, " --repr-channels {c}"),
+                    LearnedInput::Events => write!(args, " --ei-channels {c} --tau-ns 500000"),
+                };
+            }
+        }
+        let list = reprs.join(", ");
+        let kinds: Vec<String> = reprs
+            .iter()
+            .map(|r| format!("{r}: {}", t("Representation")))
+            .collect();
         node(
             "represent",
             "represent",
-            &format!("--tfp-planes {}", opts.window_planes),
+            &args,
             &[
                 format!("inputs: {{ windows: {{ source: align/windows, {queue} }} }}"),
                 format!("input_types: {{ windows: {} }}", t("AlignedWindow")),
-                format!("outputs: [{r}]"),
-                format!("output_types: {{ {r}: {} }}", t("Representation")),
+                format!("outputs: [{list}]"),
+                format!("output_types: {{ {} }}", kinds.join(", ")),
             ],
         );
     }
     let mut inputs = Vec::new();
     let mut types = Vec::new();
-    if let Some(r) = repr {
-        inputs.push(format!(
-            "representation: {{ source: represent/{r}, {queue} }}"
-        ));
-        types.push(format!("representation: {}", t("Representation")));
+    match learned {
+        Some(_) => {
+            for r in &reprs {
+                inputs.push(format!("{r}: {{ source: represent/{r}, {queue} }}"));
+                types.push(format!("{r}: {}", t("Representation")));
+            }
+        }
+        None => {
+            if let Some(r) = reprs.first() {
+                inputs.push(format!(
+                    "representation: {{ source: represent/{r}, {queue} }}"
+                ));
+                types.push(format!("representation: {}", t("Representation")));
+            }
+        }
     }
     if opts.method.needs_events() {
         inputs.push(format!("events: {{ source: align/events, {queue} }}"));
         types.push(format!("events: {}", t("EventBatch")));
     }
+    let infer_args = match learned {
+        Some(l) => format!(
+            "--method {m} --model {} {}",
+            l.model.display(),
+            opts.infer_args
+        ),
+        None => format!("--method {m} {}", opts.infer_args),
+    };
     node(
         &format!("infer-{m}"),
         "infer",
-        &format!("--method {m} {}", opts.infer_args),
+        &infer_args,
         &[
             format!("inputs: {{ {} }}", inputs.join(", ")),
             format!("input_types: {{ {} }}", types.join(", ")),
@@ -262,17 +352,35 @@ pub fn graph_yaml(
 /// Writes the graph into the output folder and runs it.
 pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     let m = opts.method.name();
-    let events = match (&opts.events, opts.method.needs_events()) {
+    let learned = match (opts.method, &opts.model) {
+        (Method::Learned, Some(path)) => Some(Learned::load(path)?),
+        (Method::Learned, None) => eyre::bail!(
+            "--method learned needs --model FILE (an ONNX network, e.g. models/neuspike-spike-8.onnx)"
+        ),
+        (_, Some(path)) => eyre::bail!(
+            "--model {}: --model is for --method learned, not {m}",
+            path.display()
+        ),
+        (_, None) => None,
+    };
+    let needs_events = match &learned {
+        Some(l) => l.reads_events(),
+        None => opts.method.needs_events(),
+    };
+    let events = match (&opts.events, needs_events) {
         (Some(e), true) => Some(
             std::fs::canonicalize(e)
                 .wrap_err_with(|| format!("--events {}: cannot open", e.display()))?,
         ),
         (None, true) => eyre::bail!(
-            "--method {m} reconstructs from events: give the event recording with --events FILE"
+            "--method {m}{} reconstructs from events: give the event recording with --events FILE",
+            learned
+                .as_ref()
+                .map_or(String::new(), |l| format!(" with {}", l.model.display()))
         ),
         (Some(e), false) => eyre::bail!(
             "--events {}: --method {m} reads the spikes only; the methods that read events are \
-             hf, cf and fusion",
+             hf, cf, fusion, and learned with a model that reads events",
             e.display()
         ),
         (None, false) => None,
@@ -302,7 +410,14 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     let graph_path = out.join("graph.yml");
     std::fs::write(
         &graph_path,
-        graph_yaml(opts, &spikes, events.as_deref(), truth.as_deref(), &out),
+        graph_yaml(
+            opts,
+            &spikes,
+            events.as_deref(),
+            truth.as_deref(),
+            learned.as_ref(),
+            &out,
+        ),
     )
     .wrap_err_with(|| format!("cannot write {}", graph_path.display()))?;
     graph::run(&graph_path, &[], opts.build, None, Some(out))
@@ -333,6 +448,7 @@ mod tests {
             events: None,
             truth: None,
             method,
+            model: None,
             out: "out".into(),
             source_args: "--file-width 40 --file-height 25".into(),
             event_source_args: String::new(),
@@ -362,6 +478,7 @@ mod tests {
             let y = graph_yaml(
                 &opts(method),
                 Path::new("/d/x.dat"),
+                None,
                 None,
                 None,
                 Path::new("/o"),
@@ -400,6 +517,7 @@ mod tests {
                 Path::new("/d/x.dat"),
                 Some(Path::new("/d/e.raw")),
                 Some(Path::new("/d/ground-truth")),
+                None,
                 Path::new("/o"),
             );
             let nodes = nodes(&y);
@@ -464,10 +582,7 @@ mod tests {
         let mut o = opts(Method::Tfp);
         o.events = Some("e.raw".into());
         let e = refused(&o);
-        assert!(
-            e.contains("e.raw") && e.contains("hf, cf and fusion"),
-            "{e}"
-        );
+        assert!(e.contains("e.raw") && e.contains("hf, cf, fusion"), "{e}");
         let e = refused(&opts(Method::Fusion));
         assert!(
             e.contains("--method fusion") && e.contains("--events"),
@@ -477,5 +592,87 @@ mod tests {
         o.events = Some("/no/such/events.raw".into());
         let e = refused(&o);
         assert!(e.contains("/no/such/events.raw"), "{e}");
+    }
+
+    #[test]
+    fn the_learned_method_wires_what_its_model_reads() {
+        let spike_only = Learned {
+            model: "/m/spike.onnx".into(),
+            inputs: vec![(LearnedInput::Spike, 32)],
+        };
+        let y = graph_yaml(
+            &opts(Method::Learned),
+            Path::new("/d/x.dat"),
+            None,
+            None,
+            Some(&spike_only),
+            Path::new("/o"),
+        );
+        let graph = nodes(&y);
+        assert_eq!(graph.len(), 5);
+        let represent = find(&graph, "represent");
+        assert_eq!(represent["outputs"][0].as_str(), Some("spike_repr"));
+        let args = represent["args"].as_str().expect("args");
+        assert!(args.contains("--repr-channels 32"), "{args}");
+        let infer = find(&graph, "infer-learned");
+        assert_eq!(
+            infer["inputs"]["spike_repr"]["source"].as_str(),
+            Some("represent/spike_repr")
+        );
+        let args = infer["args"].as_str().expect("args");
+        assert!(
+            args.contains("--method learned --model /m/spike.onnx"),
+            "{args}"
+        );
+
+        let fused = Learned {
+            model: "/m/fused.onnx".into(),
+            inputs: vec![(LearnedInput::Spike, 32), (LearnedInput::Events, 32)],
+        };
+        let y = graph_yaml(
+            &opts(Method::Learned),
+            Path::new("/d/x.dat"),
+            Some(Path::new("/d/e.raw")),
+            None,
+            Some(&fused),
+            Path::new("/o"),
+        );
+        let graph = nodes(&y);
+        assert_eq!(graph.len(), 6);
+        // The events reach represent inside align's windows: align sends no event stream.
+        let align = find(&graph, "align");
+        assert_eq!(
+            align["inputs"]["events"]["source"].as_str(),
+            Some("event-source/events")
+        );
+        assert!(align["outputs"][1].is_null());
+        let represent = find(&graph, "represent");
+        assert_eq!(represent["outputs"][1].as_str(), Some("event_integration"));
+        let args = represent["args"].as_str().expect("args");
+        assert!(args.contains("--ei-channels 32"), "{args}");
+        let infer = find(&graph, "infer-learned");
+        assert_eq!(
+            infer["inputs"]["event_integration"]["source"].as_str(),
+            Some("represent/event_integration")
+        );
+        assert!(infer["inputs"]["events"].is_null());
+    }
+
+    #[test]
+    fn the_learned_method_needs_a_model_and_the_events_it_reads() {
+        let e = refused(&opts(Method::Learned));
+        assert!(e.contains("--model"), "{e}");
+        let mut o = opts(Method::Tfp);
+        o.model = Some("m.onnx".into());
+        let e = refused(&o);
+        assert!(e.contains("m.onnx") && e.contains("learned"), "{e}");
+        let mut o = opts(Method::Learned);
+        o.model = Some("/no/such/model.onnx".into());
+        let e = refused(&o);
+        assert!(e.contains("/no/such/model.onnx"), "{e}");
+        let mut o = opts(Method::Learned);
+        o.model = Some(repo().join("models/neuspike-fused-8.onnx"));
+        let e = refused(&o);
+        assert!(e.contains("--events") && e.contains("fused-8"), "{e}");
     }
 }
