@@ -151,6 +151,9 @@ pub struct LearnedModel {
     conv: ConvPath,
     /// The plan for the last padded size, and the path it uses (never `Auto`).
     plan: Option<((usize, usize), Plan, ConvPath)>,
+    /// The last run's input tensors, refilled in place when nothing else holds them: a fresh
+    /// 13 MB tensor per input and frame cost its page faults every time.
+    buffers: Vec<Arc<Tensor>>,
 }
 
 fn model_error(path: &Path, reason: impl std::fmt::Display) -> InferError {
@@ -257,6 +260,7 @@ impl LearnedModel {
             output,
             conv: ConvPath::Auto,
             plan: None,
+            buffers: Vec::new(),
         })
     }
 
@@ -389,22 +393,41 @@ impl LearnedModel {
         Ok((h, w))
     }
 
-    /// Each input padded to `hp x wp` as a `[1, C, hp, wp]` tensor.
+    /// Each input padded to `hp x wp` as a `[1, C, hp, wp]` tensor, written into the last run's
+    /// tensor of that shape when nothing else holds it.
     fn padded_inputs(
-        &self,
+        &mut self,
         xs: &[ArrayView3<f32>],
         hp: usize,
         wp: usize,
     ) -> Result<TVec<TValue>, InferError> {
         let mut values = TVec::new();
-        for x in xs {
-            let padded = pad_edge(*x, hp, wp);
-            let c = x.dim().0;
-            // The padded buffer becomes the tensor's storage: no second copy.
-            let t = tract_ndarray::Array4::from_shape_vec((1, c, hp, wp), padded)
-                .map_err(|e| model_error(&self.path, e))?
-                .into_tensor();
-            values.push(t.into_tvalue());
+        for (i, x) in xs.iter().enumerate() {
+            let shape = [1, x.dim().0, hp, wp];
+            let reusable = self
+                .buffers
+                .get_mut(i)
+                .and_then(Arc::get_mut)
+                .is_some_and(|t| t.shape() == shape);
+            if !reusable {
+                let t =
+                    Tensor::zero::<f32>(&shape).map_err(|e| model_error(&self.path, chain(&e)))?;
+                match self.buffers.get_mut(i) {
+                    Some(b) => *b = Arc::new(t),
+                    None => self.buffers.push(Arc::new(t)),
+                }
+            }
+            let buffer = Arc::get_mut(&mut self.buffers[i]).ok_or_else(|| {
+                model_error(&self.path, "internal: an input tensor is still shared")
+            })?;
+            let mut plain = buffer
+                .try_as_plain_ram_mut()
+                .map_err(|e| model_error(&self.path, chain(&e)))?;
+            let dst = plain
+                .as_slice_mut::<f32>()
+                .map_err(|e| model_error(&self.path, chain(&e)))?;
+            pad_edge_into(*x, hp, wp, dst);
+            values.push(TValue::from_const(self.buffers[i].clone()));
         }
         Ok(values)
     }
@@ -494,18 +517,26 @@ pub fn set_threads(n: usize) {
 
 /// `x` (`[C, H, W]`) padded to `[C, hp, wp]` by repeating its last row and column, row-major.
 pub fn pad_edge(x: ArrayView3<f32>, hp: usize, wp: usize) -> Vec<f32> {
+    let mut out = vec![0.0; x.dim().0 * hp * wp];
+    pad_edge_into(x, hp, wp, &mut out);
+    out
+}
+
+/// [`pad_edge`] into `dst` (`C * hp * wp` values, `hp >= H`, `wp >= W`, as the caller
+/// guarantees; a shorter `dst` is filled as far as it goes).
+pub fn pad_edge_into(x: ArrayView3<f32>, hp: usize, wp: usize, dst: &mut [f32]) {
     let (c, h, w) = x.dim();
-    let mut out = Vec::with_capacity(c * hp * wp);
+    let mut rows = dst.chunks_exact_mut(wp.max(1));
     for ch in 0..c {
         for y in 0..hp {
+            let Some(out) = rows.next() else { return };
             let row = x.slice(ndarray::s![ch, y.min(h.saturating_sub(1)), ..]);
+            let (body, pad) = out.split_at_mut(w.min(wp));
             match row.as_slice() {
-                Some(r) => out.extend_from_slice(r),
-                None => out.extend(row.iter().copied()),
+                Some(r) => body.copy_from_slice(&r[..body.len()]),
+                None => body.iter_mut().zip(row.iter()).for_each(|(d, &v)| *d = v),
             }
-            let last = row.last().copied().unwrap_or(0.0);
-            out.extend(std::iter::repeat_n(last, wp - w));
+            pad.fill(row.last().copied().unwrap_or(0.0));
         }
     }
-    out
 }

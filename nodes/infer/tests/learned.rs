@@ -319,3 +319,34 @@ fn a_profile_times_every_node_of_the_plan_and_the_padding() {
         .count();
     assert!(convs >= 10, "{convs} convolution nodes of {}", nodes.len());
 }
+
+#[test]
+fn reused_input_tensors_never_leak_one_frame_into_the_next() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let a: Vec<Array4<f32>> = model
+        .inputs()
+        .iter()
+        .map(|i| reference(path, i.onnx_name()))
+        .collect();
+    let b: Vec<Array4<f32>> = a.iter().map(|x| x.mapv(|v| 1.0 - v)).collect();
+    let view = |xs: &[Array4<f32>]| -> Vec<Array3<f32>> {
+        xs.iter()
+            .map(|x| x.index_axis(Axis(0), 0).to_owned())
+            .collect()
+    };
+    let (a3, b3) = (view(&a), view(&b));
+    let run = |m: &mut LearnedModel, xs: &[Array3<f32>]| {
+        let v: Vec<ArrayView3<f32>> = xs.iter().map(|x| x.view()).collect();
+        m.run(&v).expect("run")
+    };
+    let first = run(&mut model, &a3);
+    let other = run(&mut model, &b3);
+    let again = run(&mut model, &a3);
+    assert_eq!(first, again);
+    assert_ne!(first, other);
+    // A clone shares nothing it could overwrite under the original.
+    let mut copy = model.clone();
+    assert_eq!(run(&mut copy, &b3), other);
+    assert_eq!(run(&mut model, &a3), first);
+}
