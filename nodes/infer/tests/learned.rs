@@ -32,6 +32,22 @@ fn reference(model: &Path, name: &str) -> Array4<f32> {
     read_npy(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
+/// The reference input of each of the model's inputs, `[1, C, H, W]`.
+fn reference_inputs(model: &LearnedModel, path: &Path) -> Vec<Array4<f32>> {
+    model
+        .inputs()
+        .iter()
+        .map(|i| reference(path, i.onnx_name()))
+        .collect()
+}
+
+fn max_diff<'a>(a: impl IntoIterator<Item = &'a f32>, b: impl IntoIterator<Item = &'a f32>) -> f32 {
+    a.into_iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max)
+}
+
 #[test]
 fn every_shipped_model_reproduces_its_pytorch_reference() {
     let models = shipped();
@@ -42,11 +58,7 @@ fn every_shipped_model_reproduces_its_pytorch_reference() {
     );
     for path in models {
         let mut model = LearnedModel::load(&path).expect("load");
-        let inputs: Vec<Array4<f32>> = model
-            .inputs()
-            .iter()
-            .map(|i| reference(&path, i.onnx_name()))
-            .collect();
+        let inputs = reference_inputs(&model, &path);
         let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
         let want = reference(&path, model.output().onnx_name());
         let got = model.run(&views).expect("run");
@@ -56,11 +68,7 @@ fn every_shipped_model_reproduces_its_pytorch_reference() {
             "{}",
             path.display()
         );
-        let diff = got
-            .iter()
-            .zip(want.iter())
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let diff = max_diff(&got, &want);
         assert!(
             diff < 1e-4,
             "{}: tract differs from PyTorch by {diff}",
@@ -79,11 +87,7 @@ fn every_shipped_model_reproduces_its_pytorch_reference() {
 fn sizes_that_are_not_multiples_of_the_stride_are_padded_and_cropped() {
     let path = &shipped()[0];
     let mut model = LearnedModel::load(path).expect("load");
-    let inputs: Vec<Array4<f32>> = model
-        .inputs()
-        .iter()
-        .map(|i| reference(path, i.onnx_name()))
-        .collect();
+    let inputs = reference_inputs(&model, path);
     // 13 x 21 of the 16 x 24 reference: the network sees it padded back to 16 x 24 by repeating
     // the last row and column, so the output is that of the padded input, cropped.
     let cut: Vec<Array3<f32>> = inputs
@@ -159,31 +163,49 @@ fn a_missing_or_corrupt_file_is_refused_by_name() {
     }
 }
 
-#[test]
-fn a_model_whose_inputs_are_not_the_representations_is_refused() {
-    let source = &shipped()[0];
+enum Io {
+    Input,
+    Output,
+}
+
+/// The first shipped model with its first input or output renamed to `name`, written into `dir`.
+fn renamed(dir: &Path, io: Io, name: &str) -> PathBuf {
     let mut proto = tract_onnx::onnx()
-        .proto_model_for_path(source)
+        .proto_model_for_path(&shipped()[0])
         .expect("proto");
     let graph = proto.graph.as_mut().expect("graph");
-    let old = graph.input[0].name.clone();
-    graph.input[0].name = "voxels".into();
+    let slot = match io {
+        Io::Input => &mut graph.input[0],
+        Io::Output => &mut graph.output[0],
+    };
+    let old = std::mem::replace(&mut slot.name, name.into());
     for node in &mut graph.node {
-        for i in &mut node.input {
-            if *i == old {
-                *i = "voxels".into();
+        for wire in node.input.iter_mut().chain(node.output.iter_mut()) {
+            if *wire == old {
+                *wire = name.into();
             }
         }
     }
-    let dir = tempfile::tempdir().expect("tempdir");
-    let p = dir.path().join("renamed.onnx");
+    let p = dir.join(format!("{name}.onnx"));
     std::fs::write(&p, proto.encode_to_vec()).expect("write");
-    let (path, reason) = model_error(LearnedModel::load(&p).expect_err("renamed"));
+    p
+}
+
+/// Loading the renamed model fails naming the file, the name, and `hint` (what it should be).
+fn refused_when_renamed(io: Io, name: &str, hint: &str) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = renamed(dir.path(), io, name);
+    let (path, reason) = model_error(LearnedModel::load(&p).expect_err(name));
     assert_eq!(path, p);
     assert!(
-        reason.contains("`voxels`") && reason.contains("spike"),
+        reason.contains(&format!("`{name}`")) && reason.contains(hint),
         "{reason}"
     );
+}
+
+#[test]
+fn a_model_whose_inputs_are_not_the_representations_is_refused() {
+    refused_when_renamed(Io::Input, "voxels", "spike");
 }
 
 #[test]
@@ -234,40 +256,13 @@ fn the_output_name_says_its_unit_and_an_unknown_one_is_refused() {
         };
         assert_eq!(model.output(), want, "{}", path.display());
     }
-    let source = &shipped()[0];
-    let mut proto = tract_onnx::onnx()
-        .proto_model_for_path(source)
-        .expect("proto");
-    let graph = proto.graph.as_mut().expect("graph");
-    let old = graph.output[0].name.clone();
-    graph.output[0].name = "depth".into();
-    for node in &mut graph.node {
-        for o in &mut node.output {
-            if *o == old {
-                *o = "depth".into();
-            }
-        }
-    }
-    let dir = tempfile::tempdir().expect("tempdir");
-    let p = dir.path().join("depth.onnx");
-    std::fs::write(&p, proto.encode_to_vec()).expect("write");
-    let (path, reason) = model_error(LearnedModel::load(&p).expect_err("renamed output"));
-    assert_eq!(path, p);
-    assert!(
-        reason.contains("`depth`") && reason.contains("luminance"),
-        "{reason}"
-    );
+    refused_when_renamed(Io::Output, "depth", "luminance");
 }
 
 #[test]
 fn both_convolution_paths_reproduce_the_reference_and_auto_keeps_one() {
     for path in shipped() {
-        let inputs: Vec<Array4<f32>> = LearnedModel::load(&path)
-            .expect("load")
-            .inputs()
-            .iter()
-            .map(|i| reference(&path, i.onnx_name()))
-            .collect();
+        let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
         let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
         for conv in [ConvPath::Direct, ConvPath::Im2col, ConvPath::Auto] {
             let mut model = LearnedModel::load(&path).expect("load");
@@ -275,11 +270,7 @@ fn both_convolution_paths_reproduce_the_reference_and_auto_keeps_one() {
             assert_eq!(model.conv_path_in_use(), None);
             let want = reference(&path, model.output().onnx_name());
             let got = model.run(&views).expect("run");
-            let diff = got
-                .iter()
-                .zip(want.iter())
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0f32, f32::max);
+            let diff = max_diff(&got, &want);
             assert!(
                 diff < 1e-4,
                 "{} ({conv}): differs by {diff}",
@@ -303,11 +294,7 @@ fn both_convolution_paths_reproduce_the_reference_and_auto_keeps_one() {
 fn a_profile_times_every_node_of_the_plan_and_the_padding() {
     let path = &shipped()[0];
     let mut model = LearnedModel::load(path).expect("load");
-    let inputs: Vec<Array4<f32>> = model
-        .inputs()
-        .iter()
-        .map(|i| reference(path, i.onnx_name()))
-        .collect();
+    let inputs = reference_inputs(&model, path);
     let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
     let nodes = model.profile(&views).expect("profile");
     assert_eq!(nodes[0].op, "(pad inputs)");
@@ -324,11 +311,7 @@ fn a_profile_times_every_node_of_the_plan_and_the_padding() {
 fn reused_input_tensors_never_leak_one_frame_into_the_next() {
     let path = &shipped()[0];
     let mut model = LearnedModel::load(path).expect("load");
-    let a: Vec<Array4<f32>> = model
-        .inputs()
-        .iter()
-        .map(|i| reference(path, i.onnx_name()))
-        .collect();
+    let a = reference_inputs(&model, path);
     let b: Vec<Array4<f32>> = a.iter().map(|x| x.mapv(|v| 1.0 - v)).collect();
     let view = |xs: &[Array4<f32>]| -> Vec<Array3<f32>> {
         xs.iter()
