@@ -36,6 +36,11 @@ def tract_times(model: str, threads: str, runs: int) -> tuple[dict[int, float], 
     return {int(t): float(ms) for t, ms, _ in found}, {int(t): c for t, _, c in found}
 
 
+def recipe(cfg: dict) -> tuple:
+    """What makes two runs the same configuration, seed and device aside."""
+    return cfg["base"], cfg["mode"], cfg["aux"], cfg["steps"], "val" in cfg
+
+
 def same(a: dict, b: dict, *keys: str) -> bool:
     return all(a.get(k) == b.get(k) for k in keys)
 
@@ -46,7 +51,7 @@ def mean_row(runs: list[dict]) -> dict:
 
 def device(cfg: dict) -> str:
     if cfg["device"] == "cuda":
-        return "one H100 GPU (nine runs sharing it)"
+        return "one H100 GPU shared by several runs at once (models/README.md)"
     return f"{cfg['device']} (a 2-core machine shared with builds and other runs, so the wall time overstates)"
 
 
@@ -96,7 +101,11 @@ def main() -> None:
         "photos; see training/README.md).",
         f"- {cfg['steps']:,} steps of {cfg['batch']} samples (Adam, one-cycle, max lr {cfg['lr']}), "
         f"seed {cfg['seed']}, the 8 flips and quarter turns; {cfg['train_seconds'] / 60:.1f} min wall on "
-        f"{device(cfg)}.",
+        f"{device(cfg)}."
+        + (f" The weights kept are those of step {cfg['best_step']:,}, the best mean PSNR "
+           f"({cfg['best_val_psnr']:.2f} dB) on a validation set scored every 500 steps "
+           f"({cfg['val_samples']} samples of 96x96 made like the training set with `--seed 1`; "
+           "never the held-out set)." if "val" in cfg else ""),
         f"- Loss: L2 on luminance + {cfg['aux_weight']} x {cfg['aux']} "
         "(the paper's VGG perceptual term needs pretrained weights that cannot be downloaded here)."
         if cfg["aux"] != "none"
@@ -120,7 +129,7 @@ def main() -> None:
         row("TFI", ev["tfi"]),
     ]
     repeats = [(k, v) for k, v in ev.items()
-               if k != args.run and "config" in v and same(v["config"], me["config"], "base", "mode", "aux")]
+               if k != args.run and "config" in v and recipe(v["config"]) == recipe(me["config"])]
     for k, v in repeats:
         c = v["config"]
         lines.append(row(f"same configuration, seed {c['seed']} on {c['device']} ({k})", v))
@@ -137,9 +146,9 @@ def main() -> None:
             "configuration show how much retraining alone moves the scores.",
         ]
     if me["config"]["aux"] != "none":
-        base_runs = [v for k, v in ev.items() if "config" in v and same(v["config"], me["config"], "base", "mode", "aux")]
-        noaux = [v for k, v in ev.items() if "config" in v and same(v["config"], me["config"], "base", "mode")
-                 and v["config"]["aux"] == "none"]
+        base_runs = [v for v in ev.values() if "config" in v and recipe(v["config"]) == recipe(me["config"])]
+        noaux = [v for v in ev.values() if "config" in v
+                 and recipe(v["config"]) == recipe(me["config"] | {"aux": "none"})]
         if noaux:
             a, b = mean_row(base_runs), mean_row(noaux)
             lines += [

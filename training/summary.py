@@ -25,14 +25,18 @@ def main() -> None:
     for name, r in ev.items():
         if "config" in r:
             c = r["config"]
-            groups[(c["mode"], c["base"], c["aux"])].append((name, r))
+            groups[(c["mode"], c["base"], c["aux"], c["steps"], "val" in c)].append((name, r))
     order = {"fused": 0, "spike": 1, "event": 2}
     print("| configuration | run | device | PSNR normal | PSNR complex | SSIM normal | SSIM complex |")
     print("|---|---|---|---|---|---|---|")
     for k in ("tfp", "tfi"):
         print(f"| {k.upper()} (classical) | | | {fmt(ev[k])} |")
-    for (mode, base, aux), runs in sorted(groups.items(), key=lambda g: (order[g[0][0]], g[0][1], ["ssim", "grad", "none"].index(g[0][2]))):
-        label = f"{mode}, base {base}, aux {aux}"
+    def key(g):
+        mode, base, aux, steps, val = g[0]
+        return order[mode], base, ["ssim", "grad", "none"].index(aux), steps, val
+
+    for (mode, base, aux, steps, val), runs in sorted(groups.items(), key=key):
+        label = f"{mode}, base {base}, aux {aux}, {steps // 1000}k steps" + (", best on validation" if val else "")
         for name, r in sorted(runs, key=lambda x: (x[1]["config"]["seed"], x[0])):
             c = r["config"]
             print(f"| {label} | {name} (seed {c['seed']}) | {c['device']} | {fmt(r)} |")

@@ -8,7 +8,11 @@ sample's calibration) with the ground truth, by L2 plus an auxiliary term standi
 paper's VGG perceptual loss (no pretrained weights can be downloaded here): `ssim` (1 - SSIM,
 REFERENCE.md's window), `grad` (L1 between image gradients) or `none`. Augmentation: the 8 flips
 and quarter turns, the same for every input and the target. Everything is seeded; the step count,
-not the wall clock, ends training, so a run repeats.
+not the wall clock, ends training, so a run repeats (on a CPU; CUDA kernels are not bit-exact).
+
+`--val DIR` (a set made like the training set with another `--seed`, never the held-out set)
+scores the model every `--val-every` steps and keeps the weights of the best mean PSNR: the
+checkpoint is chosen without looking at the held-out set.
 """
 
 import argparse
@@ -54,6 +58,21 @@ def augment(tensors: list[torch.Tensor], k: int) -> list[torch.Tensor]:
     return [t.flip(-1) for t in out] if k >= 4 else out
 
 
+@torch.no_grad()
+def validation_psnr(model: NeuSpikeNet, val: data.Split, batch: int = 50) -> float:
+    """Mean per-sample PSNR on `val` (luminance clipped to [0, 1], REFERENCE.md's definition; a
+    perfect frame counts 120 dB instead of +inf, so one cannot swamp the mean)."""
+    model.eval()
+    total = 0.0
+    for i in range(0, len(val), batch):
+        idx = torch.arange(i, min(i + batch, len(val)), device=val.truth.device)
+        lum = (model(*val.inputs(model.inputs(), idx)) * model.gain(val.lum_per_rate[idx])).clamp(0, 1)
+        mse = ((lum - val.truth[idx]) ** 2).mean(dim=(1, 2, 3)).double()
+        total += float((10 * torch.log10(1.0 / mse.clamp_min(1e-12))).sum())
+    model.train()
+    return total / len(val)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--train", type=pathlib.Path, required=True)
@@ -66,6 +85,8 @@ def main() -> None:
     ap.add_argument("--aux-weight", type=float, default=0.1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
+    ap.add_argument("--val", type=pathlib.Path, help="validation set: keep the best checkpoint on it")
+    ap.add_argument("--val-every", type=int, default=500)
     ap.add_argument("--out", type=pathlib.Path, required=True)
     args = ap.parse_args()
 
@@ -84,6 +105,8 @@ def main() -> None:
         f"{args.mode} base {args.base}: {parameters(model):,} parameters, {len(train)} samples, "
         f"{args.steps} steps of {args.batch} on {device} ({torch.get_num_threads()} threads)"
     )
+    val = data.load(args.val).to(device) if args.val else None
+    best = (-float("inf"), 0, None)  # (mean PSNR, step, weights)
     start, log_every, running = time.monotonic(), max(args.steps // 40, 1), 0.0
     model.train()
     for step in range(args.steps):
@@ -106,7 +129,14 @@ def main() -> None:
         if (step + 1) % log_every == 0:
             print(f"step {step + 1:6d}  loss {running / log_every:.5f}  {time.monotonic() - start:7.1f} s", flush=True)
             running = 0.0
+        if val is not None and ((step + 1) % args.val_every == 0 or step + 1 == args.steps):
+            score = validation_psnr(model, val)
+            if score > best[0]:
+                best = (score, step + 1, {k: v.detach().clone() for k, v in model.state_dict().items()})
+            print(f"step {step + 1:6d}  validation PSNR {score:.2f} dB (best {best[0]:.2f} at {best[1]})", flush=True)
     seconds = time.monotonic() - start
+    if best[2] is not None:
+        model.load_state_dict(best[2])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     config = {
         "base": args.base,
@@ -125,6 +155,8 @@ def main() -> None:
         # CPU time of every thread: on a machine shared with builds, the wall clock overstates.
         "cpu_seconds": round(time.process_time(), 1),
         "device": str(device) if device.type == "cuda" else f"cpu x{torch.get_num_threads()}",
+        **({"val": str(args.val), "val_samples": len(val), "best_step": best[1],
+            "best_val_psnr": round(best[0], 3)} if val is not None else {}),
         "torch": str(torch.__version__),
     }
     torch.save({"config": config, "state": model.state_dict()}, args.out)

@@ -13,6 +13,8 @@ P=${PYTHON:-python3}
 mkdir -p "$OUT/logs"
 [ -d "$OUT/train" ] || "$NEUSPIKE" dataset --split train --per-cell 120 --size 64 --textures "$TEXTURES/train" --out "$OUT/train"
 [ -d "$OUT/test" ] || "$NEUSPIKE" dataset --split test --per-cell 16 --size 96 --textures "$TEXTURES/test" --out "$OUT/test"
+# Validation: made like the training set, another seed; the held-out set is never used to choose.
+[ -d "$OUT/val" ] || "$NEUSPIKE" dataset --split train --seed 1 --per-cell 8 --size 96 --textures "$TEXTURES/train" --out "$OUT/val"
 
 run() {
   local name=$1
@@ -35,5 +37,12 @@ run fused-8-seed1 --base 8 --mode fused --seed 1
 run spike-8-seed1 --base 8 --mode spike --seed 1
 run spike-24 --base 24 --mode spike
 run event-24 --base 24 --mode event
+wait
+# The second recipe (the shipped small and medium models): 10,000 steps, best on validation.
+for cfg in "fused 16 0" "fused 16 1" "fused 8 0" "fused 8 1" "spike 16 0" "spike 8 0"; do
+  set -- $cfg
+  s=$([ "$3" = 0 ] && echo "" || echo "-seed1")
+  run "$1-$2-val$s" --base "$2" --mode "$1" --seed "$3" --steps 10000 --val "$OUT/val"
+done
 wait
 $P training/evaluate.py --test "$OUT/test" "$OUT"/*.pt --json "$OUT/eval.json"
