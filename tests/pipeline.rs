@@ -179,9 +179,9 @@ fn fusion_graph_runs_every_method_and_loses_nothing() {
 
 /// A paired recording from `neuspike simulate` (both cameras 400x250, on one clock, ground truth
 /// every 20 planes), played back by `neuspike reconstruct --events` for each method that reads
-/// events: every window becomes a frame, nothing is lost, the recorded ground truth (found beside
-/// the spike file) scores every frame, and the frames resemble it (the SSIM floor of the
-/// simulated graph's test).
+/// events, the learned fused network included (`--method learned --model`): every window becomes
+/// a frame, nothing is lost, the recorded ground truth (found beside the spike file) scores every
+/// frame, and the frames resemble it (the SSIM floor of the simulated graph's test).
 #[test]
 fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
     use neuspike::reconstruct::{Method, ReconstructOptions, reconstruct};
@@ -204,13 +204,20 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
         progress: false,
     })
     .expect("simulate");
-    for method in [Method::Hf, Method::Cf, Method::Fusion] {
+    let fused = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/neuspike-fused-8.onnx");
+    for (method, model) in [
+        (Method::Hf, None),
+        (Method::Cf, None),
+        (Method::Fusion, None),
+        (Method::Learned, Some(fused)),
+    ] {
         let out = dir.path().join(format!("{method:?}"));
         let opts = ReconstructOptions {
             spikes: rec.join("spikes.dat"),
             events: Some(rec.join("events.raw")),
             truth: None,
             method,
+            model,
             out: out.clone(),
             source_args: String::new(),
             event_source_args: String::new(),
