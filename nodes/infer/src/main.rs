@@ -208,7 +208,8 @@ struct Pending {
     events: Option<EventBatch>,
 }
 
-/// What makes the frames.
+/// What makes the frames. A node holds one, so the variants' sizes do not matter.
+#[allow(clippy::large_enum_variant)]
 enum Engine {
     Online(Online),
     Learned(Box<LearnedModel>),

@@ -132,6 +132,16 @@ fn events(c: &mut Criterion, one: &rayon::ThreadPool) {
     g.bench_function("baseline_copy_output_bytes", |b| {
         b.iter(|| dst.assign(black_box(&src)))
     });
+    // The input side: the four event columns (13 MB).
+    let (mut t2, mut x2, mut y2, mut p2) = (t_ns.clone(), x.clone(), y.clone(), polarity.clone());
+    g.bench_function("baseline_copy_input_events", |b| {
+        b.iter(|| {
+            t2.copy_from_slice(black_box(&t_ns));
+            x2.copy_from_slice(black_box(&x));
+            y2.copy_from_slice(black_box(&y));
+            p2.copy_from_slice(black_box(&polarity));
+        })
+    });
     g.bench_function("event_integration_reference", |b| {
         b.iter(|| {
             one.install(|| {

@@ -210,7 +210,9 @@ impl Decay {
                 reason: "the decay time must be a number (<= 0 for the tau -> 0 limit, +inf for no decay)",
             });
         }
-        Ok(if tau_ns <= 0.0 {
+        // A tau so small that 1 / tau overflows (subnormal) weighs as the limit does: 1 at dt = 0,
+        // `exp(-dt / tau) = 0` for any dt >= 1 ns.
+        Ok(if tau_ns <= 0.0 || (1.0 / tau_ns).is_infinite() {
             Self::Instant
         } else if tau_ns == f64::INFINITY {
             Self::Never
@@ -260,9 +262,10 @@ impl Decay {
 /// - `tau_ns = +inf`: no decay, the channel is twice the signed count.
 ///
 /// Time differences are taken in `i128` and converted to `f64`, so instants anywhere in the `i64`
-/// range (near `i64::MAX` included) work without overflow. The fast path carries each pixel's
-/// decayed sums from `ts_ns[k - 1]` to `ts_ns[k]` by the factor `exp(-(ts_ns[k] - ts_ns[k - 1]) / tau)`,
-/// so it matches the reference to about `1e-12` relative before the final rounding to `f32`.
+/// range (near `i64::MAX` included) work without overflow. The fast path keeps each pixel's sum
+/// of `±exp((t_i - t_base) / tau)` against a base instant that moves on as the channels do (see
+/// `integrate_block`), and matches the reference to about `1e-12` relative before the final
+/// rounding to `f32`.
 ///
 /// # Errors
 /// - [`RepresentError::Shape`] when `dst` has not `ts_ns.len()` channels, or the event slices differ
@@ -417,15 +420,23 @@ fn integration_fast(
 }
 
 /// Integrates `events` (time-ordered, all in rows `y0..y0 + rows`) into the block `dst`
-/// `[K, rows, W]`, channel by channel: decay the carried sums to the next instant, add the
-/// events up to it, write.
+/// `[K, rows, W]`, channel by channel: add the events up to the next instant, write.
 ///
-/// Each pixel carries its signed count and its signed decayed sum (ON minus OFF, in `f64`: the
-/// same value as summing ON and OFF apart, to rounding), side by side so an event touches one
-/// cache line. A channel's events are a contiguous run of `events`; their pixels, signs and
-/// weights `p exp(-(t_k - t_i) / tau)` are computed in vectorised passes ([`exp_neg`]), then
-/// added one by one; the decay and the output are vectorised passes over the pixels. No branch
-/// depends on a polarity.
+/// Each pixel carries its signed count and `G`, the signed sum of `exp((t_i - t_base) / tau)`
+/// over its events (ON minus OFF, in `f64`: the same value as summing ON and OFF apart, to
+/// rounding), side by side so an event touches one cache line. Channel `k` is then
+/// `count + G exp(-(t_k - t_base) / tau)`: a read-only pass over the sums, where carrying decayed
+/// sums from instant to instant would write them all back every channel. `t_base` moves on to
+/// `t_k` (one pass scaling `G` down) whenever `(t_k - t_base) / tau` passes [`REBASE_AT`], so `G`
+/// stays below `events * e^REBASE_AT`, far inside `f64`.
+///
+/// A channel's events are a contiguous run of `events`, taken in batches of [`BATCH`] so the
+/// batch stays in the first-level cache; their pixels, signs and weights
+/// `p exp(-(t_k - t_i) / tau) exp((t_k - t_base) / tau)` are computed in vectorised passes
+/// ([`exp_neg`]), then added one by one; the output is a vectorised pass over the pixels. No
+/// branch depends on a polarity. For `tau -> 0` only events at `t_k` itself weigh: their `G` is
+/// cleared again after the channel is written (it was 0 before), for `tau = inf` `G` is the
+/// signed count.
 fn integrate_block(
     events: EventSlice,
     ts_ns: &[i64],
@@ -434,47 +445,71 @@ fn integrate_block(
     mut dst: ArrayViewMut3<f32>,
 ) {
     let (_, rows, w) = dst.dim();
-    // [signed count, signed decayed sum] per pixel.
+    // [signed count, G] per pixel.
     let mut sums = vec![[0.0f64; 2]; rows * w];
     let mut batch = ChannelBatch::default();
     let mut rest = events;
+    let mut t_base = ts_ns.first().copied().unwrap_or(0);
     for (k, &t_k) in ts_ns.iter().enumerate() {
-        // The carried decayed sums reach `t_k` at the end of the previous channel's output pass.
         let (now, later) = rest.split_at(rest.t_ns.partition_point(|&t| t <= t_k));
         rest = later;
-        batch.fill(now, t_k, y0, w, decay);
-        for ((&p, &s), &wt) in batch.pixel.iter().zip(&batch.sign).zip(&batch.weight) {
-            let sum = &mut sums[p];
-            sum[0] += s;
-            sum[1] += wt;
+        // exp((t_k - t_base) / tau) and its inverse, rebasing first when it would grow too large.
+        let (scale, unscale) = match decay {
+            Decay::Exp(tau) => {
+                let mut a = ((i128::from(t_k) - i128::from(t_base)) as f64) / tau;
+                if a > REBASE_AT {
+                    let f = (-a).exp();
+                    sums.iter_mut().for_each(|s| s[1] *= f);
+                    t_base = t_k;
+                    a = 0.0;
+                }
+                (a.exp(), (-a).exp())
+            }
+            Decay::Instant | Decay::Never => (1.0, 1.0),
+        };
+        let mut start = 0;
+        while start < now.len() {
+            let part = now.range(start..(start + BATCH).min(now.len()));
+            start += part.len();
+            batch.fill(part, t_k, y0, w, decay, scale);
+            for ((&p, &s), &wt) in batch.pixel.iter().zip(&batch.sign).zip(&batch.weight) {
+                let sum = &mut sums[p];
+                sum[0] += s;
+                sum[1] += wt;
+            }
         }
-        // Write the channel and, in the same pass, decay the sums on to the next instant.
-        let f = ts_ns
-            .get(k + 1)
-            .map_or(1.0, |&t_next| decay.factor(t_next, t_k));
         let mut plane = dst.index_axis_mut(Axis(0), k);
         match plane.as_slice_mut() {
             Some(out) => neuspike_simd::dispatch(
                 #[inline(always)]
                 || {
-                    for (d, s) in out.iter_mut().zip(sums.iter_mut()) {
-                        *d = (s[0] + s[1]) as f32;
-                        s[1] *= f;
+                    for (d, s) in out.iter_mut().zip(sums.iter()) {
+                        *d = (s[0] + s[1] * unscale) as f32;
                     }
                 },
             ),
             None => {
-                for (d, s) in plane.iter_mut().zip(sums.iter_mut()) {
-                    *d = (s[0] + s[1]) as f32;
-                    s[1] *= f;
+                for (d, s) in plane.iter_mut().zip(sums.iter()) {
+                    *d = (s[0] + s[1] * unscale) as f32;
                 }
+            }
+        }
+        if matches!(decay, Decay::Instant) {
+            for (&x, &y) in now.x.iter().zip(now.y) {
+                sums[(usize::from(y) - y0) * w + usize::from(x)][1] = 0.0;
             }
         }
     }
 }
 
-/// One channel's events in a block: pixel (index in the block), polarity as `±1.0`, and the
-/// signed decay weight.
+/// Events per batch of [`integrate_block`]: three arrays of 8-byte values, 24 KiB in all.
+const BATCH: usize = 1 << 10;
+
+/// `(t_k - t_base) / tau` beyond which [`integrate_block`] rebases: `e^500` is about `1.4e217`.
+const REBASE_AT: f64 = 500.0;
+
+/// One batch of a channel's events in a block: pixel (index in the block), polarity as `±1.0`,
+/// and the weight added to `G`.
 #[derive(Default)]
 struct ChannelBatch {
     pixel: Vec<usize>,
@@ -484,9 +519,18 @@ struct ChannelBatch {
 
 impl ChannelBatch {
     /// The batch of `events` (all at or before `t_k`, in rows `y0..` of a sensor `w` wide):
-    /// `weight = sign * exp(-(t_k - t_i) / tau)`, with the limits of [`Decay`]: `tau -> 0` keeps
-    /// only `t_i = t_k` (weight ±1), `tau = inf` weighs every event ±1.
-    fn fill(&mut self, events: EventSlice, t_k: i64, y0: usize, w: usize, decay: Decay) {
+    /// `weight = sign * scale * exp(-(t_k - t_i) / tau)`, with the limits of [`Decay`]:
+    /// `tau -> 0` keeps only `t_i = t_k` (weight ±1), `tau = inf` weighs every event ±1 (`scale`
+    /// is 1 for both).
+    fn fill(
+        &mut self,
+        events: EventSlice,
+        t_k: i64,
+        y0: usize,
+        w: usize,
+        decay: Decay,
+        scale: f64,
+    ) {
         let n = events.len();
         self.pixel.resize(n, 0);
         self.sign.resize(n, 0.0);
@@ -527,15 +571,20 @@ impl ChannelBatch {
                 }
             }
             Decay::Never => weight.copy_from_slice(sign),
-            // Division, not a product with 1 / tau: `dt = 0` stays at exactly 1 for any tau.
-            Decay::Exp(tau) => neuspike_simd::dispatch(
-                #[inline(always)]
-                || {
-                    for (d, &s) in weight.iter_mut().zip(sign.iter()) {
-                        *d = s * exp_neg(-*d / tau);
-                    }
-                },
-            ),
+            // A product with -1 / tau, not a division (several times the cost): the argument is
+            // off by at most an ulp, the weight by `|dt / tau| * 2^-52` relative. `dt = 0` still
+            // gives exactly 1: `Decay::new` takes a tau whose inverse overflows as `tau -> 0`.
+            Decay::Exp(tau) => {
+                let minus_inv = -1.0 / tau;
+                neuspike_simd::dispatch(
+                    #[inline(always)]
+                    || {
+                        for (d, &s) in weight.iter_mut().zip(sign.iter()) {
+                            *d = (s * scale) * exp_neg(*d * minus_inv);
+                        }
+                    },
+                )
+            }
         }
     }
 }
@@ -970,7 +1019,7 @@ mod tests {
             e.t_ns.push(i as i64 * 3);
             e.x.push(((i * 7919) % w) as u16);
             e.y.push(((i * 104_729) % h) as u16);
-            e.polarity.push(if i % 3 == 0 { -1 } else { 1 });
+            e.polarity.push(if i.is_multiple_of(3) { -1 } else { 1 });
         }
         let ts: Vec<i64> = (1..=8).map(|k| k * 25_000).collect();
         let serial = integrate(&e, 1_000, &ts, 20_000.0, h, w);
@@ -1000,7 +1049,16 @@ mod tests {
                 Just((h, w)),
                 -20i64..100,
                 proptest::collection::vec(0i64..220, 0..5),
-                prop_oneof![Just(0.0), Just(-1.0), Just(f64::INFINITY), 0.5f64..500.0],
+                // Small taus make `integrate_block` rebase (gaps past 500 tau); 1e-300 is a tau
+                // whose inverse overflows.
+                prop_oneof![
+                    Just(0.0),
+                    Just(-1.0),
+                    Just(f64::INFINITY),
+                    Just(1e-300),
+                    0.01f64..0.5,
+                    0.5f64..500.0
+                ],
             )
                 .prop_map(|(mut list, (h, w), t0, mut ts, tau)| {
                     list.sort_by_key(|e| e.0);
@@ -1058,6 +1116,40 @@ mod tests {
                         (e, h, w)
                     })
             })
+    }
+
+    /// Thousands of events per channel (several batches), channels far apart against tau (the
+    /// sums rebase) or close (they do not), many events on few pixels.
+    #[test]
+    fn integration_over_batches_and_rebases_matches_the_reference() {
+        let (h, w, n) = (3, 5, 7_000);
+        let mut list: Vec<(i64, u16, u16, i8)> = (0..n)
+            .map(|i| {
+                let i = i as u64;
+                let t = (i * 997 % 1_000_003) as i64;
+                (
+                    t,
+                    (i * 7 % 5) as u16,
+                    (i * 11 % 3) as u16,
+                    if i.is_multiple_of(3) { -1 } else { 1 },
+                )
+            })
+            .collect();
+        list.sort_by_key(|e| e.0);
+        let e = Events::from(&list);
+        let ts: Vec<i64> = (1..=8).map(|k| k * 125_000).collect();
+        for tau in [50.0, 300.0, 1e5, 1e9, 0.0, f64::INFINITY] {
+            let mut slow = Array3::<f32>::zeros((8, h, w));
+            event_integration_reference(e.slice(), 0, &ts, tau, slow.view_mut()).expect("ref");
+            let mut fast = Array3::<f32>::from_elem((8, h, w), f32::NAN);
+            event_integration_into(e.slice(), 0, &ts, tau, fast.view_mut()).expect("fast");
+            for (a, b) in fast.iter().zip(&slow) {
+                assert!(
+                    (a - b).abs() <= 1e-9 * n as f32 + 1e-6 * b.abs(),
+                    "tau {tau}: {a} vs {b}"
+                );
+            }
+        }
     }
 
     proptest! {
