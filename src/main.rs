@@ -44,8 +44,8 @@ enum Command {
     },
     /// List the built-in scenes.
     Scenes,
-    /// Simulate a scene with both cameras and write a recording: spikes.dat (PKU), events.txt
-    /// and events.raw (EVT 2.0), ground-truth PNGs with their time stamps, recording.yml.
+    /// Simulate a scene with both cameras and write a recording: spikes.dat (PKU), events.txt,
+    /// events.raw (EVT 2.0) and events.aedat4 (AEDAT 4), ground-truth PNGs with their time stamps, recording.yml.
     Simulate {
         /// Built-in scene name or scene YAML path.
         scene: String,

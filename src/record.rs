@@ -7,6 +7,7 @@
 //! - `events.txt`: Event Camera Dataset text (`W H` line, then `t_seconds x y polarity` with
 //!   polarity 0/1), nanosecond times written exactly;
 //! - `events.raw`: the same events as Prophesee RAW EVT 2.0 (microseconds, floored and counted);
+//! - `events.aedat4`: the same events as AEDAT 4 (iniVation DV; LZ4, microseconds);
 //! - `ground-truth/<plane:08>.png`: 16-bit luminance in `[0, 1]` at every `gt_every_planes`-th
 //!   plane, listed with their times in `ground-truth/timestamps.txt` (`plane t_ns file`);
 //! - `recording.yml`: what was simulated (scene, resolutions, rates, counts, calibration).
@@ -17,6 +18,7 @@ use std::path::{Path, PathBuf};
 
 use eyre::WrapErr;
 use neuspike_event_source::{DvsConfig, EventCamera};
+use neuspike_formats::aedat4::{Aedat4Writer, Compression};
 use neuspike_formats::evt2::Evt2Writer;
 use neuspike_formats::pku::{PkuGeometry, PkuWriter};
 use neuspike_formats::text::TextWriter;
@@ -96,11 +98,14 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
     );
     let mut text_out = None;
     let mut raw_out = None;
+    let mut aedat_out = None;
     if dvs.is_some() {
         let (w, path) = create("events.txt")?;
         text_out = Some(TextWriter::new(w, path, dvs_res, true)?);
         let (w, path) = create("events.raw")?;
         raw_out = Some(Evt2Writer::new(w, path, dvs_res)?);
+        let (w, path) = create("events.aedat4")?;
+        aedat_out = Some(Aedat4Writer::new(w, path, dvs_res, Compression::Lz4)?);
     }
     let (mut stamps, stamps_path) = create("ground-truth/timestamps.txt")?;
     writeln!(stamps, "# plane t_ns file").wrap_err("timestamps.txt")?;
@@ -134,11 +139,14 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
             .sum::<u64>();
         spikes_out.write_chunk(&c)?;
         rec.planes += n;
-        if let (Some(cam), Some(text), Some(raw)) = (&mut dvs, &mut text_out, &mut raw_out) {
+        if let (Some(cam), Some(text), Some(raw), Some(aedat)) =
+            (&mut dvs, &mut text_out, &mut raw_out, &mut aedat_out)
+        {
             // Events of the same span of time as the planes: [t(first), t(first + n)).
             let batch = cam.advance_to(spike.plane_time_ns(first + n), 0);
             text.write_batch(&batch)?;
             raw.write_batch(&batch)?;
+            aedat.write_batch(&batch)?;
             rec.events += batch.len() as u64;
         }
         if opts.gt_every_planes > 0 {
@@ -174,6 +182,9 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
     if let Some(r) = raw_out {
         rec.floored_in_raw = flush(r.finish()?)?.floored_timestamps;
     }
+    if let Some(a) = aedat_out {
+        flush(a.finish()?)?;
+    }
     stamps.flush().wrap_err("timestamps.txt")?;
     write_manifest(opts, &spike, &rec)?;
     Ok(rec)
@@ -192,7 +203,7 @@ fn write_manifest(
          plane_period_ns: {period}\n  planes: {planes}\n  spikes: {spikes}\n  \
          # luminance = firing rate per tick * lum_per_rate (phi / light_scale)\n  \
          lum_per_rate: {lpr}\n  seed: {sseed}\n\
-         events:\n  files: [events.txt, events.raw]\n  width: {ew}\n  height: {eh}\n  \
+         events:\n  files: [events.txt, events.raw, events.aedat4]\n  width: {ew}\n  height: {eh}\n  \
          count: {events}\n  floored_in_raw: {floored}\n  seed: {eseed}\n\
          ground_truth:\n  folder: ground-truth\n  every_planes: {gt_every}\n  frames: {gt}\n",
         scene = opts.scene,
@@ -274,7 +285,7 @@ mod tests {
         assert_eq!(got.bits, want.bits);
         assert!(r.next_chunk(100).unwrap().is_none());
 
-        // Both event files hold the same events (the RAW one at microsecond resolution).
+        // The event files hold the same events (RAW and AEDAT 4 at microsecond resolution).
         let text = read_all(
             &mut *open_events(dir.path().join("events.txt"), &ReadOptions::default()).unwrap(),
         )
@@ -284,11 +295,17 @@ mod tests {
         )
         .unwrap();
         assert_eq!(text.len() as u64, rec.events);
-        assert_eq!(raw.len(), text.len());
-        for i in 0..text.len() {
-            let (a, b) = (text.get(i), raw.get(i));
-            assert_eq!((a.x, a.y, a.polarity), (b.x, b.y, b.polarity));
-            assert_eq!(a.t_ns / 1000 * 1000, b.t_ns);
+        let aedat = read_all(
+            &mut *open_events(dir.path().join("events.aedat4"), &ReadOptions::default()).unwrap(),
+        )
+        .unwrap();
+        for micro in [&raw, &aedat] {
+            assert_eq!(micro.len(), text.len());
+            for i in 0..text.len() {
+                let (a, b) = (text.get(i), micro.get(i));
+                assert_eq!((a.x, a.y, a.polarity), (b.x, b.y, b.polarity));
+                assert_eq!(a.t_ns / 1000 * 1000, b.t_ns);
+            }
         }
         let stamps = fs::read_to_string(dir.path().join("ground-truth/timestamps.txt")).unwrap();
         assert!(stamps.contains("40 2000000 00000040.png"), "{stamps}");

@@ -3,12 +3,16 @@
 //! recordings when present, otherwise files made by our writers.
 //!
 //! `cargo bench -p neuspike-formats --bench bench_read -- --warm-up-time 1 --measurement-time 3`
+//!
+//! `NEUSPIKE_BENCH_DUMP=DIR` also writes the AEDAT 4 files it reads there, for
+//! `benches/aedat4_dv_processing.py` (iniVation's reader on the same bytes).
 
 use neuspike_formats::EventWriter;
 use std::hint::black_box;
 use std::path::PathBuf;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use neuspike_formats::aedat4::{Aedat4Reader, Aedat4Writer, Compression};
 use neuspike_formats::dat::{DatReader, DatWriter};
 use neuspike_formats::pku::{PkuOptions, PkuReader};
 use neuspike_formats::raw::{Evt3Writer, RawReader};
@@ -175,6 +179,28 @@ fn bench_read(c: &mut Criterion) {
             chunk,
         )
     });
+
+    // AEDAT 4 of the same events, as our writer makes it: uncompressed and LZ4 (dv-processing's
+    // streaming read of the same files is the comparison: `aedat4_dv_processing.py`).
+    for (name, compression) in [
+        ("aedat4_none_events", Compression::None),
+        ("aedat4_lz4_events", Compression::Lz4),
+    ] {
+        let mut w = Aedat4Writer::new(Vec::new(), "mem", Resolution::new(640, 480), compression)
+            .expect("writer");
+        w.write_batch(&events).expect("write");
+        let bytes = w.finish().expect("finish").0;
+        if let Ok(dir) = std::env::var("NEUSPIKE_BENCH_DUMP") {
+            let path = PathBuf::from(dir).join(format!("{name}.aedat4"));
+            std::fs::write(&path, &bytes).expect("dump");
+        }
+        event_group(c, name, &bytes, events.len() as u64, |b, chunk| {
+            drain(
+                Aedat4Reader::from_reader(b, "mem", &ReadOptions::default()).expect("aedat4"),
+                chunk,
+            )
+        });
+    }
 
     let (text, text_events, text_opts) = match real("davis240c-shapes-rotation-events.txt") {
         Some(b) => (b, 20_000u64, ReadOptions::with_resolution(240, 180)),

@@ -110,6 +110,9 @@ pub struct ReadStats {
     /// EVT 3.0, its row; their time or place is unknown, so they are dropped and counted, as the
     /// Prophesee decoders do.
     pub events_without_time_base: u64,
+    /// AEDAT 4 packets of streams other than the events read (APS frames, IMU, triggers),
+    /// skipped without decompression.
+    pub skipped_packets: u64,
     /// Text lines skipped: blank lines and `#` comments.
     pub lines_skipped: u64,
 }

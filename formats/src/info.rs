@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use neuspike_schemas::EventBatch;
 
+use crate::aedat4::Aedat4Reader;
 use crate::dat::DatReader;
 use crate::error::{FormatError, Result};
 use crate::events::{EventReader, ReadOptions, ReadStats, Resolution};
@@ -79,6 +80,10 @@ impl fmt::Display for EventInfo {
                 "events before the time base, dropped",
             ),
             (s.lines_skipped, "lines skipped"),
+            (
+                s.skipped_packets,
+                "packets of other streams (frames, IMU, triggers)",
+            ),
         ];
         for (n, what) in notes {
             if n > 0 {
@@ -151,7 +156,13 @@ pub(crate) fn open_event_format(
                 what: "spike planes, not events (read them with pku::PkuReader)".into(),
             });
         }
-        Format::Aedat4 | Format::Hdf5 => {
+        Format::Aedat4 => {
+            let file = BufReader::with_capacity(256 * 1024, open(path)?);
+            let r = Aedat4Reader::with_bounds(file, p, opts, allow_unknown_size)?;
+            let known = r.known_resolution();
+            (Box::new(r), known)
+        }
+        Format::Hdf5 => {
             return Err(FormatError::Unsupported {
                 path: p,
                 what: format!("{format} files are recognised but not decoded"),

@@ -8,6 +8,7 @@
 //! | [`text`] | Event Camera Dataset `t_seconds x y polarity` text | [`text::TextReader`] | [`text::TextWriter`] |
 //! | [`raw`] | Prophesee RAW, EVT 2.0 ([`evt2`]) and EVT 3.0 ([`evt3`]) | [`raw::RawReader`] | [`raw::Evt2Writer`], [`raw::Evt3Writer`] |
 //! | [`dat`] | Prophesee DAT CD events (N-CARS, Gen1) | [`dat::DatReader`] | [`dat::DatWriter`] |
+//! | [`aedat4`] | AEDAT 4 (iniVation DV): events and APS frames, uncompressed, LZ4 or Zstd | [`aedat4::Aedat4Reader`], [`aedat4::Aedat4Frames`] | [`aedat4::Aedat4Writer`] (none or LZ4) |
 //!
 //! Every reader streams with bounded memory (a 10 GB file is never loaded whole): spike readers
 //! hand out chunks of N planes, event readers fill batches of up to N events
@@ -34,6 +35,7 @@
 //! ```
 #![deny(missing_docs)]
 
+pub mod aedat4;
 mod binary;
 pub mod dat;
 pub mod error;
@@ -76,7 +78,7 @@ pub trait EventWriter {
 }
 
 /// Opens any event file: sniffs its format ([`sniff()`]) and returns the matching reader.
-/// Spike files and recognised-but-undecoded formats (AEDAT 4, HDF5) are
+/// Spike files and recognised-but-undecoded formats (HDF5) are
 /// [`FormatError::Unsupported`].
 pub fn open_events(
     path: impl AsRef<Path>,

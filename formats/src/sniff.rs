@@ -26,7 +26,7 @@ pub enum Format {
     PropheseeRaw(EvtVersion),
     /// Prophesee DAT events ([`crate::dat`]).
     PropheseeDat,
-    /// AEDAT 4 (recognised by its `#!AER-DAT4` magic; not decoded).
+    /// AEDAT 4 ([`crate::aedat4`]), by its `#!AER-DAT4` magic.
     Aedat4,
     /// HDF5 (recognised by its signature; not decoded).
     Hdf5,

@@ -12,6 +12,7 @@ use std::path::Path;
 use std::sync::OnceLock;
 
 use common::*;
+use neuspike_formats::aedat4::{Aedat4Frames, Aedat4Reader, Aedat4Writer, Compression};
 use neuspike_formats::dat::{DatReader, DatWriter};
 use neuspike_formats::header::read_header;
 use neuspike_formats::pku::{PkuGeometry, PkuOptions, PkuReader};
@@ -30,6 +31,8 @@ struct Samples {
     evt2: Vec<u8>,
     evt3: Vec<u8>,
     dat: Vec<u8>,
+    /// Our writer's AEDAT 4, uncompressed and LZ4, and dv-processing's (Zstd) fixture.
+    aedat: [Vec<u8>; 3],
 }
 
 const SAMPLE_BYTES: usize = 48 * 1024;
@@ -88,6 +91,16 @@ fn samples() -> &'static Samples {
         let mut w = DatWriter::new(Vec::new(), "s", r).unwrap();
         w.write_batch(&batch).unwrap();
         let dat = w.finish().unwrap().0;
+        let aedat = |c| {
+            let mut w = Aedat4Writer::new(Vec::new(), "s", r, c).unwrap();
+            w.write_batch(&batch).unwrap();
+            w.finish().unwrap().0
+        };
+        let dv = std::fs::read(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/data/dv-zstd.aedat4"
+        ))
+        .unwrap();
         let text = head(DAVIS_TEXT).unwrap_or_else(|| {
             let mut s = String::from("640 480\n");
             for e in &evs {
@@ -125,6 +138,7 @@ fn samples() -> &'static Samples {
                 .unwrap_or(evt2_made),
             evt3,
             dat,
+            aedat: [aedat(Compression::None), aedat(Compression::Lz4), dv],
         }
     })
 }
@@ -235,6 +249,22 @@ fn every_decoder(bytes: &[u8], opts: &ReadOptions, n: usize) {
         if let Ok(mut r) = TextReader::from_reader(bytes, name, o) {
             check(&mut r, n);
         }
+        if let Ok(mut r) = Aedat4Reader::from_reader(bytes, name, o) {
+            check(&mut r, n);
+        }
+    }
+    if let Ok(frames) = Aedat4Frames::from_reader(bytes, name) {
+        for f in frames {
+            match f {
+                Ok(f) => assert_eq!(
+                    f.pixels.len(),
+                    usize::from(f.width) * usize::from(f.height) * f.format.bytes_per_pixel()
+                ),
+                Err(e) => {
+                    let _ = e.to_string();
+                }
+            }
+        }
     }
     let davis = ReadOptions {
         resolution: Some(Resolution::new(240, 180)),
@@ -289,6 +319,13 @@ fn undamaged_samples_decode_whole() {
         777,
     );
     assert!(n > 1000 && !err, "{n} {err}");
+    for (i, a) in s.aedat.iter().enumerate() {
+        let (n, err) = check(
+            &mut Aedat4Reader::from_reader(&a[..], "aedat4", &ReadOptions::default()).unwrap(),
+            777,
+        );
+        assert!(n >= 3000 && !err, "aedat {i}: {n} {err}");
+    }
     let davis = ReadOptions::with_resolution(240, 180);
     let text = TextReader::from_reader(&s.text[..], "text", &davis)
         .or_else(|_| TextReader::from_reader(&s.text[..], "text", &ReadOptions::default()));
@@ -321,6 +358,11 @@ proptest! {
     }
 
     #[test]
+    fn damaged_aedat4_never_panics(d in damage(), near in any::<bool>(), which in 0usize..3, c in any::<bool>(), n in 1usize..5000) {
+        every_decoder(&apply(&samples().aedat[which], &d, near), &options(c, false), n);
+    }
+
+    #[test]
     fn damaged_text_never_panics(d in damage(), near in any::<bool>(), c in any::<bool>(), n in 1usize..5000) {
         every_decoder(&apply(&samples().text, &d, near), &options(c, false), n);
     }
@@ -335,9 +377,11 @@ proptest! {
     }
 
     #[test]
-    fn random_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..2000), prefix in 0usize..4, n in 1usize..50) {
+    fn random_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..2000), prefix in 0usize..5, n in 1usize..50) {
         // Random bytes behind each kind of header, so that the decoders' bodies are reached.
-        let heads: [&[u8]; 4] = [b"", EVT2_HEADER.as_bytes(), EVT3_HEADER.as_bytes(), b"% Width 64\n% Height 64\n\x0c\x08"];
+        let aedat = &samples().aedat[0];
+        let aedat_head = &aedat[..aedat.len().min(18 + u32::from_le_bytes([aedat[14], aedat[15], aedat[16], aedat[17]]) as usize)];
+        let heads: [&[u8]; 5] = [b"", EVT2_HEADER.as_bytes(), EVT3_HEADER.as_bytes(), b"% Width 64\n% Height 64\n\x0c\x08", aedat_head];
         let mut b = heads[prefix].to_vec();
         b.extend_from_slice(&bytes);
         every_decoder(&b, &options(true, true), n);
