@@ -764,7 +764,22 @@ impl<R: Read> EventReader for Aedat4Reader<R> {
                     return Ok(());
                 }
                 let b = &packets.payload;
-                while cur.next < cur.events && !sink.full() {
+                // A block at a time, straight into `out`'s columns; when any of its events is
+                // bad, or out of place, it is taken back and emitted event by event below.
+                let k = (cur.events - cur.next).min(sink.room()).min(BLOCK);
+                let at = cur.start + cur.next * EVENT_BYTES;
+                let start = out.len();
+                if decode_block(&b[at..at + k * EVENT_BYTES], out) && sink.accept_block(out, start)
+                {
+                    cur.next += k;
+                    continue;
+                }
+                out.t_ns.truncate(start);
+                out.x.truncate(start);
+                out.y.truncate(start);
+                out.polarity.truncate(start);
+                let block_end = cur.next + k;
+                while cur.next < block_end && !sink.full() {
                     let i = cur.next;
                     let at = cur.start + i * EVENT_BYTES;
                     // In bounds: `load_events` checked the whole vector.
@@ -791,6 +806,33 @@ impl<R: Read> EventReader for Aedat4Reader<R> {
             Ok(())
         })
     }
+}
+
+/// Events decoded per block by [`Aedat4Reader`]'s fast path.
+const BLOCK: usize = 4096;
+
+/// Appends the `Event` structs of `records` to `out`'s columns (µs to ns, `on` to ±1); `false`
+/// when one has a negative or overflowing time, a negative coordinate or a polarity byte other
+/// than 0 or 1 (what was appended is then taken back by the caller). Branch-free per event.
+fn decode_block(records: &[u8], out: &mut EventBatch) -> bool {
+    /// Beyond this many µs, ns overflow `i64`.
+    const MAX_US: u64 = (i64::MAX / 1000) as u64;
+    let t_us = |e: &[u8]| i64::from_le_bytes([e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7]]);
+    let recs = records.chunks_exact(EVENT_BYTES);
+    // One pass per column (each vectorises), then one check over all of them: a negative time
+    // is above MAX_US as u64, a negative coordinate above i16::MAX as u16.
+    let bad = recs.clone().fold(false, |bad, e| {
+        bad | (t_us(e) as u64 > MAX_US) | (e[9] & 0x80 != 0) | (e[11] & 0x80 != 0) | (e[12] > 1)
+    });
+    out.t_ns
+        .extend(recs.clone().map(|e| t_us(e).wrapping_mul(1000)));
+    out.x
+        .extend(recs.clone().map(|e| u16::from_le_bytes([e[8], e[9]])));
+    out.y
+        .extend(recs.clone().map(|e| u16::from_le_bytes([e[10], e[11]])));
+    out.polarity
+        .extend(recs.map(|e| (e[12] as i8).wrapping_mul(2).wrapping_sub(1)));
+    !bad
 }
 
 #[cold]

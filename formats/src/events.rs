@@ -423,6 +423,40 @@ impl Sink {
         Ok(())
     }
 
+    /// How many more events the caller's request takes.
+    #[inline]
+    pub(crate) fn room(&self) -> usize {
+        self.room
+    }
+
+    /// Accepts the events a decoder appended to `out[start..]` in one go (no more than
+    /// [`Sink::room`]), when every one is inside the sensor and in time order (after the last
+    /// event emitted): branch-free passes over the columns, which vectorise. Returns `false`,
+    /// changing nothing, when one is not (or there are too many): the decoder then truncates `out`
+    /// back to `start` and emits the events one by one, which names the fault or repairs it.
+    pub(crate) fn accept_block(&mut self, out: &EventBatch, start: usize) -> bool {
+        let (t, x, y) = (&out.t_ns[start..], &out.x[start..], &out.y[start..]);
+        let n = t.len();
+        if n == 0 {
+            return true;
+        }
+        if n > self.room {
+            return false;
+        }
+        let x_max = x.iter().fold(0u16, |m, &v| m.max(v));
+        let y_max = y.iter().fold(0u16, |m, &v| m.max(v));
+        let unsorted = self.last_t_ns.is_some_and(|last| t[0] < last)
+            | t.iter()
+                .zip(&t[1..])
+                .fold(false, |bad, (a, b)| bad | (b < a));
+        if u32::from(x_max) >= self.width || u32::from(y_max) >= self.height || unsorted {
+            return false;
+        }
+        self.last_t_ns = Some(t[n - 1]);
+        self.room -= n;
+        true
+    }
+
     /// Counts the events a decoder emitted, in emission order: those delivered into
     /// `out[from..]` (column passes, which vectorise), then those queued in
     /// `overflow[overflow_from..]`.
