@@ -42,6 +42,8 @@ pub mod error;
 mod events;
 pub mod evt2;
 pub mod evt3;
+#[cfg(feature = "hdf5")]
+pub mod hdf5;
 pub mod header;
 pub mod info;
 pub mod pku;
@@ -78,7 +80,7 @@ pub trait EventWriter {
 }
 
 /// Opens any event file: sniffs its format ([`sniff()`]) and returns the matching reader.
-/// Spike files and recognised-but-undecoded formats (HDF5) are
+/// Spike files, and HDF5 in a build without the `hdf5` feature, are
 /// [`FormatError::Unsupported`].
 pub fn open_events(
     path: impl AsRef<Path>,
