@@ -205,16 +205,17 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
     })
     .expect("simulate");
     let fused = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/neuspike-fused-8.onnx");
-    for (method, model) in [
-        (Method::Hf, None),
-        (Method::Cf, None),
-        (Method::Fusion, None),
-        (Method::Learned, Some(fused)),
+    // Two of the methods play the events from the AEDAT 4 copy, two from the EVT 2.0 one.
+    for (method, model, events) in [
+        (Method::Hf, None, "events.raw"),
+        (Method::Cf, None, "events.aedat4"),
+        (Method::Fusion, None, "events.raw"),
+        (Method::Learned, Some(fused), "events.aedat4"),
     ] {
         let out = dir.path().join(format!("{method:?}"));
         let opts = ReconstructOptions {
             spikes: rec.join("spikes.dat"),
-            events: Some(rec.join("events.raw")),
+            events: Some(rec.join(events)),
             truth: None,
             method,
             model,
