@@ -36,10 +36,10 @@ use std::path::{Path, PathBuf};
 
 use neuspike_schemas::{Event, EventBatch};
 
-use crate::binary::{WriteSummary, us_to_ns};
+use crate::binary::{Out, WriteSummary, ns_to_us, us_to_ns};
 use crate::error::{FormatError, Location, Result};
-use crate::events::{Bounds, EventReader, ReadOptions, ReadStats, Resolution, Sink};
-use crate::header::{read_some, resolve_resolution};
+use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
+use crate::header::resolve_resolution;
 
 /// The first bytes of every AEDAT 4 file.
 pub const MAGIC: &[u8; 14] = b"#!AER-DAT4.0\r\n";
@@ -392,21 +392,14 @@ fn parse_description(xml: &str) -> std::result::Result<Vec<StreamInfo>, String> 
     Ok(streams)
 }
 
-/// Reads until `buf` is full or the source ends; returns the bytes read.
+/// Reads until `buf` is full or the source ends; returns the bytes read. An I/O error names the
+/// offset of the read that began at `offset`.
 fn read_full<R: Read>(r: &mut R, buf: &mut [u8], path: &Path, offset: u64) -> Result<usize> {
-    let mut got = 0;
-    while got < buf.len() {
-        let n = read_some(r, &mut buf[got..]).map_err(|source| FormatError::Io {
-            path: path.to_path_buf(),
-            offset: offset + got as u64,
-            source,
-        })?;
-        if n == 0 {
-            break;
-        }
-        got += n;
-    }
-    Ok(got)
+    crate::header::read_full(r, buf).map_err(|source| FormatError::Io {
+        path: path.to_path_buf(),
+        offset,
+        source,
+    })
 }
 
 /// Packets in file order, decompressed on demand.
@@ -741,17 +734,7 @@ fn load_events<R: Read>(
 }
 
 impl<R: Read> EventReader for Aedat4Reader<R> {
-    fn source(&self) -> &Path {
-        &self.sink.path
-    }
-
-    fn resolution(&self) -> Resolution {
-        self.sink.resolution
-    }
-
-    fn stats(&self) -> &ReadStats {
-        &self.sink.stats
-    }
+    crate::events::sink_accessors!();
 
     fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize> {
         let (packets, cur, stream) = (&mut self.packets, &mut self.current, self.stream);
@@ -1067,14 +1050,12 @@ impl<R: Read> Iterator for Aedat4Frames<R> {
 /// Timestamps are floored to whole µs (counted in [`WriteSummary::floored_timestamps`]);
 /// coordinates must fit DV's `i16`, events must come in time order.
 pub struct Aedat4Writer<W: Write> {
-    w: W,
-    path: PathBuf,
+    out: Out<W>,
     compression: Compression,
     resolution: Resolution,
     pending: Vec<[u8; EVENT_BYTES]>,
     last_t_ns: Option<i64>,
     summary: WriteSummary,
-    written: u64,
     /// Reused buffers: the FlatBuffer, and its compressed form.
     buf: Vec<u8>,
 }
@@ -1108,14 +1089,12 @@ impl<W: Write> Aedat4Writer<W> {
             )));
         }
         let mut me = Aedat4Writer {
-            w,
-            path,
+            out: Out::new(w, path),
             compression,
             resolution,
             pending: Vec::with_capacity(EVENTS_PER_PACKET),
             last_t_ns: None,
             summary: WriteSummary::default(),
-            written: 0,
             buf: Vec::new(),
         };
         let header = io_header(compression, &description(resolution, compression));
@@ -1123,18 +1102,8 @@ impl<W: Write> Aedat4Writer<W> {
         start.extend_from_slice(MAGIC);
         start.extend_from_slice(&(header.len() as u32).to_le_bytes());
         start.extend_from_slice(&header);
-        me.put(&start)?;
+        me.out.put(&start)?;
         Ok(me)
-    }
-
-    fn put(&mut self, bytes: &[u8]) -> Result<()> {
-        self.w.write_all(bytes).map_err(|source| FormatError::Io {
-            path: self.path.clone(),
-            offset: self.written,
-            source,
-        })?;
-        self.written += bytes.len() as u64;
-        Ok(())
     }
 
     /// Writes one packet whose FlatBuffer (size prefix included) is in `self.buf`.
@@ -1146,24 +1115,22 @@ impl<W: Write> Aedat4Writer<W> {
                 let mut info = lz4_flex::frame::FrameInfo::new();
                 info.content_checksum = true;
                 let mut enc = lz4_flex::frame::FrameEncoder::with_frame_info(info, Vec::new());
-                enc.write_all(&self.buf).map_err(|source| FormatError::Io {
-                    path: self.path.clone(),
-                    offset: self.written,
+                let io = |source| FormatError::Io {
+                    path: self.out.path.clone(),
+                    offset: self.out.position(),
                     source,
-                })?;
-                enc.finish().map_err(|e| FormatError::Io {
-                    path: self.path.clone(),
-                    offset: self.written,
-                    source: std::io::Error::other(e.to_string()),
-                })?
+                };
+                enc.write_all(&self.buf).map_err(io)?;
+                enc.finish()
+                    .map_err(|e| io(std::io::Error::other(e.to_string())))?
             }
             _ => std::mem::take(&mut self.buf),
         };
         let mut head = [0u8; 8];
         head[..4].copy_from_slice(&stream.to_le_bytes());
         head[4..].copy_from_slice(&(body.len() as u32).to_le_bytes());
-        self.put(&head)?;
-        self.put(&body)?;
+        self.out.put(&head)?;
+        self.out.put(&body)?;
         self.buf = body;
         self.buf.clear();
         Ok(())
@@ -1201,11 +1168,7 @@ impl<W: Write> Aedat4Writer<W> {
     pub fn write_frame(&mut self, f: &ApsFrame) -> Result<()> {
         self.flush_events()?;
         let index = self.summary.items;
-        let unwritable = |what: String| FormatError::Unwritable {
-            path: self.path.clone(),
-            index,
-            what,
-        };
+        let unwritable = |what: String| self.out.unwritable(index, what);
         let want = usize::from(f.width) * usize::from(f.height) * f.format.bytes_per_pixel();
         if f.pixels.len() != want || f.width > i16::MAX as u16 || f.height > i16::MAX as u16 {
             return Err(unwritable(format!(
@@ -1216,13 +1179,7 @@ impl<W: Write> Aedat4Writer<W> {
                 f.pixels.len()
             )));
         }
-        let us = |t: i64| {
-            if t < 0 {
-                Err(unwritable(format!("frame timestamp {t} ns is negative")))
-            } else {
-                Ok(t / 1000)
-            }
-        };
+        let us = |t: i64| ns_to_us(&self.out, index, t).map(|(t_us, _)| t_us as i64);
         let (t, b0, b1) = (
             us(f.t_ns)?,
             us(f.exposure_begin_ns)?,
@@ -1270,24 +1227,14 @@ impl<W: Write> Aedat4Writer<W> {
     /// Flushes the last packet and returns the sink and what was written.
     pub fn finish(mut self) -> Result<(W, WriteSummary)> {
         self.flush_events()?;
-        self.w.flush().map_err(|source| FormatError::Io {
-            path: self.path.clone(),
-            offset: self.written,
-            source,
-        })?;
-        self.summary.bytes = self.written;
-        Ok((self.w, self.summary))
+        self.out.finish_with(self.summary)
     }
 }
 
 impl<W: Write> crate::EventWriter for Aedat4Writer<W> {
     fn write_event(&mut self, e: &Event) -> Result<()> {
         let index = self.summary.items;
-        let unwritable = |what: String| FormatError::Unwritable {
-            path: self.path.clone(),
-            index,
-            what,
-        };
+        let unwritable = |what: String| self.out.unwritable(index, what);
         if e.x >= self.resolution.width || e.y >= self.resolution.height {
             return Err(unwritable(format!(
                 "({}, {}) is outside the {} sensor",
@@ -1305,7 +1252,7 @@ impl<W: Write> crate::EventWriter for Aedat4Writer<W> {
         if e.polarity != 1 && e.polarity != -1 {
             return Err(unwritable(format!("polarity {} is not ±1", e.polarity)));
         }
-        let (t_us, floored) = ns_to_us_checked(e.t_ns).map_err(unwritable)?;
+        let (t_us, floored) = ns_to_us(&self.out, index, e.t_ns)?;
         self.last_t_ns = Some(e.t_ns);
         self.summary.floored_timestamps += u64::from(floored);
         self.summary.items += 1;
@@ -1320,16 +1267,6 @@ impl<W: Write> crate::EventWriter for Aedat4Writer<W> {
         }
         Ok(())
     }
-}
-
-/// A nanosecond timestamp as whole µs: floors, says whether it had to; negative is an error.
-fn ns_to_us_checked(t_ns: i64) -> std::result::Result<(u64, bool), String> {
-    if t_ns < 0 {
-        return Err(format!(
-            "timestamp {t_ns} ns is negative; the format's clock starts at 0"
-        ));
-    }
-    Ok(((t_ns / 1000) as u64, t_ns % 1000 != 0))
 }
 
 /// The XML description of the writer's two streams.

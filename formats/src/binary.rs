@@ -122,6 +122,11 @@ impl<W: Write> Out<W> {
         Ok((w, summary))
     }
 
+    /// Bytes handed to [`Out::put`] so far: the file offset of the next byte.
+    pub(crate) fn position(&self) -> u64 {
+        self.written + self.buf.len() as u64
+    }
+
     pub(crate) fn finish(mut self) -> Result<(W, u64)> {
         self.flush_buf()?;
         self.w.flush().map_err(|source| FormatError::Io {

@@ -21,7 +21,7 @@ use neuspike_schemas::{Event, EventBatch};
 
 use crate::binary::{Chunked, Out, WriteSummary, ns_to_us, us_to_ns};
 use crate::error::{FormatError, Location, Result};
-use crate::events::{Bounds, EventReader, ReadOptions, ReadStats, Resolution, Sink};
+use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::evt2::check_event;
 use crate::header::{AfterHeader, PropheseeHeader, read_header, resolve_resolution};
 use crate::info::{EventInfo, event_info};
@@ -167,17 +167,7 @@ impl<R: Read> DatReader<R> {
 }
 
 impl<R: Read> EventReader for DatReader<R> {
-    fn source(&self) -> &Path {
-        &self.sink.path
-    }
-
-    fn resolution(&self) -> Resolution {
-        self.sink.resolution
-    }
-
-    fn stats(&self) -> &ReadStats {
-        &self.sink.stats
-    }
+    crate::events::sink_accessors!();
 
     fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize> {
         let stream = &mut self.stream;

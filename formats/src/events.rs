@@ -308,6 +308,24 @@ pub fn read_all(reader: &mut dyn EventReader) -> Result<EventBatch> {
     Ok(batch)
 }
 
+/// The three [`EventReader`] accessors of a reader that keeps its [`Sink`] in a field `sink`.
+macro_rules! sink_accessors {
+    () => {
+        fn source(&self) -> &std::path::Path {
+            &self.sink.path
+        }
+
+        fn resolution(&self) -> crate::Resolution {
+            self.sink.resolution
+        }
+
+        fn stats(&self) -> &crate::ReadStats {
+            &self.sink.stats
+        }
+    };
+}
+pub(crate) use sink_accessors;
+
 /// The checks and the delivery every decoded event goes through, shared by all event readers.
 ///
 /// A decoder pushes events with [`Sink::emit`] until [`Sink::full`]; events of a multi-event word

@@ -29,7 +29,7 @@ use neuspike_schemas::{Event, EventBatch};
 
 use crate::binary::WriteSummary;
 use crate::error::{FormatError, Location, Result};
-use crate::events::{Bounds, EventReader, ReadOptions, ReadStats, Resolution, Sink};
+use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::header::resolve_resolution;
 
 /// Events read per dataset access.
@@ -227,17 +227,7 @@ fn time_unit(t: &h5::Dataset) -> std::result::Result<TimeUnit, String> {
 }
 
 impl EventReader for Hdf5Reader {
-    fn source(&self) -> &Path {
-        &self.sink.path
-    }
-
-    fn resolution(&self) -> Resolution {
-        self.sink.resolution
-    }
-
-    fn stats(&self) -> &ReadStats {
-        &self.sink.stats
-    }
+    crate::events::sink_accessors!();
 
     fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize> {
         let Hdf5Reader {

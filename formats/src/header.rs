@@ -143,6 +143,19 @@ pub(crate) fn read_some<R: Read>(r: &mut R, buf: &mut [u8]) -> std::io::Result<u
     }
 }
 
+/// Reads until `buf` is full or the source ends; returns the bytes read.
+pub(crate) fn read_full<R: Read>(r: &mut R, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        let n = read_some(r, &mut buf[got..])?;
+        if n == 0 {
+            break;
+        }
+        got += n;
+    }
+    Ok(got)
+}
+
 fn parse_dim(s: &str) -> Option<u16> {
     s.trim().parse::<u16>().ok().filter(|&v| v > 0)
 }

@@ -22,7 +22,7 @@ use neuspike_schemas::{SpikeChunk, bytes_per_plane};
 
 use crate::binary::{Out, WriteSummary};
 use crate::error::{FormatError, Result};
-use crate::header::read_some;
+use crate::header::read_full;
 
 /// Width of the PKU Vidar camera.
 pub const DEFAULT_WIDTH: usize = 400;
@@ -185,19 +185,6 @@ pub fn plane_to_stored(plane: &[u8], dst: &mut [u8], g: &PkuGeometry) {
             }
         }
     }
-}
-
-/// Reads until `buf` is full or the source ends; returns the bytes read.
-fn read_full<R: Read>(r: &mut R, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut got = 0;
-    while got < buf.len() {
-        let n = read_some(r, &mut buf[got..])?;
-        if n == 0 {
-            break;
-        }
-        got += n;
-    }
-    Ok(got)
 }
 
 /// A streaming reader of PKU spike planes.

@@ -9,7 +9,7 @@ use neuspike_schemas::EventBatch;
 
 use crate::binary::Chunked;
 use crate::error::{FormatError, Result};
-use crate::events::{Bounds, EventReader, ReadOptions, ReadStats, Resolution, Sink};
+use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::evt2::{self, Evt2Decoder};
 use crate::evt3::{self, Evt3Decoder};
 use crate::header::{AfterHeader, EvtVersion, PropheseeHeader, read_header, resolve_resolution};
@@ -120,17 +120,7 @@ impl<R: Read> RawReader<R> {
 }
 
 impl<R: Read> EventReader for RawReader<R> {
-    fn source(&self) -> &Path {
-        &self.sink.path
-    }
-
-    fn resolution(&self) -> Resolution {
-        self.sink.resolution
-    }
-
-    fn stats(&self) -> &ReadStats {
-        &self.sink.stats
-    }
+    crate::events::sink_accessors!();
 
     fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize> {
         let stream = &mut self.stream;

@@ -15,7 +15,7 @@ use neuspike_schemas::{Event, EventBatch};
 
 use crate::binary::{Out, WriteSummary};
 use crate::error::{FormatError, Location, Result};
-use crate::events::{Bounds, EventReader, ReadOptions, ReadStats, Resolution, Sink};
+use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::header::resolve_resolution;
 use crate::info::{EventInfo, event_info};
 use crate::sniff::Format;
@@ -297,17 +297,7 @@ fn line_event(sink: &mut Sink, out: &mut EventBatch, line: &[u8], line_no: u64) 
 }
 
 impl<R: BufRead> EventReader for TextReader<R> {
-    fn source(&self) -> &Path {
-        &self.sink.path
-    }
-
-    fn resolution(&self) -> Resolution {
-        self.sink.resolution
-    }
-
-    fn stats(&self) -> &ReadStats {
-        &self.sink.stats
-    }
+    crate::events::sink_accessors!();
 
     fn read_into(&mut self, out: &mut EventBatch, max: usize) -> Result<usize> {
         let Self {

@@ -65,12 +65,20 @@ proptest! {
     }
 }
 
+/// A one-dimensional dataset `name` in `g` holding `data`.
+fn put<T: h5::H5Type>(g: &h5::Group, name: &str, data: &[T]) -> h5::Dataset {
+    g.new_dataset_builder()
+        .with_data(data)
+        .create(name)
+        .unwrap()
+}
+
 fn root_file(path: &Path, t: &[f64], x: &[i32], y: &[i32], p: &[i8]) {
     let f = h5::File::create(path).unwrap();
-    f.new_dataset_builder().with_data(t).create("t").unwrap();
-    f.new_dataset_builder().with_data(x).create("x").unwrap();
-    f.new_dataset_builder().with_data(y).create("y").unwrap();
-    f.new_dataset_builder().with_data(p).create("p").unwrap();
+    put(&f, "t", t);
+    put(&f, "x", x);
+    put(&f, "y", y);
+    put(&f, "p", p);
 }
 
 #[test]
@@ -122,22 +130,10 @@ fn dsec_layout_with_t_offset_in_microseconds() {
     let path = dir.path().join("dsec.h5");
     let f = h5::File::create(&path).unwrap();
     let g = f.create_group("events").unwrap();
-    g.new_dataset_builder()
-        .with_data(&[0u32, 7, 9])
-        .create("t")
-        .unwrap();
-    g.new_dataset_builder()
-        .with_data(&[0u16, 639, 5])
-        .create("x")
-        .unwrap();
-    g.new_dataset_builder()
-        .with_data(&[0u16, 479, 5])
-        .create("y")
-        .unwrap();
-    g.new_dataset_builder()
-        .with_data(&[0u8, 1, 0])
-        .create("p")
-        .unwrap();
+    put(&g, "t", &[0u32, 7, 9]);
+    put(&g, "x", &[0u16, 639, 5]);
+    put(&g, "y", &[0u16, 479, 5]);
+    put(&g, "p", &[0u8, 1, 0]);
     f.new_dataset::<i64>()
         .create("events/t_offset")
         .unwrap()
@@ -156,18 +152,9 @@ fn missing_dataset_and_unequal_lengths_are_named() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("m.h5");
     let f = h5::File::create(&path).unwrap();
-    f.new_dataset_builder()
-        .with_data(&[1i64, 2])
-        .create("t")
-        .unwrap();
-    f.new_dataset_builder()
-        .with_data(&[1i64, 2])
-        .create("x")
-        .unwrap();
-    f.new_dataset_builder()
-        .with_data(&[1i64])
-        .create("y")
-        .unwrap();
+    put(&f, "t", &[1i64, 2]);
+    put(&f, "x", &[1i64, 2]);
+    put(&f, "y", &[1i64]);
     drop(f);
     let e = read(&path, &ReadOptions::with_resolution(9, 9), 9)
         .1
@@ -178,10 +165,7 @@ fn missing_dataset_and_unequal_lengths_are_named() {
         "{e}"
     );
     let f = h5::File::open_rw(&path).unwrap();
-    f.new_dataset_builder()
-        .with_data(&[1i64, 0])
-        .create("p")
-        .unwrap();
+    put(&f, "p", &[1i64, 0]);
     drop(f);
     let e = read(&path, &ReadOptions::with_resolution(9, 9), 9)
         .1
@@ -232,10 +216,7 @@ fn two_dimensional_datasets_and_unknown_units_are_refused() {
     let f = h5::File::create(&path).unwrap();
     f.new_dataset::<i64>().shape((2, 2)).create("t").unwrap();
     for n in ["x", "y", "p"] {
-        f.new_dataset_builder()
-            .with_data(&[1i64, 0])
-            .create(n)
-            .unwrap();
+        put(&f, n, &[1i64, 0]);
     }
     drop(f);
     let e = read(&path, &ReadOptions::with_resolution(9, 9), 9)
@@ -245,11 +226,7 @@ fn two_dimensional_datasets_and_unknown_units_are_refused() {
     assert!(e.contains("`/t` has shape [2, 2]"), "{e}");
     let path = dir.path().join("unit.h5");
     let f = h5::File::create(&path).unwrap();
-    let t = f
-        .new_dataset_builder()
-        .with_data(&[1i64, 2])
-        .create("t")
-        .unwrap();
+    let t = put(&f, "t", &[1i64, 2]);
     let unit: h5::types::VarLenUnicode = "fortnights".parse().unwrap();
     t.new_attr::<h5::types::VarLenUnicode>()
         .create("unit")
@@ -257,10 +234,7 @@ fn two_dimensional_datasets_and_unknown_units_are_refused() {
         .write_scalar(&unit)
         .unwrap();
     for n in ["x", "y", "p"] {
-        f.new_dataset_builder()
-            .with_data(&[1i64, 0])
-            .create(n)
-            .unwrap();
+        put(&f, n, &[1i64, 0]);
     }
     drop(f);
     let e = read(&path, &ReadOptions::with_resolution(9, 9), 9)
