@@ -114,9 +114,10 @@ enum Command {
         /// `--dvs="--width 400 --height 250"`).
         #[arg(long)]
         events: Option<PathBuf>,
-        /// Ground truth recorded with the spikes (a folder with `timestamps.txt` and PNGs); by
-        /// default `ground-truth/` beside the spike file when it exists. The frames are then
-        /// scored (metrics.csv, summary.md).
+        /// Ground truth recorded with the spikes: a folder with `timestamps.txt` and PNGs, or an
+        /// AEDAT 4 file whose APS frames are the truth (each frame scores the nearest
+        /// reconstruction within half a stride); by default `ground-truth/` beside the spike file
+        /// when it exists. The frames are then scored (metrics.csv, summary.md).
         #[arg(long)]
         truth: Option<PathBuf>,
         /// Reconstruction method.

@@ -98,8 +98,10 @@ pub struct ReconstructOptions {
     /// `fusion`.
     pub events: Option<PathBuf>,
     /// Ground truth recorded with the spikes: a folder with `timestamps.txt` (`plane t_ns
-    /// file`) and PNGs. `None` looks for `ground-truth/` beside the spike file, as `neuspike
-    /// simulate` writes it; the sink scores the frames against it.
+    /// file`) and PNGs, or an AEDAT 4 file whose APS frames (at their own times, on the spikes'
+    /// clock) are the truth, each scoring the nearest frame within half a stride. `None` looks
+    /// for `ground-truth/` beside the spike file, as `neuspike simulate` writes it; the sink
+    /// scores the frames against it.
     pub truth: Option<PathBuf>,
     /// The method.
     pub method: Method,
@@ -330,6 +332,16 @@ pub fn graph_yaml(
             format!("output_types: {{ frames: {} }}", t("Frame")),
         ],
     );
+    // Truth off the frames' grid (APS frames at their own times) scores the nearest frame within
+    // half a stride; truth listed by plane must fall on a frame's instant.
+    let within_ns = match truth {
+        Some(t) if t.is_file() => {
+            let stride_ns =
+                i64::from(opts.stride_planes).saturating_mul(plane_period_ns(&opts.source_args));
+            format!(" --truth-within-ns {}", stride_ns / 2)
+        }
+        _ => String::new(),
+    };
     let (truth_in, truth_type) = match truth {
         Some(_) => (
             format!(", ground_truth: {{ source: spike-source/ground_truth, {queue} }}"),
@@ -340,13 +352,38 @@ pub fn graph_yaml(
     node(
         "sink",
         "sink",
-        &format!("--out {} --bit-depth {}", out.display(), opts.bit_depth),
+        &format!(
+            "--out {} --bit-depth {}{within_ns}",
+            out.display(),
+            opts.bit_depth
+        ),
         &[
             format!("inputs: {{ {m}: {{ source: infer-{m}/frames, {queue} }}{truth_in} }}"),
             format!("input_types: {{ {m}: {}{truth_type} }}", t("Frame")),
         ],
     );
     y
+}
+
+/// The spike source's plane period: its `--rate-hz` among `source_args` (the other arguments are
+/// the node's to check), else the camera's default; rounded as the camera rounds it. A rate the
+/// node will refuse gives the default here, and the node's error names it.
+fn plane_period_ns(source_args: &str) -> i64 {
+    let mut rate = None;
+    let mut words = source_args.split_whitespace();
+    // The last one counts, as the node parses it (`args_override_self`).
+    while let Some(w) = words.next() {
+        if w == "--rate-hz" {
+            rate = words.next();
+        } else if let Some(v) = w.strip_prefix("--rate-hz=") {
+            rate = Some(v);
+        }
+    }
+    let rate = rate
+        .and_then(|r| r.parse::<f64>().ok())
+        .filter(|r| r.is_finite() && *r > 0.0 && *r <= 1e9)
+        .unwrap_or(neuspike_spike_source::CameraConfig::default().rate_hz);
+    (1e9 / rate).round() as i64
 }
 
 /// Writes the graph into the output folder and runs it.
@@ -674,5 +711,56 @@ mod tests {
         o.model = Some(repo().join("models/neuspike-fused-8.onnx"));
         let e = refused(&o);
         assert!(e.contains("--events") && e.contains("fused-8"), "{e}");
+    }
+
+    #[test]
+    fn the_plane_period_comes_from_the_source_arguments() {
+        assert_eq!(plane_period_ns(""), 50_000);
+        assert_eq!(
+            plane_period_ns("--start-plane 1000 --rate-hz 40000 --max-planes 4"),
+            25_000
+        );
+        assert_eq!(plane_period_ns("--rate-hz=1000"), 1_000_000);
+        assert_eq!(plane_period_ns("--rate-hz -5"), 50_000);
+    }
+
+    #[test]
+    fn aps_truth_is_matched_within_half_a_stride() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let aps = dir.path().join("davis.aedat4");
+        std::fs::write(&aps, b"").expect("write");
+        let mut o = opts(Method::Tfp);
+        o.source_args = "--rate-hz 40000".into();
+        let sink_args = |truth: &Path| {
+            let y = graph_yaml(
+                &o,
+                Path::new("/d/x.dat"),
+                None,
+                Some(truth),
+                None,
+                Path::new("/o"),
+            );
+            let nodes = nodes(&y);
+            let src = find(&nodes, "spike-source")["args"]
+                .as_str()
+                .expect("args")
+                .to_string();
+            assert!(
+                src.contains(&format!("--truth {}", truth.display())),
+                "{src}"
+            );
+            find(&nodes, "sink")["args"]
+                .as_str()
+                .expect("args")
+                .to_string()
+        };
+        // 10 planes at 40 kHz: 250 us between frames.
+        let a = sink_args(&aps);
+        assert!(a.ends_with("--truth-within-ns 125000"), "{a}");
+        let a = sink_args(dir.path());
+        assert!(
+            !a.contains("--truth-within-ns"),
+            "a folder is listed by plane: {a}"
+        );
     }
 }

@@ -7,7 +7,9 @@
 //! - `events.txt`: Event Camera Dataset text (`W H` line, then `t_seconds x y polarity` with
 //!   polarity 0/1), nanosecond times written exactly;
 //! - `events.raw`: the same events as Prophesee RAW EVT 2.0 (microseconds, floored and counted);
-//! - `events.aedat4`: the same events as AEDAT 4 (iniVation DV; LZ4, microseconds);
+//! - `events.aedat4`: the same events as AEDAT 4 (iniVation DV; LZ4, microseconds) and, when
+//!   the two cameras have one size, the ground truth as its APS frames (16-bit grey, at the
+//!   planes' times floored to whole microseconds), as a DAVIS records its intensity frames;
 //! - `ground-truth/<plane:08>.png`: 16-bit luminance in `[0, 1]` at every `gt_every_planes`-th
 //!   plane, listed with their times in `ground-truth/timestamps.txt` (`plane t_ns file`);
 //! - `recording.yml`: what was simulated (scene, resolutions, rates, counts, calibration).
@@ -18,13 +20,13 @@ use std::path::{Path, PathBuf};
 
 use eyre::WrapErr;
 use neuspike_event_source::{DvsConfig, EventCamera};
-use neuspike_formats::aedat4::{Aedat4Writer, Compression};
+use neuspike_formats::aedat4::{Aedat4Writer, ApsFrame, Compression, FrameFormat};
 use neuspike_formats::evt2::Evt2Writer;
 use neuspike_formats::pku::{PkuGeometry, PkuWriter};
 use neuspike_formats::text::TextWriter;
 use neuspike_formats::{EventWriter, Resolution, WriteSummary};
 use neuspike_scene::Scene;
-use neuspike_sink::png_out::{BitDepth, write_frame_png};
+use neuspike_sink::png_out::{BitDepth, grey_levels, write_frame_png};
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
 
 /// What to simulate.
@@ -63,6 +65,8 @@ pub struct Recording {
     pub events: u64,
     /// Ground-truth frames written.
     pub ground_truth: u64,
+    /// Ground-truth frames also written as APS frames in `events.aedat4`.
+    pub aps_frames: u64,
     /// Events whose time had to be floored to whole microseconds in `events.raw`.
     pub floored_in_raw: u64,
 }
@@ -107,6 +111,8 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
         let (w, path) = create("events.aedat4")?;
         aedat_out = Some(Aedat4Writer::new(w, path, dvs_res, Compression::Lz4)?);
     }
+    // A DAVIS's frames have the sensor's size: the truth goes in only when the sizes agree.
+    let truth_as_aps = (opts.dvs.width, opts.dvs.height) == (opts.spike.width, opts.spike.height);
     let (mut stamps, stamps_path) = create("ground-truth/timestamps.txt")?;
     writeln!(stamps, "# plane t_ns file").wrap_err("timestamps.txt")?;
 
@@ -126,6 +132,7 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
         spikes: 0,
         events: 0,
         ground_truth: 0,
+        aps_frames: 0,
         floored_in_raw: 0,
     };
     while spike.tick() < total {
@@ -156,6 +163,23 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
                 let name = format!("{k:08}.png");
                 let frame = spike.ground_truth(k);
                 write_frame_png(&gt_dir.join(&name), frame.view(), BitDepth::Sixteen)?;
+                if let (Some(aedat), true) = (&mut aedat_out, truth_as_aps) {
+                    let t_ns = spike.plane_time_ns(k);
+                    let (height, width) = frame.dim();
+                    aedat.write_frame(&ApsFrame {
+                        t_ns,
+                        exposure_begin_ns: t_ns,
+                        exposure_end_ns: t_ns,
+                        format: FrameFormat::Gray16,
+                        width: u16::try_from(width).wrap_err("frame width")?,
+                        height: u16::try_from(height).wrap_err("frame height")?,
+                        pixels: grey_levels(frame.view(), BitDepth::Sixteen)
+                            .iter()
+                            .flat_map(|v| v.to_le_bytes())
+                            .collect(),
+                    })?;
+                    rec.aps_frames += 1;
+                }
                 writeln!(stamps, "{k} {} {name}", spike.plane_time_ns(k))
                     .wrap_err_with(|| format!("cannot write {}", stamps_path.display()))?;
                 rec.ground_truth += 1;
@@ -204,7 +228,9 @@ fn write_manifest(
          # luminance = firing rate per tick * lum_per_rate (phi / light_scale)\n  \
          lum_per_rate: {lpr}\n  seed: {sseed}\n\
          events:\n  files: [events.txt, events.raw, events.aedat4]\n  width: {ew}\n  height: {eh}\n  \
-         count: {events}\n  floored_in_raw: {floored}\n  seed: {eseed}\n\
+         count: {events}\n  floored_in_raw: {floored}\n  seed: {eseed}\n  \
+         # the ground truth again, as APS frames in events.aedat4 (when the sizes agree)\n  \
+         aps_frames: {aps}\n\
          ground_truth:\n  folder: ground-truth\n  every_planes: {gt_every}\n  frames: {gt}\n",
         scene = opts.scene,
         sw = opts.spike.width,
@@ -218,6 +244,7 @@ fn write_manifest(
         eh = opts.dvs.height,
         events = rec.events,
         floored = rec.floored_in_raw,
+        aps = rec.aps_frames,
         eseed = opts.dvs.seed,
         gt_every = opts.gt_every_planes,
         gt = rec.ground_truth,
@@ -239,6 +266,7 @@ pub fn describe(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use neuspike_formats::aedat4::Aedat4Frames;
     use neuspike_formats::pku::{PkuOptions, PkuReader};
     use neuspike_formats::{ReadOptions, open_events, read_all};
 
@@ -314,6 +342,32 @@ mod tests {
         let y: serde_yaml::Value = serde_yaml::from_str(&manifest).unwrap();
         assert_eq!(y["spikes"]["planes"].as_u64(), Some(100));
         assert_eq!(y["events"]["count"].as_u64(), Some(rec.events));
+        // The cameras differ in size: no APS frames.
+        assert_eq!(y["events"]["aps_frames"].as_u64(), Some(0));
+        let frames = Aedat4Frames::open(dir.path().join("events.aedat4")).unwrap();
+        assert_eq!(frames.count(), 0);
+    }
+
+    #[test]
+    fn cameras_of_one_size_get_the_truth_as_aps_frames_too() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut opts = small(dir.path());
+        (opts.dvs.width, opts.dvs.height) = (40, 25);
+        let rec = simulate(&opts).unwrap();
+        assert_eq!((rec.ground_truth, rec.aps_frames), (3, 3));
+        let frames: Vec<_> = Aedat4Frames::open(dir.path().join("events.aedat4"))
+            .unwrap()
+            .map(Result::unwrap)
+            .collect();
+        for (f, plane) in frames.iter().zip([0u64, 40, 80]) {
+            assert_eq!(f.t_ns, plane as i64 * 50_000);
+            assert_eq!((f.width, f.height, f.format), (40, 25, FrameFormat::Gray16));
+            let png = neuspike_sink::png_out::read_frame_png(
+                &dir.path().join(format!("ground-truth/{plane:08}.png")),
+            )
+            .unwrap();
+            assert_eq!(f.luminance(), png.iter().copied().collect::<Vec<f32>>());
+        }
     }
 
     #[test]

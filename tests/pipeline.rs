@@ -180,8 +180,9 @@ fn fusion_graph_runs_every_method_and_loses_nothing() {
 /// A paired recording from `neuspike simulate` (both cameras 400x250, on one clock, ground truth
 /// every 20 planes), played back by `neuspike reconstruct --events` for each method that reads
 /// events, the learned fused network included (`--method learned --model`): every window becomes
-/// a frame, nothing is lost, the recorded ground truth (found beside the spike file) scores every
-/// frame, and the frames resemble it (the SSIM floor of the simulated graph's test).
+/// a frame, nothing is lost, the recorded ground truth (found beside the spike file, or for `cf`
+/// its copy as APS frames in the AEDAT 4 file) scores every frame, and the frames resemble it (the
+/// SSIM floor of the simulated graph's test).
 #[test]
 fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
     use neuspike::reconstruct::{Method, ReconstructOptions, reconstruct};
@@ -205,18 +206,25 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
     })
     .expect("simulate");
     let fused = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/neuspike-fused-8.onnx");
-    // Two of the methods play the events from the AEDAT 4 copy, two from the EVT 2.0 one.
-    for (method, model, events) in [
-        (Method::Hf, None, "events.raw"),
-        (Method::Cf, None, "events.aedat4"),
-        (Method::Fusion, None, "events.raw"),
-        (Method::Learned, Some(fused), "events.aedat4"),
+    // Two of the methods play the events from the AEDAT 4 copy, two from the EVT 2.0 one; one
+    // is scored against the truth's copy as APS frames in the AEDAT 4 file (as a DAVIS's frames
+    // would be), the others against the PNG folder.
+    for (method, model, events, truth) in [
+        (Method::Hf, None, "events.raw", None),
+        (
+            Method::Cf,
+            None,
+            "events.aedat4",
+            Some(rec.join("events.aedat4")),
+        ),
+        (Method::Fusion, None, "events.raw", None),
+        (Method::Learned, Some(fused), "events.aedat4", None),
     ] {
         let out = dir.path().join(format!("{method:?}"));
         let opts = ReconstructOptions {
             spikes: rec.join("spikes.dat"),
             events: Some(rec.join(events)),
-            truth: None,
+            truth,
             method,
             model,
             out: out.clone(),

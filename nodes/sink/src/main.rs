@@ -33,6 +33,12 @@ struct Args {
     /// Also write the ground-truth frames as PNG.
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     write_ground_truth: bool,
+    /// Score a frame against the nearest ground truth within this many nanoseconds of its
+    /// `t_ref_ns` (the earlier one on a tie); 0 asks for the same instant. Truth that is not taken
+    /// on the reconstruction's grid, such as a DAVIS's APS frames, needs about half the time
+    /// between two frames.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(i64).range(0..))]
+    truth_within_ns: i64,
 }
 
 fn main() -> eyre::Result<()> {
@@ -60,6 +66,7 @@ struct Sink {
     depth: BitDepth,
     write_gt: bool,
     has_gt: bool,
+    truth_within_ns: i64,
     csv: MetricsCsv,
     summary: Summary,
     inputs: BTreeMap<String, InputState>,
@@ -87,6 +94,7 @@ impl Sink {
             depth: args.bit_depth,
             write_gt: args.write_ground_truth,
             has_gt,
+            truth_within_ns: args.truth_within_ns,
             csv,
             summary: Summary::default(),
             inputs: BTreeMap::new(),
@@ -131,7 +139,9 @@ impl Sink {
     /// Writes every pending frame whose ground truth has arrived or can no longer arrive.
     fn drain_pending(&mut self) -> eyre::Result<()> {
         while let Some((_, f)) = self.pending.front() {
-            if !self.truth_closed && f.t_ref_ns > self.truth_until_ns {
+            if !self.truth_closed
+                && f.t_ref_ns.saturating_add(self.truth_within_ns) > self.truth_until_ns
+            {
                 break;
             }
             if let Some((input, f)) = self.pending.pop_front() {
@@ -144,7 +154,7 @@ impl Sink {
     fn write(&mut self, input: &str, f: Frame) -> eyre::Result<()> {
         let (path, name) = self.frame_path(&f.method, f.seq)?;
         write_frame_png(&path, f.data.view(), self.depth)?;
-        let gt = self.truth.get(&f.t_ref_ns);
+        let gt = self.nearest_truth(f.t_ref_ns);
         let (p, pg, ss) = match gt {
             Some(g) => {
                 check_same_shape(f.data.view(), g.data.view())?;
@@ -179,6 +189,21 @@ impl Sink {
         Ok(())
     }
 
+    /// The ground truth nearest `t_ns` within `truth_within_ns` (the earlier one on a tie).
+    fn nearest_truth(&self, t_ns: i64) -> Option<&Frame> {
+        let tol = self.truth_within_ns;
+        let before = self.truth.range(..=t_ns).next_back();
+        let after = self.truth.range(t_ns.saturating_add(1)..).next();
+        let dist = |t: i64| t.abs_diff(t_ns);
+        let best = match (before, after) {
+            (Some(b), Some(a)) if dist(*a.0) < dist(*b.0) => a,
+            (Some(b), _) => b,
+            (None, Some(a)) => a,
+            (None, None) => return None,
+        };
+        (dist(*best.0) <= tol.unsigned_abs()).then_some(best.1)
+    }
+
     /// Forgets ground truth older than every frame still to come.
     fn evict_truth(&mut self) {
         let oldest_pending = self
@@ -187,7 +212,9 @@ impl Sink {
             .map(|(_, f)| f.t_ref_ns)
             .min()
             .unwrap_or(i64::MAX);
-        let keep_from = oldest_pending.min(self.truth_until_ns.saturating_sub(TRUTH_HISTORY_NS));
+        let keep_from = oldest_pending
+            .saturating_sub(self.truth_within_ns)
+            .min(self.truth_until_ns.saturating_sub(TRUTH_HISTORY_NS));
         self.truth = self.truth.split_off(&keep_from);
     }
 
@@ -305,6 +332,7 @@ mod tests {
             out: out.clone(),
             bit_depth: BitDepth::Eight,
             write_ground_truth: true,
+            truth_within_ns: 0,
         };
         c.run(|node, events| run(node, events, &args, true))
             .unwrap();
@@ -320,5 +348,60 @@ mod tests {
         assert!(out.join("ground-truth/000001.png").is_file());
         let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
         assert!(summary.contains("tfp"), "{summary}");
+    }
+
+    /// Scores of a run whose truth lies `offset_ns` after each frame, matched within `within_ns`.
+    fn scores_with_offset_truth(offset_ns: i64, within_ns: i64) -> Vec<String> {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let mut c = CannedInputs::new(dir.path());
+        for seq in 0..3 {
+            let mut gt = frame(FrameKind::GroundTruth, "ground-truth", seq, 1.0);
+            gt.t_ref_ns += offset_ns;
+            // Truth 1 is dimmer, so which truth scored a frame shows in its PSNR.
+            if seq == 1 {
+                gt.data *= 0.5;
+            }
+            c.message("tfp", &frame(FrameKind::Reconstruction, "tfp", seq, 1.0))
+                .unwrap();
+            c.message("ground_truth", &gt).unwrap();
+        }
+        c.end::<Frame>("tfp", 3).unwrap();
+        c.end::<Frame>("ground_truth", 3).unwrap();
+        let args = Args {
+            out: out.clone(),
+            bit_depth: BitDepth::Eight,
+            write_ground_truth: false,
+            truth_within_ns: within_ns,
+        };
+        c.run(|node, events| run(node, events, &args, true))
+            .unwrap();
+        let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+        // The PSNR column.
+        csv.lines()
+            .skip(1)
+            .map(|r| r.split(',').nth(4).unwrap().to_string())
+            .collect()
+    }
+
+    #[test]
+    fn truth_off_the_frame_grid_is_matched_to_the_nearest_within_the_tolerance() {
+        // Truth 300 ns after each frame (frames are 1,000 ns apart).
+        let exact = scores_with_offset_truth(300, 0);
+        assert!(exact.iter().all(String::is_empty), "{exact:?}");
+        let near = scores_with_offset_truth(300, 400);
+        assert_eq!(near[0], "inf");
+        assert_ne!(
+            near[1], "inf",
+            "frame 1 is scored against the dimmer truth 1"
+        );
+        assert_eq!(near[2], "inf");
+        // Truth 700 ns after each frame is nearer the next frame: frame 1 takes truth 0 (300 ns
+        // before it) and frame 2 truth 1; frame 0 has none within 400 ns.
+        let next = scores_with_offset_truth(700, 400);
+        assert_eq!(next[0], "");
+        assert_eq!(next[1], "inf");
+        assert_ne!(next[2], "inf");
+        assert_ne!(next[2], "");
     }
 }

@@ -86,6 +86,12 @@ fn levels<T>(frame: ArrayView2<f32>, max: u16, cast: impl Fn(u16) -> T + Copy) -
     }
 }
 
+/// The grey levels of `frame` at `depth`, row-major, as [`write_frame_png`] writes them (for other
+/// containers of the same frames, such as AEDAT 4's APS frames).
+pub fn grey_levels(frame: ArrayView2<f32>, depth: BitDepth) -> Vec<u16> {
+    levels(frame, depth.max_level(), |v| v)
+}
+
 /// Writes `contents` to `path` through `<path>.tmp` and a rename, so that a reader never sees a
 /// half-written file. On failure the `.tmp` file is removed (best effort) and `path` is untouched.
 pub(crate) fn write_atomically(

@@ -3,11 +3,14 @@
 //! `--gt-every-planes`-th plane.
 //!
 //! With `--file PATH` the node plays a PKU Vidar `.dat` recording instead of simulating a scene
-//! (`--scene` and `--gt-every-planes` are then refused: a recording has no ground truth). The file
+//! (`--scene` and `--gt-every-planes` are then refused; `--truth` names the recording's ground
+//! truth, a folder of PNGs or the APS frames of an AEDAT 4 file, see [`Truth`]). The file
 //! is streamed `--chunk-planes` planes at a time, never loaded whole, and its planes go out as the
-//! simulator's do: chunks numbered by `seq` from 0, planes numbered from 0 at `--start-plane`,
-//! plane `k` stamped `k * T` with `T = 1 / --rate-hz` (default 20 kHz, the Vidar rate), then the
-//! end-of-stream marker. A file that ends in a partial plane (truncated, or the wrong
+//! simulator's do: chunks numbered by `seq` from 0, planes numbered by their place in the file
+//! (the first one sent is `--start-plane`), plane `k` stamped `k * T` with `T = 1 / --rate-hz`
+//! (default 20 kHz, the Vidar rate), then the end-of-stream marker. Played from its middle, a
+//! recording keeps its clock, so that an event file and ground truth recorded with it (both
+//! counted from the recording's start) still line up. A file that ends in a partial plane (truncated, or the wrong
 //! `--file-width`/`--file-height`/`--head-columns`) has its whole planes sent, then an error naming
 //! the file and the byte offset of the partial plane is logged and the stream still ends with its
 //! marker. A relative `--file` is resolved against the node's working directory: under
@@ -33,7 +36,7 @@ use neuspike_formats::pku::{HEAD_COLUMNS, PkuGeometry, PkuOptions, PkuReader};
 use neuspike_scene::Scene;
 use neuspike_schemas::node::{self, Pace, Pacer, output, send, send_end, stop_requested};
 use neuspike_schemas::{Frame, FrameKind, SpikeChunk};
-use neuspike_spike_source::truth::{TruthFolder, read_truth_png};
+use neuspike_spike_source::truth::Truth;
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
 
 /// Luminance per unit firing rate sent with the planes of a recording when the graph gives no
@@ -70,8 +73,9 @@ struct Args {
     #[arg(long, default_value_t = 0, requires = "file")]
     start_plane: u64,
     /// Ground truth recorded with the file: a folder whose `timestamps.txt` lists `plane t_ns
-    /// file` (as `neuspike simulate` writes `ground-truth/`). Each listed plane that is played
-    /// sends its PNG on `ground_truth`, at that plane's time.
+    /// file` (as `neuspike simulate` writes `ground-truth/`), each listed plane that is played
+    /// sending its PNG on `ground_truth` at that plane's time; or an AEDAT 4 file whose APS
+    /// frames are sent at their own times (on the spike clock) as the planes around them play.
     #[arg(long, requires = "file")]
     truth: Option<PathBuf>,
     /// Luminance per unit firing rate sent with the recording's planes (default 1.0).
@@ -136,8 +140,7 @@ fn open_source(args: &Args) -> eyre::Result<Source> {
                 SpikeFile::open(path, geometry, args.start_plane, period_ns, lum_per_rate)
                     .wrap_err("spike-source: cannot play the recording")?;
             if let Some(dir) = &args.truth {
-                file.truth =
-                    Some(TruthFolder::open(dir).map_err(|e| eyre::eyre!("spike-source: {e}"))?);
+                file.truth = Some(Truth::open(dir).map_err(|e| eyre::eyre!("spike-source: {e}"))?);
             }
             Ok(Source::File(Box::new(file)))
         }
@@ -158,7 +161,7 @@ struct SpikeFile {
     plane_period_ns: i64,
     lum_per_rate: f64,
     /// Ground truth recorded with the file (`--truth`).
-    truth: Option<TruthFolder>,
+    truth: Option<Truth>,
 }
 
 impl SpikeFile {
@@ -216,10 +219,19 @@ impl SpikeFile {
                 offset: skip_bytes,
                 source,
             })?;
+        let t_first_ns = i64::try_from(start_plane)
+            .ok()
+            .and_then(|k| k.checked_mul(plane_period_ns))
+            .ok_or_else(|| FormatError::Unsupported {
+                path: path.to_path_buf(),
+                what: format!(
+                    "start plane {start_plane} at {plane_period_ns} ns a plane overflows i64 ns"
+                ),
+            })?;
         let opts = PkuOptions {
             geometry,
             plane_period_ns,
-            t_first_ns: 0,
+            t_first_ns,
         };
         Ok(SpikeFile {
             reader: PkuReader::from_reader(file, path, &opts)?,
@@ -235,6 +247,11 @@ impl SpikeFile {
         })
     }
 
+    /// Time of the start plane: the clock of a paced playback starts there.
+    fn start_time_ns(&self) -> i64 {
+        self.reader.options().t_first_ns
+    }
+
     /// Whole planes from the start plane to the end of the file.
     fn planes_left(&self) -> u64 {
         self.planes_in_file - self.start_plane
@@ -246,6 +263,8 @@ impl SpikeFile {
     fn next_chunk(&mut self, n: usize, seq: u64) -> Result<Option<SpikeChunk>, FormatError> {
         match self.reader.next_chunk(n) {
             Ok(Some(mut chunk)) => {
+                // The reader counts planes from where it started.
+                chunk.first_plane += self.start_plane;
                 chunk.seq = seq;
                 chunk.lum_per_rate = Some(self.lum_per_rate);
                 Ok(Some(chunk))
@@ -358,32 +377,34 @@ fn play(
         }
         match file.next_chunk(n, seq) {
             Ok(Some(chunk)) => {
-                pacer.wait_until(chunk_due_ns(&chunk));
+                pacer.wait_until(chunk_due_ns(&chunk).saturating_sub(file.start_time_ns()));
                 send(&mut node, &spikes, &chunk)?;
                 seq += 1;
                 sent += chunk.n_planes as u64;
-                if let Some(truth) = &file.truth {
+                if let Some(truth) = &mut file.truth {
                     let first = chunk.first_plane;
-                    for (plane, path) in truth.in_range(first..first + chunk.n_planes as u64) {
-                        let data = match read_truth_png(path, chunk.height, chunk.width) {
-                            Ok(d) => d,
-                            Err(e) => {
-                                tracing::error!("{e}; no more ground truth is sent");
-                                file.truth = None;
-                                failure = Some(eyre::eyre!(e));
-                                break;
+                    let planes = first..first + chunk.n_planes as u64;
+                    let time = |k: u64| chunk.plane_time_ns((k - first) as usize);
+                    match truth.frames_in(planes, time, chunk.height, chunk.width) {
+                        Ok(frames) => {
+                            for (t_ref_ns, data) in frames {
+                                let frame = Frame {
+                                    kind: FrameKind::GroundTruth,
+                                    method: "ground-truth".into(),
+                                    t_ref_ns,
+                                    compute_ns: 0,
+                                    seq: gt_seq,
+                                    data,
+                                };
+                                send(&mut node, &gt_out, &frame)?;
+                                gt_seq += 1;
                             }
-                        };
-                        let frame = Frame {
-                            kind: FrameKind::GroundTruth,
-                            method: "ground-truth".into(),
-                            t_ref_ns: chunk.plane_time_ns((plane - first) as usize),
-                            compute_ns: 0,
-                            seq: gt_seq,
-                            data,
-                        };
-                        send(&mut node, &gt_out, &frame)?;
-                        gt_seq += 1;
+                        }
+                        Err(e) => {
+                            tracing::error!("{e}; no more ground truth is sent");
+                            file.truth = None;
+                            failure = Some(eyre::eyre!(e));
+                        }
                     }
                 }
             }
@@ -409,6 +430,14 @@ fn play(
         ground_truth = gt_seq,
         "spike recording played"
     );
+    if let Some(Truth::Aps(aps)) = &file.truth
+        && aps.skipped_before > 0
+    {
+        tracing::info!(
+            frames = aps.skipped_before,
+            "APS frames before the first plane played were passed over"
+        );
+    }
     match failure {
         Some(e) => Err(e).wrap_err("spike-source: the recording could not be read to its end"),
         None => Ok(()),
@@ -560,6 +589,52 @@ mod tests {
             .collect();
         let per = bytes_per_plane(40, 25);
         assert_eq!(spikes, vec![20 * per, 20 * per, 10 * per, 0]);
+    }
+
+    #[test]
+    fn a_recording_played_from_its_middle_keeps_its_clock_and_its_truth() {
+        let dir = tempfile::tempdir().unwrap();
+        let (w, h) = (16, 4);
+        let path = write_dat(dir.path(), PkuGeometry::new(w, h), &planes(9, w, h, 3), &[]);
+        let truth = dir.path().join("gt");
+        std::fs::create_dir(&truth).unwrap();
+        let list = "0 0 a.png\n4 4000000 b.png\n8 8000000 c.png\n";
+        std::fs::write(truth.join("timestamps.txt"), list).unwrap();
+        for (name, v) in [("a.png", 0u16), ("b.png", 30_000), ("c.png", 60_000)] {
+            image::ImageBuffer::<image::Luma<u16>, _>::from_pixel(16, 4, image::Luma([v]))
+                .save(truth.join(name))
+                .unwrap();
+        }
+        let a = args(&[
+            "--file",
+            path.to_str().unwrap(),
+            "--file-width",
+            "16",
+            "--file-height",
+            "4",
+            "--start-plane",
+            "2",
+            "--chunk-planes",
+            "4",
+            "--rate-hz",
+            "1000",
+            "--truth",
+            truth.to_str().unwrap(),
+        ]);
+        let out = play_args(&a);
+        let gt: Vec<&OutputJson> = out.iter().filter(|o| o["id"] == "ground_truth").collect();
+        // Planes 2..9 are played: the truth of planes 4 and 8, at their times, then the marker.
+        assert_eq!(gt.len(), 3, "{out:?}");
+        // Told apart by their levels: a.png (plane 0, before the start) is not sent.
+        let level = |o: &OutputJson| o["data"][0].as_f64().unwrap();
+        assert!(
+            (level(gt[0]) - 30_000.0 / 65_535.0).abs() < 1e-6,
+            "{:?}",
+            gt[0]
+        );
+        assert!((level(gt[1]) - 60_000.0 / 65_535.0).abs() < 1e-6);
+        assert_eq!(payload_len(gt[0]), 16 * 4);
+        assert_eq!(payload_len(gt[2]), 0, "end-of-stream marker");
     }
 
     #[test]
@@ -724,14 +799,16 @@ mod tests {
             panic!("a file source")
         };
         let c = f.next_chunk(4, 0).unwrap().unwrap();
-        // Planes are numbered from the start plane, as a camera started there would.
+        // Planes keep their number and time in the file, so that events and ground truth
+        // recorded with it still line up.
         assert_eq!(
             (c.first_plane, c.t_first_ns, c.plane_period_ns),
-            (0, 0, 1_000_000)
+            (2, 2_000_000, 1_000_000)
         );
+        assert_eq!(f.start_time_ns(), 2_000_000);
         assert_eq!(c.lum_per_rate, Some(2.5));
         let c = f.next_chunk(4, 1).unwrap().unwrap();
-        assert_eq!((c.seq, c.first_plane, c.t_first_ns), (1, 4, 4_000_000));
+        assert_eq!((c.seq, c.first_plane, c.t_first_ns), (1, 6, 6_000_000));
     }
 
     #[test]
