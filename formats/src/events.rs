@@ -441,6 +441,12 @@ impl Sink {
         Ok(())
     }
 
+    /// The sensor size events are checked against, `(width, height)` (65,536 when unknown).
+    #[inline]
+    pub(crate) fn bounds(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
     /// How many more events the caller's request takes.
     #[inline]
     pub(crate) fn room(&self) -> usize {

@@ -73,8 +73,11 @@ const TIME_MASK: u32 = (1 << TIME_BITS) - 1;
 /// A `TIME_HIGH` this many steps below its predecessor (or more) is a wrap.
 const WRAP_THRESHOLD: u32 = 1 << (TIME_BITS - 1);
 
+/// Events a fast block decodes at most before the sink checks them.
+const BLOCK_EVENTS: usize = 4096;
+
 /// Decoder state across buffers.
-#[derive(Debug, Default)]
+#[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Evt3Decoder {
     high: Option<u32>,
     low: u32,
@@ -92,7 +95,162 @@ impl Evt3Decoder {
 
     /// Decodes whole words of `bytes` (which start at file offset `offset`) until the sink is
     /// full; returns the bytes consumed.
+    ///
+    /// Runs of ordinary words go through [`Evt3Decoder::decode_fast`], a block at a time, and
+    /// the sink checks each block's events in column passes ([`Sink::accept_block`]). A block
+    /// the sink refuses is taken back (events and decoder state) and decoded again by
+    /// [`Evt3Decoder::decode_checked`], word by word, which names the fault or repairs it; so
+    /// does every word the fast path leaves.
     pub(crate) fn decode(
+        &mut self,
+        bytes: &[u8],
+        offset: u64,
+        sink: &mut Sink,
+        out: &mut EventBatch,
+    ) -> Result<usize> {
+        let whole = bytes.len() - bytes.len() % WORD_BYTES;
+        let (width, _) = sink.bounds();
+        let mut consumed = 0usize;
+        while consumed < whole && !sink.full() {
+            let saved = *self;
+            let start = out.len();
+            let max = sink.room().min(BLOCK_EVENTS);
+            let n = self.decode_fast(&bytes[consumed..whole], width, out, max);
+            if n > 0 {
+                if sink.accept_block(out, start) {
+                    consumed += n;
+                    continue;
+                }
+                *self = saved;
+                out.t_ns.truncate(start);
+                out.x.truncate(start);
+                out.y.truncate(start);
+                out.polarity.truncate(start);
+            }
+            let end = consumed + n.max(WORD_BYTES);
+            let at = offset + consumed as u64;
+            consumed += self.decode_checked(&bytes[consumed..end], at, sink, out)?;
+        }
+        Ok(consumed)
+    }
+
+    /// The fast path: decodes the ordinary words at the start of `bytes` (rows, columns,
+    /// vectors, times without a wrap) straight into `out`'s columns, at most `max_events`
+    /// events, and returns the bytes consumed; its state then stands after them. It stops before
+    /// any word the checked path must see: another type, a clock wrap, a column at or past
+    /// `width`, an event without a time base, a row or a base column, or a vector with no room
+    /// left. Rows and the time order are for the sink to check.
+    #[inline(never)]
+    fn decode_fast(
+        &mut self,
+        bytes: &[u8],
+        width: u32,
+        out: &mut EventBatch,
+        max_events: usize,
+    ) -> usize {
+        let (Some(mut high), Some(mut y)) = (self.high, self.y) else {
+            return 0;
+        };
+        // Every time before the next wrap fits `i64` ns: checked once, here.
+        let Some(wrap_base_ns) = (self.wraps + 1)
+            .checked_mul(CLOCK_PERIOD_US)
+            .and_then(|end_us| i64::try_from(end_us).ok())
+            .and_then(|end_us| end_us.checked_mul(1000))
+            .map(|_| (self.wraps * CLOCK_PERIOD_US) as i64 * 1000)
+        else {
+            return 0;
+        };
+        let time = |high: u32, low: u32| wrap_base_ns + i64::from((high << TIME_BITS) | low) * 1000;
+        let (mut low, mut base_x, mut base_on) = (self.low, self.base_x, self.base_on);
+        let mut t_ns = time(high, low);
+        // The columns are grown by the block's room first and cut back after: each event is then
+        // four stores, without a capacity check each.
+        let start = out.len();
+        let cap = start + max_events;
+        out.t_ns.resize(cap, 0);
+        out.x.resize(cap, 0);
+        out.y.resize(cap, 0);
+        out.polarity.resize(cap, 0);
+        let (ts, xs, ys, ps) = (
+            &mut out.t_ns[..cap],
+            &mut out.x[..cap],
+            &mut out.y[..cap],
+            &mut out.polarity[..cap],
+        );
+        let mut n = start;
+        let mut used = 0usize;
+        // x < width <= 65,536 and y < 2,048 here: both fit u16.
+        let mut push = |n: &mut usize, t_ns: i64, x: u32, y: u32, on: bool| {
+            ts[*n] = t_ns;
+            xs[*n] = x as u16;
+            ys[*n] = y as u16;
+            ps[*n] = if on { 1 } else { -1 };
+            *n += 1;
+        };
+        for w in bytes.chunks_exact(WORD_BYTES) {
+            if n + 12 > cap {
+                break;
+            }
+            let word = u16::from_le_bytes([w[0], w[1]]);
+            let payload = u32::from(word) & 0xFFF;
+            match (word >> 12) as u8 {
+                word::ADDR_Y => y = payload & COORD_MASK,
+                word::ADDR_X => {
+                    let x = payload & COORD_MASK;
+                    if x >= width {
+                        break;
+                    }
+                    push(&mut n, t_ns, x, y, payload & POLARITY_BIT != 0);
+                }
+                word::VECT_BASE_X => {
+                    base_x = Some(payload & COORD_MASK);
+                    base_on = payload & POLARITY_BIT != 0;
+                }
+                kind @ (word::VECT_12 | word::VECT_8) => {
+                    let Some(base) = base_x else { break };
+                    let k = if kind == word::VECT_12 { 12 } else { 8 };
+                    let mut valid = payload & ((1 << k) - 1);
+                    if valid != 0 && base + (31 - valid.leading_zeros()) >= width {
+                        break;
+                    }
+                    while valid != 0 {
+                        let i = valid.trailing_zeros();
+                        valid &= valid - 1;
+                        push(&mut n, t_ns, base + i, y, base_on);
+                    }
+                    base_x = Some(base.saturating_add(k));
+                }
+                word::TIME_LOW => {
+                    low = payload;
+                    t_ns = time(high, low);
+                }
+                word::TIME_HIGH => {
+                    if payload < high && high - payload >= WRAP_THRESHOLD {
+                        break;
+                    }
+                    if payload != high {
+                        low = 0;
+                    }
+                    high = payload;
+                    t_ns = time(high, low);
+                }
+                _ => break,
+            }
+            used += 1;
+        }
+        out.t_ns.truncate(n);
+        out.x.truncate(n);
+        out.y.truncate(n);
+        out.polarity.truncate(n);
+        (self.high, self.y, self.low) = (Some(high), Some(y), low);
+        (self.base_x, self.base_on) = (base_x, base_on);
+        used * WORD_BYTES
+    }
+
+    /// The checked path: decodes whole words of `bytes` (which start at file offset `offset`)
+    /// one by one, each event through [`Sink::emit`], until the sink is full; returns the bytes
+    /// consumed.
+    fn decode_checked(
         &mut self,
         bytes: &[u8],
         offset: u64,
@@ -335,5 +493,143 @@ impl<W: Write> crate::EventWriter for Evt3Writer<W> {
 
     fn write_batch(&mut self, b: &EventBatch) -> Result<()> {
         Evt3Writer::write_batch(self, b)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::events::{Bounds, Disorder, ReadOptions, ReadStats, UnknownWords};
+    use proptest::prelude::*;
+
+    /// What a decode gave: the events, the statistics and the error that ended it, if any.
+    type Decoded = (EventBatch, ReadStats, Option<String>);
+
+    /// Decodes `words` in requests of `max` events, handing the decoder at most `piece` bytes at
+    /// a time (buffer boundaries), through the fast path or the checked one alone.
+    fn decode_all(
+        words: &[u8],
+        max: usize,
+        piece: usize,
+        fast: bool,
+        opts: &ReadOptions,
+    ) -> Decoded {
+        let mut sink = Sink::new("mem".into(), Bounds::Sensor(Resolution::new(40, 30)), opts);
+        let mut d = Evt3Decoder::default();
+        let mut out = EventBatch::default();
+        let mut pos = 0usize;
+        loop {
+            let got = sink.read_with(&mut out, max, |sink, out| {
+                while !sink.full() {
+                    if pos >= words.len() {
+                        sink.finish();
+                        return Ok(());
+                    }
+                    let end = words.len().min(pos + piece);
+                    let (bytes, at) = (&words[pos..end], pos as u64);
+                    pos += if fast {
+                        d.decode(bytes, at, sink, out)?
+                    } else {
+                        d.decode_checked(bytes, at, sink, out)?
+                    };
+                }
+                Ok(())
+            });
+            match got {
+                Ok(0) => return (out, sink.stats.clone(), None),
+                Ok(_) => {}
+                Err(e) => return (out, sink.stats.clone(), Some(e.to_string())),
+            }
+        }
+    }
+
+    /// A word: mostly the ordinary kinds, with coordinates a little past the 40x30 sensor, times
+    /// that mostly rise (and sometimes step back or wrap), and a few rare or unknown types.
+    fn word() -> impl Strategy<Value = u16> {
+        let w = |kind: u8, payload: u32| (u16::from(kind) << 12) | (payload & 0xFFF) as u16;
+        prop_oneof![
+            4 => (0u32..34, any::<bool>()).prop_map(move |(y, s)| w(word::ADDR_Y, y | u32::from(s) << 11)),
+            8 => (0u32..44, any::<bool>()).prop_map(move |(x, p)| w(word::ADDR_X, x | u32::from(p) << 11)),
+            3 => (0u32..44, any::<bool>()).prop_map(move |(x, p)| w(word::VECT_BASE_X, x | u32::from(p) << 11)),
+            3 => any::<u16>().prop_map(move |v| w(word::VECT_12, u32::from(v))),
+            2 => any::<u8>().prop_map(move |v| w(word::VECT_8, u32::from(v))),
+            4 => (0u32..4096).prop_map(move |t| w(word::TIME_LOW, t)),
+            2 => (0u32..4096).prop_map(move |t| w(word::TIME_HIGH, t)),
+            1 => prop_oneof![
+                Just(word::CONTINUED_4),
+                Just(word::CONTINUED_12),
+                Just(word::OTHERS),
+                Just(word::EXT_TRIGGER),
+                Just(0x1),
+                Just(0x9),
+            ]
+            .prop_map(move |k| w(k, 5)),
+        ]
+    }
+
+    /// Time words in order, so that long runs stay on the fast path.
+    fn ordered(words: Vec<u16>) -> Vec<u8> {
+        let (mut high, mut low) = (0u32, 0u32);
+        let mut out = Vec::new();
+        for (i, w) in words.into_iter().enumerate() {
+            let w = match (w >> 12) as u8 {
+                word::TIME_LOW if i % 7 != 0 => {
+                    low = (low + u32::from(w & 3)).min(0xFFF);
+                    (u16::from(word::TIME_LOW) << 12) | low as u16
+                }
+                word::TIME_HIGH if i % 11 != 0 => {
+                    high = (high + 1) & 0xFFF;
+                    (u16::from(word::TIME_HIGH) << 12) | high as u16
+                }
+                _ => w,
+            };
+            out.extend_from_slice(&w.to_le_bytes());
+        }
+        out
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(400))]
+        /// The fast path gives what the checked path gives, word for word: the same events,
+        /// statistics and error, whatever the requests' sizes and the buffers' boundaries.
+        #[test]
+        fn the_fast_path_matches_the_checked_one(
+            words in prop::collection::vec(word(), 0..3000),
+            max in 1usize..5000,
+            piece in prop::sample::select(vec![2usize, 7, 64, 1 << 20]),
+            clamp in any::<bool>(),
+            skip_unknown in any::<bool>(),
+        ) {
+            let opts = ReadOptions {
+                disorder: if clamp { Disorder::Clamp } else { Disorder::Error },
+                unknown_words: if skip_unknown { UnknownWords::Skip } else { UnknownWords::Error },
+                ..ReadOptions::default()
+            };
+            let bytes = ordered(words);
+            let fast = decode_all(&bytes, max, piece, true, &opts);
+            let checked = decode_all(&bytes, max, piece, false, &opts);
+            prop_assert_eq!(&fast.0.t_ns, &checked.0.t_ns);
+            prop_assert_eq!(&fast.0.x, &checked.0.x);
+            prop_assert_eq!(&fast.0.y, &checked.0.y);
+            prop_assert_eq!(&fast.0.polarity, &checked.0.polarity);
+            prop_assert_eq!(&fast.1, &checked.1);
+            prop_assert_eq!(&fast.2, &checked.2);
+        }
+    }
+
+    #[test]
+    fn a_clock_near_the_end_of_i64_leaves_the_fast_path() {
+        let mut d = Evt3Decoder {
+            high: Some(0),
+            y: Some(0),
+            wraps: (i64::MAX / 1000) as u64 >> 24,
+            ..Evt3Decoder::default()
+        };
+        let x = ((u16::from(word::ADDR_X) << 12) | 1).to_le_bytes();
+        let mut out = EventBatch::default();
+        assert_eq!(d.decode_fast(&x, 40, &mut out, 100), 0);
+        d.wraps -= 1;
+        assert_eq!(d.decode_fast(&x, 40, &mut out, 100), 2);
+        assert_eq!(out.x, [1]);
     }
 }

@@ -21,7 +21,7 @@ pub enum Truth {
     /// PNGs listed by plane.
     Folder(TruthFolder),
     /// The APS frames of an AEDAT 4 file.
-    Aps(ApsTruth),
+    Aps(Box<ApsTruth>),
 }
 
 impl Truth {
@@ -31,7 +31,7 @@ impl Truth {
             return TruthFolder::open(path).map(Truth::Folder);
         }
         match sniff(path).map_err(|e| e.to_string())? {
-            Format::Aedat4 => ApsTruth::open(path).map(Truth::Aps),
+            Format::Aedat4 => ApsTruth::open(path).map(|a| Truth::Aps(Box::new(a))),
             other => Err(format!(
                 "{}: ground truth must be a folder with timestamps.txt or an AEDAT 4 file with \
                  APS frames; this is {other}",
