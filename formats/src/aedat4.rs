@@ -757,10 +757,7 @@ impl<R: Read> EventReader for Aedat4Reader<R> {
                     cur.next += k;
                     continue;
                 }
-                out.t_ns.truncate(start);
-                out.x.truncate(start);
-                out.y.truncate(start);
-                out.polarity.truncate(start);
+                out.truncate(start);
                 let block_end = cur.next + k;
                 while cur.next < block_end && !sink.full() {
                     let i = cur.next;

@@ -122,10 +122,7 @@ impl Evt3Decoder {
                     continue;
                 }
                 *self = saved;
-                out.t_ns.truncate(start);
-                out.x.truncate(start);
-                out.y.truncate(start);
-                out.polarity.truncate(start);
+                out.truncate(start);
             }
             let end = consumed + n.max(WORD_BYTES);
             let at = offset + consumed as u64;
@@ -163,14 +160,28 @@ impl Evt3Decoder {
         let time = |high: u32, low: u32| wrap_base_ns + i64::from((high << TIME_BITS) | low) * 1000;
         let (mut low, mut base_x, mut base_on) = (self.low, self.base_x, self.base_on);
         let mut t_ns = time(high, low);
+        // A word the checked path takes comes first: no block (nor its zeroed room) for it.
+        // (The type is the top 4 bits of the little-endian word's second byte.)
+        let fast_kind = |k: u8| {
+            matches!(
+                k,
+                word::ADDR_Y
+                    | word::ADDR_X
+                    | word::VECT_BASE_X
+                    | word::VECT_12
+                    | word::VECT_8
+                    | word::TIME_LOW
+                    | word::TIME_HIGH
+            )
+        };
+        if bytes.get(1).is_none_or(|&b| !fast_kind(b >> 4)) {
+            return 0;
+        }
         // The columns are grown by the block's room first and cut back after: each event is then
         // four stores, without a capacity check each.
         let start = out.len();
         let cap = start + max_events;
-        out.t_ns.resize(cap, 0);
-        out.x.resize(cap, 0);
-        out.y.resize(cap, 0);
-        out.polarity.resize(cap, 0);
+        out.resize(cap);
         let (ts, xs, ys, ps) = (
             &mut out.t_ns[..cap],
             &mut out.x[..cap],
@@ -238,10 +249,7 @@ impl Evt3Decoder {
             }
             used += 1;
         }
-        out.t_ns.truncate(n);
-        out.x.truncate(n);
-        out.y.truncate(n);
-        out.polarity.truncate(n);
+        out.truncate(n);
         (self.high, self.y, self.low) = (Some(high), Some(y), low);
         (self.base_x, self.base_on) = (base_x, base_on);
         used * WORD_BYTES

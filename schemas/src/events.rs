@@ -81,6 +81,24 @@ impl EventBatch {
         self.polarity.push(e.polarity);
     }
 
+    /// Keeps the first `len` events (all of them when there are fewer).
+    pub fn truncate(&mut self, len: usize) {
+        self.t_ns.truncate(len);
+        self.x.truncate(len);
+        self.y.truncate(len);
+        self.polarity.truncate(len);
+    }
+
+    /// Sets every column to `len` entries, cutting or padding with zeros. A padded entry (polarity
+    /// 0) is no event: it is room for a decoder to write by index, and it must be overwritten or
+    /// cut before the batch is used.
+    pub fn resize(&mut self, len: usize) {
+        self.t_ns.resize(len, 0);
+        self.x.resize(len, 0);
+        self.y.resize(len, 0);
+        self.polarity.resize(len, 0);
+    }
+
     /// Event `i`.
     #[inline]
     pub fn get(&self, i: usize) -> Event {

@@ -10,7 +10,8 @@
 //! (the first one sent is `--start-plane`), plane `k` stamped `k * T` with `T = 1 / --rate-hz`
 //! (default 20 kHz, the Vidar rate), then the end-of-stream marker. Played from its middle, a
 //! recording keeps its clock, so that an event file and ground truth recorded with it (both
-//! counted from the recording's start) still line up. A file that ends in a partial plane (truncated, or the wrong
+//! counted from the recording's start) still line up. A file that ends in a partial plane
+//! (truncated, or the wrong
 //! `--file-width`/`--file-height`/`--head-columns`) has its whole planes sent, then an error naming
 //! the file and the byte offset of the partial plane is logged and the stream still ends with its
 //! marker. A relative `--file` is resolved against the node's working directory: under
