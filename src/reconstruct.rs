@@ -17,6 +17,9 @@ pub enum Method {
     Tfp,
     /// Texture from inter-spike intervals at the reference plane.
     Tfi,
+    /// Texture from short-term plasticity: each pixel's synapse, fed every plane, read at the
+    /// reference plane.
+    Tfstp,
     /// Events alone: Scheerlinck's high-pass filter (needs `--events`).
     Hf,
     /// Events with the spike camera's TFI frames: the complementary filter (needs `--events`).
@@ -33,6 +36,7 @@ impl Method {
         match self {
             Method::Tfp => "tfp",
             Method::Tfi => "tfi",
+            Method::Tfstp => "tfstp",
             Method::Hf => "hf",
             Method::Cf => "cf",
             Method::Fusion => "fusion",
@@ -45,6 +49,7 @@ impl Method {
     fn representation(self) -> Option<&'static str> {
         match self {
             Method::Tfp => Some("tfp"),
+            Method::Tfstp => Some("stp"),
             Method::Tfi | Method::Cf | Method::Fusion => Some("isi"),
             Method::Hf | Method::Learned => None,
         }
@@ -511,7 +516,11 @@ mod tests {
 
     #[test]
     fn the_graph_wires_the_method_to_its_representation() {
-        for (method, repr) in [(Method::Tfp, "tfp"), (Method::Tfi, "isi")] {
+        for (method, repr) in [
+            (Method::Tfp, "tfp"),
+            (Method::Tfi, "isi"),
+            (Method::Tfstp, "stp"),
+        ] {
             let y = graph_yaml(
                 &opts(method),
                 Path::new("/d/x.dat"),

@@ -152,10 +152,10 @@ fn demo_graph_both_cameras_loses_nothing() {
     );
 }
 
-/// Every classical reconstruction on both cameras (`graphs/fusion.yml`): each of the five methods
+/// Every classical reconstruction on both cameras (`graphs/fusion.yml`): each of the six methods
 /// produces every frame, nothing is lost, every frame is scored, and the figures hold their
-/// measured order on the bright panning scene (TFP far ahead; the fusion at least TFI, whose
-/// ISI it anchors on). The event filters' structure is checked by SSIM: a flat image at the
+/// measured order on the bright panning scene (TFP far ahead; TFSTP's synapses well above the
+/// single interval of TFI; the fusion at least TFI, whose ISI it anchors on). The event filters' structure is checked by SSIM: a flat image at the
 /// filters' rest level scores about 0.15 here (HF's first frame, before any event, does), and
 /// HF measured 0.42, so a broken event path (wrong clock, lost batches, flipped polarity)
 /// falls under the 0.3 floor. PSNR cannot tell: the flat image has 16.4 dB, HF 15.8.
@@ -167,11 +167,12 @@ fn fusion_graph_runs_every_method_and_loses_nothing() {
     let (n, psnr, ssim) = per_method_means(&rows);
     assert_eq!(
         psnr.keys().copied().collect::<Vec<_>>(),
-        vec!["cf", "fusion", "hf", "tfi", "tfp"]
+        vec!["cf", "fusion", "hf", "tfi", "tfp", "tfstp"]
     );
     assert!(n >= 40, "only {n} frames");
     assert!(psnr["tfp"] > 30.0, "{psnr:?}");
     assert!(psnr["fusion"] >= psnr["tfi"] - 0.1, "{psnr:?}");
+    assert!(psnr["tfstp"] > psnr["tfi"] + 3.0, "{psnr:?}");
     for m in ["hf", "cf", "fusion", "tfi"] {
         assert!(ssim[m] > 0.3, "{m}: {ssim:?}");
     }

@@ -50,8 +50,8 @@ fn non_finite(message: &'static str, values: &[f32]) -> Result<(), SchemaError> 
 ///
 /// Kinds produced by the represent node: `tfp` (1 channel: firing rate per tick), `isi`
 /// (2 channels: inter-spike interval in ticks, validity 1/0), `spike-repr` (N channels: 1/ISI then
-/// N-1 raw planes), `event-integration` (K channels, paper Eq. 8). Numeric parameters travel as
-/// `param.<name>` metadata.
+/// N-1 raw planes), `event-integration` (K channels, paper Eq. 8), `stp` (1 channel: TFSTP's
+/// firing rate per tick). Numeric parameters travel as `param.<name>` metadata.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Representation {
     /// What the tensor holds.

@@ -6,6 +6,7 @@
 //! |---|---|---|
 //! | `tfp` | firing rate per tick (TFP) | [`luminance_from_rate_into`]: `rate * phi / light_scale` |
 //! | `tfi` | inter-spike interval in ticks (ISI) | [`luminance_from_isi_into`]: `phi / (isi * light_scale)` |
+//! | `tfstp` | firing rate per tick from short-term plasticity (represent's `stp`) | as `tfp` |
 //!
 //! and the classical event and spike + event reconstructions, as state machines fed in time order
 //! (events, frames or ISI maps pushed, frames read at any later instant):
@@ -126,13 +127,17 @@ pub enum InferError {
 // Method
 // ---------------------------------------------------------------------------------------------
 
-/// A reconstruction method, named as in the graph YAML (`tfp`, `tfi`, `hf`, `cf`, `fusion`).
+/// A reconstruction method, named as in the graph YAML (`tfp`, `tfi`, `tfstp`, `hf`, `cf`,
+/// `fusion`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
     /// Texture from playback: luminance from the firing rate over a window.
     Tfp,
     /// Texture from interval: luminance from the inter-spike interval at the reference plane.
     Tfi,
+    /// Texture from short-term plasticity: luminance from the rate that each pixel's synapse
+    /// settles at (represent's `stp`, `neuspike_represent::StpFilter`).
+    Tfstp,
     /// Events alone: the high-pass filter ([`HighPassFilter`]).
     Hf,
     /// Events with the spike camera's TFP or TFI frames: the complementary filter
@@ -144,22 +149,24 @@ pub enum Method {
 
 impl Method {
     /// Every method, in the order their names are listed in errors.
-    pub const ALL: [Method; 5] = [
+    pub const ALL: [Method; 6] = [
         Method::Tfp,
         Method::Tfi,
+        Method::Tfstp,
         Method::Hf,
         Method::Cf,
         Method::Fusion,
     ];
 
     /// The accepted names, as listed in errors.
-    const ACCEPTED: &'static str = "tfp, tfi, hf, cf, fusion";
+    const ACCEPTED: &'static str = "tfp, tfi, tfstp, hf, cf, fusion";
 
     /// The method's name in graph YAML.
     pub fn as_str(&self) -> &'static str {
         match self {
             Method::Tfp => "tfp",
             Method::Tfi => "tfi",
+            Method::Tfstp => "tfstp",
             Method::Hf => "hf",
             Method::Cf => "cf",
             Method::Fusion => "fusion",
@@ -176,8 +183,9 @@ impl fmt::Display for Method {
 impl FromStr for Method {
     type Err = InferError;
 
-    /// Parses the exact lowercase name (`tfp`, `tfi`, `hf`, `cf`, `fusion`); anything else, other case included, is an
-    /// [`InferError::UnknownMethod`] naming the value and the accepted names.
+    /// Parses the exact lowercase name (`tfp`, `tfi`, `tfstp`, `hf`, `cf`, `fusion`); anything
+    /// else, other case included, is an [`InferError::UnknownMethod`] naming the value and the
+    /// accepted names.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         Method::ALL
             .into_iter()
@@ -481,11 +489,12 @@ mod tests {
         assert_eq!("tfi".parse::<Method>().expect("tfi"), Method::Tfi);
         assert_eq!(Method::Tfp.inputs().representations, ["tfp"]);
         assert_eq!(Method::Tfi.inputs().representations, ["isi"]);
+        assert_eq!(Method::Tfstp.inputs().representations, ["stp"]);
         assert!(Method::Hf.inputs().events && Method::Hf.inputs().representations.is_empty());
         let e = "TFP".parse::<Method>().expect_err("case");
         assert_eq!(
             e.to_string(),
-            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi, hf, cf, fusion"
+            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi, tfstp, hf, cf, fusion"
         );
         assert!("".parse::<Method>().is_err());
     }

@@ -1,8 +1,8 @@
 //! dora node: reconstruction. Inputs, as the method declares ([`Method::inputs`]):
-//! `representation` (Representation: `tfp` or `isi`) and `events` (EventBatch: the `align` node's
-//! event stream, cut at each window's `t_ref`). Output `frames` (Frame). Methods: `tfp` (needs
-//! `tfp`), `tfi` (needs `isi`), `hf` (events), `cf` (events and `tfp` or `isi`), `fusion` (events
-//! and `isi`). The two inputs of one window carry the window's sequence number; a window is
+//! `representation` (Representation: `tfp`, `isi` or `stp`) and `events` (EventBatch: the `align`
+//! node's event stream, cut at each window's `t_ref`). Output `frames` (Frame). Methods: `tfp`
+//! (needs `tfp`), `tfi` (needs `isi`), `tfstp` (needs `stp`), `hf` (events), `cf` (events and
+//! `tfp` or `isi`), `fusion` (events and `isi`). The two inputs of one window carry the window's sequence number; a window is
 //! reconstructed when both have arrived, in order.
 //!
 //! `--method learned --model FILE` runs a NeuSpike-Net exported to ONNX (`neuspike_infer::learned`)
@@ -41,7 +41,7 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
     args_override_self = true
 )]
 struct Args {
-    /// Reconstruction method: tfp, tfi, hf, cf, fusion, or learned (with `--model`).
+    /// Reconstruction method: tfp, tfi, tfstp, hf, cf, fusion, or learned (with `--model`).
     #[arg(long, default_value = "tfp", value_parser = parse_method)]
     method: NodeMethod,
     /// learned: the ONNX network (`models/*.onnx`).
@@ -320,6 +320,7 @@ fn classical(
     let spikes = rep.map(|r| -> eyre::Result<SpikeInput<'_>> {
         Ok(match r.kind.as_str() {
             "tfp" => SpikeInput::Rate(r.data.index_axis(Axis(0), 0)),
+            "stp" => SpikeInput::StpRate(r.data.index_axis(Axis(0), 0)),
             "isi" if r.data.dim().0 >= 2 => SpikeInput::Isi {
                 isi: r.data.index_axis(Axis(0), 0),
                 valid: r.data.index_axis(Axis(0), 1),

@@ -67,6 +67,8 @@ impl Default for OnlineParams {
 pub enum SpikeInput<'a> {
     /// A firing-rate image (spikes per tick, TFP).
     Rate(ArrayView2<'a, f32>),
+    /// A firing-rate image (spikes per tick) from short-term plasticity (represent's `stp`).
+    StpRate(ArrayView2<'a, f32>),
     /// An ISI map in ticks and its validity (`> 0.5` valid, as the `represent` node writes it).
     Isi {
         /// Interval at `t_ref`, ticks.
@@ -80,13 +82,14 @@ impl SpikeInput<'_> {
     fn kind(&self) -> &'static str {
         match self {
             SpikeInput::Rate(_) => "tfp",
+            SpikeInput::StpRate(_) => "stp",
             SpikeInput::Isi { .. } => "isi",
         }
     }
 
     fn dim(&self) -> (usize, usize) {
         match self {
-            SpikeInput::Rate(r) => r.dim(),
+            SpikeInput::Rate(r) | SpikeInput::StpRate(r) => r.dim(),
             SpikeInput::Isi { isi, .. } => isi.dim(),
         }
     }
@@ -94,7 +97,9 @@ impl SpikeInput<'_> {
     /// The spike camera's luminance: TFP or TFI.
     fn luminance_into(&self, gain: f64, dst: ArrayViewMut2<f32>) -> Result<(), InferError> {
         match self {
-            SpikeInput::Rate(r) => luminance_from_rate_into(*r, gain, 1.0, dst),
+            SpikeInput::Rate(r) | SpikeInput::StpRate(r) => {
+                luminance_from_rate_into(*r, gain, 1.0, dst)
+            }
             SpikeInput::Isi { isi, .. } => luminance_from_isi_into(*isi, gain, 1.0, dst),
         }
     }
@@ -151,6 +156,7 @@ impl Method {
         let (representations, events): (&'static [&'static str], bool) = match self {
             Method::Tfp => (&["tfp"], false),
             Method::Tfi => (&["isi"], false),
+            Method::Tfstp => (&["stp"], false),
             Method::Hf => (&[], true),
             Method::Cf => (&["tfp", "isi"], true),
             Method::Fusion => (&["isi"], true),
@@ -330,7 +336,7 @@ impl Online {
             .min(win.t_ref_ns);
         let p = self.params;
         self.state = Some(match self.method {
-            Method::Tfp | Method::Tfi => State::Direct,
+            Method::Tfp | Method::Tfi | Method::Tfstp => State::Direct,
             Method::Hf => State::Hf(HighPassFilter::new(h, w, p.hf_cutoff_rad_s, t0)?),
             Method::Cf => State::Cf(
                 ComplementaryFilter::new(h, w, p.cf_gain_rad_s, t0)?,

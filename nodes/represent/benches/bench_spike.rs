@@ -2,16 +2,19 @@
 //! real Vidar recording), and the event integration (Eq. 8, 32 channels, 1 million events at
 //! 346x260); one thread, each against its scalar reference and a memory copy of the same bytes
 //! measured in the same run (read the ratios). SpikeCV's TFP ran at 1,075-1,373 frames/s and its
-//! TFI at 167-248 frames/s on one core here.
+//! TFI at 167-248 frames/s on one core here. TFSTP's synapses (`StpFilter`) are fed 33 planes and
+//! read once per iteration (throughput in planes). The event integration is also timed at 10,000
+//! and 100,000 events a window, against the copy of its output.
 //!
 //! `cargo bench -p neuspike-represent --bench bench_spike`
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array2, Array3};
 use neuspike_represent::{
-    EventSlice, event_integration_into, event_integration_reference, isi_packed_into,
-    spike_representation_into, spike_representation_packed_into, spike_representation_reference,
-    tfi_into, tfi_reference, tfp_into, tfp_packed_into, tfp_reference,
+    EventSlice, StpFilter, StpParams, event_integration_into, event_integration_reference,
+    isi_packed_into, spike_representation_into, spike_representation_packed_into,
+    spike_representation_reference, tfi_into, tfi_reference, tfp_into, tfp_packed_into,
+    tfp_reference,
 };
 use neuspike_schemas::pack_planes;
 use std::hint::black_box;
@@ -100,6 +103,41 @@ fn spike(c: &mut Criterion, one: &rayon::ThreadPool) {
         b.iter(|| spike_representation_packed_into(&bits, N, C, repr.view_mut()).expect("repr"))
     });
     g.finish();
+
+    // TFSTP: the window's planes fed to the synapses (numbered on, so none is skipped as seen),
+    // then the rates read; throughput in planes.
+    let mut g = c.benchmark_group("stp_400x250_33_planes");
+    g.throughput(Throughput::Elements(N as u64));
+    let mut copy = planes.clone();
+    g.bench_function("baseline_copy_unpacked_window", |b| {
+        b.iter(|| copy.assign(black_box(&planes)))
+    });
+    let mut reference = StpFilter::new(H, W, StpParams::default()).expect("stp");
+    let mut next_plane = 0u64;
+    g.bench_function("stp_reference", |b| {
+        b.iter(|| {
+            reference
+                .advance_reference(planes.view(), next_plane)
+                .expect("stp");
+            next_plane += N as u64;
+            reference.rate_into(dst.view_mut()).expect("stp")
+        })
+    });
+    let mut fast = StpFilter::new(H, W, StpParams::default()).expect("stp");
+    let mut next_plane = 0u64;
+    g.bench_function("stp_packed", |b| {
+        b.iter(|| {
+            let last = next_plane + N as u64 - 1;
+            fast.advance_packed(&bits, next_plane, N, last)
+                .expect("stp");
+            next_plane += N as u64;
+            fast.rate_into(dst.view_mut()).expect("stp")
+        })
+    });
+    g.bench_function("stp_rate_into_only", |b| {
+        b.iter(|| fast.rate_into(dst.view_mut()).expect("stp"))
+    });
+    g.finish();
 }
 
 fn events(c: &mut Criterion, one: &rayon::ThreadPool) {
@@ -166,6 +204,37 @@ fn events(c: &mut Criterion, one: &rayon::ThreadPool) {
         })
     });
     g.finish();
+
+    // Sparser windows: the first `n` events spread over the same span (every `1M / n`-th).
+    for n in [10_000usize, 100_000] {
+        let step = EVENTS / n;
+        fn pick<T: Copy>(v: &[T], step: usize) -> Vec<T> {
+            v.iter().step_by(step).copied().collect()
+        }
+        let (t_n, x_n, y_n, p_n) = (
+            pick(&t_ns, step),
+            pick(&x, step),
+            pick(&y, step),
+            pick(&polarity, step),
+        );
+        let ev = EventSlice {
+            t_ns: &t_n,
+            x: &x_n,
+            y: &y_n,
+            polarity: &p_n,
+        };
+        let mut g = c.benchmark_group(format!("event_integration_346x260_32ch_{n}_events"));
+        g.throughput(Throughput::Elements(n as u64));
+        g.bench_function("baseline_copy_output_bytes", |b| {
+            b.iter(|| dst.assign(black_box(&src)))
+        });
+        g.bench_function("event_integration_into", |b| {
+            b.iter(|| {
+                one.install(|| event_integration_into(ev, 0, &ts, 5e5, dst.view_mut()).expect("ei"))
+            })
+        });
+        g.finish();
+    }
 }
 
 criterion_group!(benches, bench);

@@ -9,6 +9,7 @@
 //! | [`isi_into`] | ISI in ticks at a reference plane, `[H, W]` `>= 1`, plus a validity mask |
 //! | [`tfi_into`] | TFI: `1 / ISI`, `[H, W]` in `(0, 1]` |
 //! | [`spike_representation_into`] | NeuSpike-Net spike tensor: 1/ISI channel + `n - 1` raw planes |
+//! | [`StpFilter`] | TFSTP: firing rate per tick from short-term plasticity synapses, across windows |
 //! | [`event_integration_into`] | event integration (paper Eq. 8), one channel per instant |
 //! | [`event_count_into`] | signed event count per pixel |
 //! | [`voxel_grid_into`] | E2VID voxel grid: `B` bins, linear in time, optionally normalised |
@@ -24,6 +25,7 @@
 mod error;
 mod event;
 mod spike;
+mod stp;
 mod surface;
 #[cfg(test)]
 mod testing;
@@ -43,6 +45,7 @@ pub use spike::{
     spike_representation_packed_into, spike_representation_reference, tfi_into, tfi_reference,
     tfp_into, tfp_packed_into, tfp_packed_into_with, tfp_reference,
 };
+pub use stp::{StpFilter, StpParams};
 pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_reference};
 pub use voxel::{
     VoxelNorm, event_stack_into, event_stack_reference, voxel_grid_into, voxel_grid_reference,

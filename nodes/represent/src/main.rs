@@ -1,14 +1,19 @@
 //! dora node: representations of aligned windows. Input `windows` (AlignedWindow); one output per
 //! representation kind, computed only when the graph declares it: `tfp`, `isi`, `spike_repr`,
-//! `event_integration` (all Representation).
+//! `event_integration`, `stp` (all Representation).
+//!
+//! `stp` (TFSTP's rate, `StpFilter`) is the one with state across windows: each pixel's synapse
+//! is fed every plane once, up to each window's reference plane (the planes after it wait for
+//! the next window), and read there. Windows that leave planes out are gaps: the synapses forget
+//! their last spike there, and the count travels as the `gaps` parameter.
 
 use std::collections::BTreeMap;
 
 use dora_node_api::{DoraNode, Event, EventStream};
 use ndarray::{Array2, Array3, Axis};
 use neuspike_represent::{
-    EventSlice, event_integration_into, integration_instants, isi_packed_into,
-    spike_representation_packed_into, tfp_packed_into,
+    EventSlice, StpFilter, StpParams, event_integration_into, integration_instants,
+    isi_packed_into, spike_representation_packed_into, tfp_packed_into,
 };
 use neuspike_schemas::node::{self, output, send, send_end};
 use neuspike_schemas::{
@@ -35,14 +40,38 @@ struct Args {
     /// Decay constant tau of the event integration (paper Eq. 8), nanoseconds.
     #[arg(long, default_value_t = 500_000.0)]
     tau_ns: f64,
+    /// TFSTP (`stp`): the synapse's release probability at rest, U, in (0, 1).
+    #[arg(long, default_value_t = StpParams::default().u0)]
+    stp_u0: f64,
+    /// TFSTP (`stp`): the facilitation increment per spike, f, in (0, 1].
+    #[arg(long, default_value_t = StpParams::default().f)]
+    stp_f: f64,
+    /// TFSTP (`stp`): the resources' recovery time constant D, in planes (ticks).
+    #[arg(long, default_value_t = StpParams::default().tau_d_ticks)]
+    stp_tau_d_ticks: f64,
+    /// TFSTP (`stp`): the facilitation's time constant F, in planes (ticks).
+    #[arg(long, default_value_t = StpParams::default().tau_f_ticks)]
+    stp_tau_f_ticks: f64,
+}
+
+impl Args {
+    fn stp_params(&self) -> StpParams {
+        StpParams {
+            u0: self.stp_u0,
+            f: self.stp_f,
+            tau_d_ticks: self.stp_tau_d_ticks,
+            tau_f_ticks: self.stp_tau_f_ticks,
+        }
+    }
 }
 
 /// The representation kinds, by output id.
-const KINDS: [(&str, &str); 4] = [
+const KINDS: [(&str, &str); 5] = [
     ("tfp", "tfp"),
     ("isi", "isi"),
     ("spike_repr", "spike-repr"),
     ("event_integration", "event-integration"),
+    ("stp", "stp"),
 ];
 
 fn main() -> eyre::Result<()> {
@@ -54,6 +83,9 @@ fn main() -> eyre::Result<()> {
             args.tau_ns
         );
     }
+    args.stp_params()
+        .check()
+        .map_err(|e| eyre::eyre!("represent: {e}"))?;
     let (node, events) = DoraNode::init_from_env()?;
     let outputs: Vec<String> = node
         .node_config()
@@ -64,8 +96,14 @@ fn main() -> eyre::Result<()> {
     node::run_on_rayon("represent", || run(node, events, &args, &outputs))
 }
 
-/// Computes the representation of one kind for a window.
-fn represent(kind: &str, w: &AlignedWindow, args: &Args) -> eyre::Result<Representation> {
+/// Computes the representation of one kind for a window; `stp` carries TFSTP's synapses from
+/// window to window (made at the first window, and again when the sensor size changes).
+fn represent(
+    kind: &str,
+    w: &AlignedWindow,
+    args: &Args,
+    stp: &mut Option<StpFilter>,
+) -> eyre::Result<Representation> {
     let (n, h, wd) = (w.spikes.n_planes, w.spikes.height, w.spikes.width);
     let c = w.ref_index();
     let mut params = BTreeMap::new();
@@ -117,6 +155,17 @@ fn represent(kind: &str, w: &AlignedWindow, args: &Args) -> eyre::Result<Represe
             event_integration_into(slice, ev.t_start_ns, &ts, args.tau_ns, out.view_mut())?;
             out
         }
+        "stp" => {
+            let f = match stp {
+                Some(f) if f.dim() == (h, wd) => f,
+                _ => stp.insert(StpFilter::new(h, wd, args.stp_params())?),
+            };
+            f.advance_packed(&w.spikes.bits, w.spikes.first_plane, n, w.ref_plane)?;
+            params.insert("gaps".into(), f.gaps() as f64);
+            let mut dst = Array2::<f32>::zeros((h, wd));
+            f.rate_into(dst.view_mut())?;
+            dst.insert_axis(Axis(0))
+        }
         other => eyre::bail!("represent: unknown representation kind `{other}`"),
     };
     Ok(Representation {
@@ -142,6 +191,7 @@ fn run(
     tracing::info!(outputs = ?active.iter().map(|a| a.0).collect::<Vec<_>>(), "represent started");
     let mut seq = SeqTracker::default();
     let mut sent = 0u64;
+    let mut stp = None;
     while let Some(event) = events.recv() {
         match event {
             Event::Input { id, metadata, data } if AsRef::<str>::as_ref(&id) == "windows" => {
@@ -158,7 +208,7 @@ fn run(
                     tracing::error!(seq = w.seq(), missing, "windows lost before this one");
                 }
                 for (id, kind) in &active {
-                    let r = represent(kind, &w, args)?;
+                    let r = represent(kind, &w, args, &mut stp)?;
                     send(&mut node, &output(id), &r)?;
                 }
                 // Sequence numbers follow the windows', so a lost window shows downstream too.
@@ -210,18 +260,28 @@ mod tests {
         }
     }
 
+    /// Small settings for the tests; TFSTP's are the defaults.
+    fn test_args() -> Args {
+        let stp = StpParams::default();
+        Args {
+            tfp_planes: None,
+            repr_channels: 4,
+            ei_channels: 2,
+            tau_ns: 5.0,
+            stp_u0: stp.u0,
+            stp_f: stp.f,
+            stp_tau_d_ticks: stp.tau_d_ticks,
+            stp_tau_f_ticks: stp.tau_f_ticks,
+        }
+    }
+
     #[test]
     fn computes_only_declared_outputs() {
         let dir = tempfile::tempdir().unwrap();
         let mut c = CannedInputs::new(dir.path());
         c.message("windows", &window(0)).unwrap();
         c.end::<AlignedWindow>("windows", 1).unwrap();
-        let args = Args {
-            tfp_planes: None,
-            repr_channels: 4,
-            ei_channels: 2,
-            tau_ns: 5.0,
-        };
+        let args = test_args();
         let outputs = vec!["tfp".to_string(), "event_integration".to_string()];
         let out = c
             .run(|node, events| run(node, events, &args, &outputs))
@@ -237,5 +297,48 @@ mod tests {
             .map(|v| v.as_f64().unwrap())
             .collect();
         assert_eq!(tfp, vec![1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+    }
+
+    /// `stp` keeps its synapses from window to window: windows of 5 planes every 3, each fed up
+    /// to its reference plane (its third), see the planes of one stream once each.
+    #[test]
+    fn stp_carries_its_synapses_across_windows() {
+        // Pixel 0 fires every plane, pixel 1 every third plane (0 mod 3), the others never.
+        let stream = |first: u64, seq: u64| {
+            let p = Array3::<u8>::from_shape_fn((5, 2, 4), |(k, y, x)| {
+                let plane = first + k as u64;
+                u8::from((y, x) == (0, 0) || ((y, x) == (0, 1) && plane.is_multiple_of(3)))
+            });
+            let mut w = window(seq);
+            w.spikes.bits = pack_planes(p.view());
+            w.spikes.first_plane = first;
+            w.spikes.t_first_ns = first as i64 * 10;
+            w.ref_plane = first + 2;
+            w.t_ref_ns = w.ref_plane as i64 * 10;
+            w
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let mut c = CannedInputs::new(dir.path());
+        for (seq, first) in [10u64, 13, 16].into_iter().enumerate() {
+            c.message("windows", &stream(first, seq as u64)).unwrap();
+        }
+        c.end::<AlignedWindow>("windows", 3).unwrap();
+        let args = test_args();
+        let outputs = vec!["stp".to_string()];
+        let out = c
+            .run(|node, events| run(node, events, &args, &outputs))
+            .unwrap();
+        // Three windows and the end-of-stream marker.
+        assert_eq!(output_ids(&out), vec!["stp"; 4]);
+        let pixel =
+            |m: &neuspike_schemas::testing::OutputJson, i: usize| m["data"][i].as_f64().unwrap();
+        // Window 1 (planes 10..12): pixel 1's first spike (12) has no interval yet. Window 2 feeds
+        // 13..15 and finds the interval 12 -> 15, which a window alone (13..15) could not.
+        let third = f64::from(1.0f32 / 3.0);
+        let got: Vec<[f64; 3]> = out[..3]
+            .iter()
+            .map(|m| [pixel(m, 0), pixel(m, 1), pixel(m, 2)])
+            .collect();
+        assert_eq!(got, [[1.0, 0.0, 0.0], [1.0, third, 0.0], [1.0, third, 0.0]]);
     }
 }

@@ -151,7 +151,7 @@ pub fn tfp_packed_into(
 
 /// One packed plane as little-endian 64-pixel words (`dst` is `ceil(plane.len() / 8)` long; the
 /// last word is zero-padded).
-fn plane_words(plane: &[u8], dst: &mut [u64]) {
+pub(crate) fn plane_words(plane: &[u8], dst: &mut [u64]) {
     let (whole, tail) = plane.split_at(plane.len() / 8 * 8);
     for (d, c) in dst.iter_mut().zip(whole.chunks_exact(8)) {
         let mut b = [0u8; 8];
