@@ -256,25 +256,22 @@ impl StpFilter {
     ) -> Result<(), RepresentError> {
         let per = (self.height * self.width).div_ceil(8);
         check_planes(first_plane, n_planes, bits.len(), per)?;
-        let mut planes = std::mem::take(&mut self.pending);
-        planes.extend((0..n_planes).map(|k| {
-            (
-                first_plane + k as u64,
-                bits[k * per..(k + 1) * per].to_vec(),
-            )
-        }));
+        // The planes kept by the last call, then this call's; only those past `through_plane`
+        // are copied (to be kept in turn).
+        let kept = std::mem::take(&mut self.pending);
+        let chunk = (0..n_planes).map(|k| (first_plane + k as u64, &bits[k * per..(k + 1) * per]));
         let mut words = vec![0u64; per.div_ceil(8)];
-        for (plane, bits) in planes {
+        for (plane, bits) in kept.iter().map(|(p, b)| (*p, b.as_slice())).chain(chunk) {
             if plane > through_plane {
                 if self.pending.back().is_none_or(|&(p, _)| p < plane) {
-                    self.pending.push_back((plane, bits));
+                    self.pending.push_back((plane, bits.to_vec()));
                 }
                 continue;
             }
             if !self.enter(plane) {
                 continue;
             }
-            crate::spike::plane_words(&bits, &mut words);
+            crate::spike::plane_words(bits, &mut words);
             self.fire_packed(plane, &words);
         }
         Ok(())
