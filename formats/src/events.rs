@@ -467,12 +467,17 @@ impl Sink {
         if n > self.room {
             return false;
         }
-        let x_max = x.iter().fold(0u16, |m, &v| m.max(v));
-        let y_max = y.iter().fold(0u16, |m, &v| m.max(v));
-        let unsorted = self.last_t_ns.is_some_and(|last| t[0] < last)
-            | t.iter()
-                .zip(&t[1..])
-                .fold(false, |bad, (a, b)| bad | (b < a));
+        let (x_max, y_max, steps_back) = neuspike_simd::dispatch(
+            #[inline(always)]
+            || {
+                (
+                    x.iter().fold(0u16, |m, &v| m.max(v)),
+                    y.iter().fold(0u16, |m, &v| m.max(v)),
+                    t.iter().zip(&t[1..]).fold(false, |bad, (a, b)| bad | (b < a)),
+                )
+            },
+        );
+        let unsorted = self.last_t_ns.is_some_and(|last| t[0] < last) | steps_back;
         if u32::from(x_max) >= self.width || u32::from(y_max) >= self.height || unsorted {
             return false;
         }
