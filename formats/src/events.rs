@@ -473,7 +473,9 @@ impl Sink {
                 (
                     x.iter().fold(0u16, |m, &v| m.max(v)),
                     y.iter().fold(0u16, |m, &v| m.max(v)),
-                    t.iter().zip(&t[1..]).fold(false, |bad, (a, b)| bad | (b < a)),
+                    t.iter()
+                        .zip(&t[1..])
+                        .fold(false, |bad, (a, b)| bad | (b < a)),
                 )
             },
         );

@@ -52,8 +52,11 @@ const WRAP_THRESHOLD: u32 = 1 << (TIME_HIGH_BITS - 1);
 /// Largest coordinate a word can hold.
 pub const MAX_COORD: u32 = (1 << 11) - 1;
 
+/// Events a fast block decodes at most before the sink checks them.
+const BLOCK_EVENTS: usize = 4096;
+
 /// Decoder state across buffers.
-#[derive(Debug, Default)]
+#[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Evt2Decoder {
     /// `time_high << 6` in µs, wraps included; `None` before the first `TIME_HIGH`.
     base_us: Option<u64>,
@@ -64,7 +67,113 @@ pub(crate) struct Evt2Decoder {
 impl Evt2Decoder {
     /// Decodes whole words of `bytes` (which start at file offset `offset`) until the sink is
     /// full; returns the bytes consumed.
+    ///
+    /// Runs of events and time bases go through [`Evt2Decoder::decode_fast`], a block at a time,
+    /// and the sink checks each block's events in column passes ([`Sink::accept_block`]). A block
+    /// the sink refuses is taken back (events and decoder state) and decoded again by
+    /// [`Evt2Decoder::decode_checked`], word by word, which names the fault or repairs it; so
+    /// does every word the fast path leaves.
     pub(crate) fn decode(
+        &mut self,
+        bytes: &[u8],
+        offset: u64,
+        sink: &mut Sink,
+        out: &mut EventBatch,
+    ) -> Result<usize> {
+        let whole = bytes.len() - bytes.len() % WORD_BYTES;
+        let mut consumed = 0usize;
+        while consumed < whole && !sink.full() {
+            let saved = *self;
+            let start = out.len();
+            let max = sink.room().min(BLOCK_EVENTS);
+            let n = self.decode_fast(&bytes[consumed..whole], out, max);
+            if n > 0 {
+                if sink.accept_block(out, start) {
+                    consumed += n;
+                    continue;
+                }
+                *self = saved;
+                out.truncate(start);
+            }
+            let end = consumed + n.max(WORD_BYTES);
+            let at = offset + consumed as u64;
+            consumed += self.decode_checked(&bytes[consumed..end], at, sink, out)?;
+        }
+        Ok(consumed)
+    }
+
+    /// The fast path: decodes the events and time bases at the start of `bytes` straight into
+    /// `out`'s columns, at most `max_events` events, and returns the bytes consumed; its state
+    /// then stands after them. It stops before any word the checked path must see: another type,
+    /// a clock wrap, or an event without a time base. Coordinates and the time order are for the
+    /// sink to check. The polarity comes from the type without a branch (ON and OFF follow no
+    /// pattern); the one branch, event or time base, goes the same way for runs of events.
+    #[inline(never)]
+    fn decode_fast(&mut self, bytes: &[u8], out: &mut EventBatch, max_events: usize) -> usize {
+        let Some(mut base_us) = self.base_us else {
+            return 0;
+        };
+        // Every time before the next wrap fits `i64` ns: checked once, here.
+        let fits = (self.wraps + 1)
+            .checked_mul(CLOCK_PERIOD_US)
+            .and_then(|end_us| end_us.checked_mul(1000))
+            .is_some_and(|end_ns| i64::try_from(end_ns).is_ok());
+        let kind_of = |w: &[u8]| w[3] >> 4;
+        let fast_kind = |k: u8| matches!(k, word::CD_OFF | word::CD_ON | word::TIME_HIGH);
+        if !fits || bytes.len() < WORD_BYTES || !fast_kind(kind_of(bytes)) {
+            return 0;
+        }
+        let wrap_base_us = self.wraps * CLOCK_PERIOD_US;
+        let mut last_high = self.last_high;
+        let mut base_ns = base_us as i64 * 1000;
+        // The columns are grown by the block's room first and cut back after: each event is then
+        // four stores, without a capacity check each.
+        let start = out.len();
+        let cap = start + max_events;
+        out.resize(cap);
+        let (ts, xs, ys, ps) = (
+            &mut out.t_ns[..cap],
+            &mut out.x[..cap],
+            &mut out.y[..cap],
+            &mut out.polarity[..cap],
+        );
+        let mut n = start;
+        let mut used = 0usize;
+        for w in bytes.chunks_exact(WORD_BYTES) {
+            let word = u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+            let kind = (word >> 28) as u8;
+            if kind <= word::CD_ON {
+                if n == cap {
+                    break;
+                }
+                // x, y < 2,048: both fit u16; CD_OFF (0) is -1, CD_ON (1) is +1.
+                ts[n] = base_ns + i64::from((word >> 22) & 0x3F) * 1000;
+                xs[n] = ((word >> 11) & MAX_COORD) as u16;
+                ys[n] = (word & MAX_COORD) as u16;
+                ps[n] = 2 * kind as i8 - 1;
+                n += 1;
+            } else if kind == word::TIME_HIGH {
+                let high = word & TIME_HIGH_MASK;
+                if high < last_high && last_high - high > WRAP_THRESHOLD {
+                    break;
+                }
+                last_high = high;
+                base_us = wrap_base_us + (u64::from(high) << TIME_LOW_BITS);
+                base_ns = base_us as i64 * 1000;
+            } else {
+                break;
+            }
+            used += 1;
+        }
+        out.truncate(n);
+        (self.base_us, self.last_high) = (Some(base_us), last_high);
+        used * WORD_BYTES
+    }
+
+    /// The checked path: decodes whole words of `bytes` (which start at file offset `offset`)
+    /// one by one, each event through [`Sink::emit`], until the sink is full; returns the bytes
+    /// consumed.
+    fn decode_checked(
         &mut self,
         bytes: &[u8],
         offset: u64,
@@ -251,5 +360,131 @@ pub(crate) fn check_event<W: Write>(
 impl<W: Write> crate::EventWriter for Evt2Writer<W> {
     fn write_event(&mut self, e: &Event) -> Result<()> {
         Evt2Writer::write_event(self, e)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::events::{Bounds, Disorder, ReadOptions, ReadStats, UnknownWords};
+    use proptest::prelude::*;
+
+    /// What a decode gave: the events, the statistics and the error that ended it, if any.
+    type Decoded = (EventBatch, ReadStats, Option<String>);
+
+    /// Decodes `words` in requests of `max` events, handing the decoder at most `piece` bytes at
+    /// a time (buffer boundaries), through the fast path or the checked one alone.
+    fn decode_all(
+        words: &[u8],
+        max: usize,
+        piece: usize,
+        fast: bool,
+        opts: &ReadOptions,
+    ) -> Decoded {
+        let mut sink = Sink::new("mem".into(), Bounds::Sensor(Resolution::new(40, 30)), opts);
+        let mut d = Evt2Decoder::default();
+        let mut out = EventBatch::default();
+        let mut pos = 0usize;
+        loop {
+            let got = sink.read_with(&mut out, max, |sink, out| {
+                while !sink.full() {
+                    if pos >= words.len() {
+                        sink.finish();
+                        return Ok(());
+                    }
+                    let end = words.len().min(pos + piece);
+                    let (bytes, at) = (&words[pos..end], pos as u64);
+                    let used = if fast {
+                        d.decode(bytes, at, sink, out)?
+                    } else {
+                        d.decode_checked(bytes, at, sink, out)?
+                    };
+                    // A piece shorter than a word: the caller would wait for more bytes.
+                    pos += if used == 0 { end - pos } else { used };
+                }
+                Ok(())
+            });
+            match got {
+                Ok(0) => return (out, sink.stats.clone(), None),
+                Ok(_) => {}
+                Err(e) => return (out, sink.stats.clone(), Some(e.to_string())),
+            }
+        }
+    }
+
+    /// A word: mostly events with coordinates a little past the 40x30 sensor, time bases that
+    /// mostly rise (sometimes step back, sometimes wrap), and a few rare or unknown types.
+    fn word() -> impl Strategy<Value = u32> {
+        let cd = |kind: u32, low: u32, x: u32, y: u32| kind << 28 | low << 22 | x << 11 | y;
+        prop_oneof![
+            16 => (0u32..2, 0u32..64, 0u32..44, 0u32..34).prop_map(move |(k, t, x, y)| cd(k, t, x, y)),
+            3 => (0u32..3).prop_map(|step| 0x8 << 28 | step),
+            1 => prop_oneof![Just(0xA), Just(0xE), Just(0xF), Just(0x3)].prop_map(|k: u32| k << 28 | 5),
+        ]
+    }
+
+    /// Time bases in order (each `TIME_HIGH` payload is a step), except now and then one that
+    /// steps back a little or wraps.
+    fn ordered(words: Vec<u32>) -> Vec<u8> {
+        let mut high = 0u32;
+        let mut out = Vec::new();
+        for (i, w) in words.into_iter().enumerate() {
+            let w = if w >> 28 == 0x8 {
+                high = match i % 13 {
+                    0 => high.saturating_sub(1),
+                    5 => (high + WRAP_THRESHOLD + 7) & TIME_HIGH_MASK,
+                    _ => (high + (w & 3)) & TIME_HIGH_MASK,
+                };
+                0x8 << 28 | high
+            } else {
+                w
+            };
+            out.extend_from_slice(&w.to_le_bytes());
+        }
+        out
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(400))]
+        /// The fast path gives what the checked path gives, word for word: the same events,
+        /// statistics and error, whatever the requests' sizes and the buffers' boundaries.
+        #[test]
+        fn the_fast_path_matches_the_checked_one(
+            words in prop::collection::vec(word(), 0..3000),
+            max in 1usize..5000,
+            piece in prop::sample::select(vec![4usize, 7, 64, 1 << 20]),
+            clamp in any::<bool>(),
+            skip_unknown in any::<bool>(),
+        ) {
+            let opts = ReadOptions {
+                disorder: if clamp { Disorder::Clamp } else { Disorder::Error },
+                unknown_words: if skip_unknown { UnknownWords::Skip } else { UnknownWords::Error },
+                ..ReadOptions::default()
+            };
+            let bytes = ordered(words);
+            let fast = decode_all(&bytes, max, piece, true, &opts);
+            let checked = decode_all(&bytes, max, piece, false, &opts);
+            prop_assert_eq!(&fast.0.t_ns, &checked.0.t_ns);
+            prop_assert_eq!(&fast.0.x, &checked.0.x);
+            prop_assert_eq!(&fast.0.y, &checked.0.y);
+            prop_assert_eq!(&fast.0.polarity, &checked.0.polarity);
+            prop_assert_eq!(&fast.1, &checked.1);
+            prop_assert_eq!(&fast.2, &checked.2);
+        }
+    }
+
+    #[test]
+    fn a_clock_near_the_end_of_i64_leaves_the_fast_path() {
+        let mut d = Evt2Decoder {
+            base_us: Some(0),
+            wraps: (i64::MAX / 1000) as u64 >> 34,
+            ..Evt2Decoder::default()
+        };
+        let cd = (1u32 << 28 | 3 << 11 | 2).to_le_bytes();
+        let mut out = EventBatch::default();
+        assert_eq!(d.decode_fast(&cd, &mut out, 100), 0);
+        d.wraps -= 1;
+        assert_eq!(d.decode_fast(&cd, &mut out, 100), 4);
+        assert_eq!((out.x[0], out.y[0], out.polarity[0]), (3, 2, 1));
     }
 }

@@ -79,8 +79,6 @@ impl<'a> EventSlice<'a> {
     /// compiler vectorises, several times faster than [`Self::first_violation`]'s event-by-event
     /// checks, which run only when this says no (to name the first offending event).
     fn is_valid(&self, height: usize, width: usize) -> bool {
-        /// Events per block; a violation stops the scan at the end of its block.
-        const BLOCK: usize = 1 << 12;
         let n = self.t_ns.len();
         if self.x.len() != n || self.y.len() != n || self.polarity.len() != n {
             return false;
@@ -98,6 +96,18 @@ impl<'a> EventSlice<'a> {
         if width == 0 || height == 0 {
             return false;
         }
+        neuspike_simd::dispatch(
+            #[inline(always)]
+            || self.blocks_valid(x_limit, y_limit, x_all, y_all),
+        )
+    }
+
+    /// [`Self::is_valid`]'s reductions, block by block (the slices' lengths agree, `n > 0`).
+    #[inline(always)]
+    fn blocks_valid(&self, x_limit: u16, y_limit: u16, x_all: bool, y_all: bool) -> bool {
+        /// Events per block; a violation stops the scan at the end of its block.
+        const BLOCK: usize = 1 << 12;
+        let n = self.t_ns.len();
         let mut start = 0;
         while start < n {
             let end = (start + BLOCK).min(n);
