@@ -188,47 +188,152 @@ impl<R: Read> EventReader for DatReader<R> {
                     sink.finish();
                     return Ok(());
                 }
-                let base = stream.offset();
-                let mut consumed = 0usize;
-                for rec in data.chunks_exact(RECORD_BYTES) {
-                    if sink.full() {
-                        break;
-                    }
-                    let at = base + consumed as u64;
-                    consumed += RECORD_BYTES;
-                    let t32 = u32::from_le_bytes([rec[0], rec[1], rec[2], rec[3]]);
-                    let w = u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]);
-                    if let Some(last) = *last_t32
-                        && t32 < last
-                        && last - t32 > WRAP_THRESHOLD
-                    {
-                        *wraps += 1;
-                        sink.stats.time_wraps += 1;
-                    }
-                    *last_t32 = Some(t32);
-                    let polarity = w >> (2 * COORD_BITS);
-                    if polarity > 1 {
-                        return Err(FormatError::Polarity {
-                            path: sink.path.clone(),
-                            at: Location::Byte(at),
-                            value: i64::from(polarity),
-                        });
-                    }
-                    let t_ns = us_to_ns((*wraps << 32) | u64::from(t32), &sink.path, at)?;
-                    sink.emit(
-                        out,
-                        t_ns,
-                        w & COORD_MASK,
-                        (w >> COORD_BITS) & COORD_MASK,
-                        polarity == 1,
-                        Location::Byte(at),
-                    )?;
-                }
+                let consumed = decode(data, stream.offset(), last_t32, wraps, sink, out)?;
                 stream.consume(consumed);
             }
             Ok(())
         })
     }
+}
+
+/// Decodes whole records of `data` (which start at file offset `at`) until the sink is full;
+/// returns the bytes consumed. Blocks of records go straight into the columns
+/// ([`decode_fast`]), checked by the sink's column passes ([`Sink::accept_block`]); a block it
+/// refuses is taken back and, like every record the fast path leaves, decoded record by record
+/// ([`decode_checked`]), which names the fault or repairs it.
+fn decode(
+    data: &[u8],
+    at: u64,
+    last_t32: &mut Option<u32>,
+    wraps: &mut u64,
+    sink: &mut Sink,
+    out: &mut EventBatch,
+) -> Result<usize> {
+    let whole = data.len() - data.len() % RECORD_BYTES;
+    let mut consumed = 0usize;
+    while consumed < whole && !sink.full() {
+        let (saved, start) = (*last_t32, out.len());
+        let max = sink.room().min(BLOCK_EVENTS);
+        let n = decode_fast(&data[consumed..whole], last_t32, *wraps, out, max);
+        if n > 0 {
+            if sink.accept_block(out, start) {
+                consumed += n;
+                continue;
+            }
+            *last_t32 = saved;
+            out.truncate(start);
+        }
+        let end = consumed + n.max(RECORD_BYTES);
+        let records = &data[consumed..end];
+        consumed += decode_checked(records, at + consumed as u64, last_t32, wraps, sink, out)?;
+    }
+    Ok(consumed)
+}
+
+/// Records a fast block decodes at most before the sink checks them.
+const BLOCK_EVENTS: usize = 4096;
+
+/// The fast path: decodes the records at the start of `data` straight into `out`'s columns, at
+/// most `max_events`, and returns the bytes consumed (`last_t32` then stands after them). It
+/// stops before any record the checked path must see: the file's first, a clock wrap, a polarity
+/// other than 0 or 1. Coordinates and the time order are for the sink to check.
+#[inline(never)]
+fn decode_fast(
+    data: &[u8],
+    last_t32: &mut Option<u32>,
+    wraps: u64,
+    out: &mut EventBatch,
+    max_events: usize,
+) -> usize {
+    let Some(mut last) = *last_t32 else {
+        return 0;
+    };
+    // Every time before the next wrap fits `i64` ns: checked once, here.
+    let fits = (wraps + 1)
+        .checked_mul(CLOCK_PERIOD_US)
+        .and_then(|end_us| end_us.checked_mul(1000))
+        .is_some_and(|end_ns| i64::try_from(end_ns).is_ok());
+    if !fits {
+        return 0;
+    }
+    let wrap_base_ns = (wraps * CLOCK_PERIOD_US) as i64 * 1000;
+    let records = (data.len() / RECORD_BYTES).min(max_events);
+    let start = out.len();
+    let cap = start + records;
+    out.resize(cap);
+    let (ts, xs, ys, ps) = (
+        &mut out.t_ns[start..cap],
+        &mut out.x[start..cap],
+        &mut out.y[start..cap],
+        &mut out.polarity[start..cap],
+    );
+    let mut n = 0;
+    for rec in data.chunks_exact(RECORD_BYTES).take(records) {
+        let t32 = u32::from_le_bytes([rec[0], rec[1], rec[2], rec[3]]);
+        let w = u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]);
+        let polarity = w >> (2 * COORD_BITS);
+        if polarity > 1 || (t32 < last && last - t32 > WRAP_THRESHOLD) {
+            break;
+        }
+        last = t32;
+        // Coordinates of 14 bits fit u16; polarity 0 is -1, 1 is +1.
+        ts[n] = wrap_base_ns + i64::from(t32) * 1000;
+        xs[n] = (w & COORD_MASK) as u16;
+        ys[n] = ((w >> COORD_BITS) & COORD_MASK) as u16;
+        ps[n] = 2 * polarity as i8 - 1;
+        n += 1;
+    }
+    out.truncate(start + n);
+    *last_t32 = Some(last);
+    n * RECORD_BYTES
+}
+
+/// The checked path: decodes whole records of `data` (which start at file offset `at`) one by
+/// one, each event through [`Sink::emit`], until the sink is full; returns the bytes consumed.
+fn decode_checked(
+    data: &[u8],
+    at: u64,
+    last_t32: &mut Option<u32>,
+    wraps: &mut u64,
+    sink: &mut Sink,
+    out: &mut EventBatch,
+) -> Result<usize> {
+    let mut consumed = 0usize;
+    for rec in data.chunks_exact(RECORD_BYTES) {
+        if sink.full() {
+            break;
+        }
+        let at = at + consumed as u64;
+        consumed += RECORD_BYTES;
+        let t32 = u32::from_le_bytes([rec[0], rec[1], rec[2], rec[3]]);
+        let w = u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]);
+        if let Some(last) = *last_t32
+            && t32 < last
+            && last - t32 > WRAP_THRESHOLD
+        {
+            *wraps += 1;
+            sink.stats.time_wraps += 1;
+        }
+        *last_t32 = Some(t32);
+        let polarity = w >> (2 * COORD_BITS);
+        if polarity > 1 {
+            return Err(FormatError::Polarity {
+                path: sink.path.clone(),
+                at: Location::Byte(at),
+                value: i64::from(polarity),
+            });
+        }
+        let t_ns = us_to_ns((*wraps << 32) | u64::from(t32), &sink.path, at)?;
+        sink.emit(
+            out,
+            t_ns,
+            w & COORD_MASK,
+            (w >> COORD_BITS) & COORD_MASK,
+            polarity == 1,
+            Location::Byte(at),
+        )?;
+    }
+    Ok(consumed)
 }
 
 /// Summarises a DAT file; one without `Width`/`Height` lines (and no
@@ -309,5 +414,120 @@ impl<W: Write> DatWriter<W> {
 impl<W: Write> crate::EventWriter for DatWriter<W> {
     fn write_event(&mut self, e: &Event) -> Result<()> {
         DatWriter::write_event(self, e)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::events::{Disorder, ReadStats};
+    use proptest::prelude::*;
+
+    /// What a decode gave: the events, the statistics and the error that ended it, if any.
+    type Decoded = (EventBatch, ReadStats, Option<String>);
+
+    /// Decodes `data` in requests of `max` events, handing over at most `piece` bytes at a time,
+    /// through the fast path or the checked one alone.
+    fn decode_all(
+        data: &[u8],
+        max: usize,
+        piece: usize,
+        fast: bool,
+        opts: &ReadOptions,
+    ) -> Decoded {
+        let mut sink = Sink::new("mem".into(), Bounds::Sensor(Resolution::new(40, 30)), opts);
+        let (mut last_t32, mut wraps) = (None, 0u64);
+        let mut out = EventBatch::default();
+        let mut pos = 0usize;
+        loop {
+            let got = sink.read_with(&mut out, max, |sink, out| {
+                while !sink.full() {
+                    let end = data.len().min(pos + piece);
+                    if end - pos < RECORD_BYTES {
+                        sink.finish();
+                        return Ok(());
+                    }
+                    let (bytes, at) = (&data[pos..end], pos as u64);
+                    pos += if fast {
+                        decode(bytes, at, &mut last_t32, &mut wraps, sink, out)?
+                    } else {
+                        decode_checked(bytes, at, &mut last_t32, &mut wraps, sink, out)?
+                    };
+                }
+                Ok(())
+            });
+            match got {
+                Ok(0) => return (out, sink.stats.clone(), None),
+                Ok(_) => {}
+                Err(e) => return (out, sink.stats.clone(), Some(e.to_string())),
+            }
+        }
+    }
+
+    /// Records with coordinates a little past the 40x30 sensor, now and then a bad polarity,
+    /// times that mostly rise (sometimes step back, sometimes wrap).
+    fn records() -> impl Strategy<Value = Vec<u8>> {
+        let record = (
+            0u32..4,
+            0u32..44,
+            0u32..34,
+            prop_oneof![20 => 0u32..2, 1 => 2u32..16],
+        );
+        proptest::collection::vec(record, 0..3000).prop_map(|list| {
+            let mut t = 0u32;
+            let mut out = Vec::new();
+            for (i, (step, x, y, p)) in list.into_iter().enumerate() {
+                t = match i % 211 {
+                    7 => t.wrapping_sub(2),
+                    100 => t.wrapping_add(WRAP_THRESHOLD + 9),
+                    _ => t.wrapping_add(step),
+                };
+                out.extend_from_slice(&t.to_le_bytes());
+                out.extend_from_slice(&(p << 28 | y << COORD_BITS | x).to_le_bytes());
+            }
+            out
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(400))]
+        /// The fast path gives what the checked path gives, record for record: the same events,
+        /// statistics and error, whatever the requests' sizes and the buffers' boundaries.
+        #[test]
+        fn the_fast_path_matches_the_checked_one(
+            data in records(),
+            max in 1usize..5000,
+            piece in prop::sample::select(vec![8usize, 13, 64, 1 << 20]),
+            clamp in any::<bool>(),
+        ) {
+            let opts = ReadOptions {
+                disorder: if clamp { Disorder::Clamp } else { Disorder::Error },
+                ..ReadOptions::default()
+            };
+            let fast = decode_all(&data, max, piece, true, &opts);
+            let checked = decode_all(&data, max, piece, false, &opts);
+            prop_assert_eq!(&fast.0.t_ns, &checked.0.t_ns);
+            prop_assert_eq!(&fast.0.x, &checked.0.x);
+            prop_assert_eq!(&fast.0.y, &checked.0.y);
+            prop_assert_eq!(&fast.0.polarity, &checked.0.polarity);
+            prop_assert_eq!(&fast.1, &checked.1);
+            prop_assert_eq!(&fast.2, &checked.2);
+        }
+    }
+
+    #[test]
+    fn a_clock_near_the_end_of_i64_leaves_the_fast_path() {
+        let rec = [
+            5u32.to_le_bytes(),
+            (1u32 << 28 | 2 << COORD_BITS | 3).to_le_bytes(),
+        ]
+        .concat();
+        let mut out = EventBatch::default();
+        let wraps = (i64::MAX / 1000) as u64 >> 32;
+        assert_eq!(decode_fast(&rec, &mut Some(0), wraps, &mut out, 10), 0);
+        assert_eq!(decode_fast(&rec, &mut Some(0), wraps - 1, &mut out, 10), 8);
+        assert_eq!((out.x[0], out.y[0], out.polarity[0]), (3, 2, 1));
+        // The first record of a file has no predecessor to tell a wrap: the checked path's.
+        assert_eq!(decode_fast(&rec, &mut None, 0, &mut out, 10), 0);
     }
 }
