@@ -230,6 +230,15 @@ fn decode(
     Ok(consumed)
 }
 
+/// A record's two words: the time in µs (32 bits) and the packed coordinates and polarity.
+#[inline(always)]
+fn words(rec: &[u8]) -> (u32, u32) {
+    (
+        u32::from_le_bytes([rec[0], rec[1], rec[2], rec[3]]),
+        u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]),
+    )
+}
+
 /// Records a fast block decodes at most before the sink checks them.
 const BLOCK_EVENTS: usize = 4096;
 
@@ -269,8 +278,7 @@ fn decode_fast(
     );
     let mut n = 0;
     for rec in data.chunks_exact(RECORD_BYTES).take(records) {
-        let t32 = u32::from_le_bytes([rec[0], rec[1], rec[2], rec[3]]);
-        let w = u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]);
+        let (t32, w) = words(rec);
         let polarity = w >> (2 * COORD_BITS);
         if polarity > 1 || (t32 < last && last - t32 > WRAP_THRESHOLD) {
             break;
@@ -305,8 +313,7 @@ fn decode_checked(
         }
         let at = at + consumed as u64;
         consumed += RECORD_BYTES;
-        let t32 = u32::from_le_bytes([rec[0], rec[1], rec[2], rec[3]]);
-        let w = u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]);
+        let (t32, w) = words(rec);
         if let Some(last) = *last_t32
             && t32 < last
             && last - t32 > WRAP_THRESHOLD
@@ -420,49 +427,8 @@ impl<W: Write> crate::EventWriter for DatWriter<W> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::events::{Disorder, ReadStats};
+    use crate::events::fast_vs_checked::{assert_same, decode_all, options};
     use proptest::prelude::*;
-
-    /// What a decode gave: the events, the statistics and the error that ended it, if any.
-    type Decoded = (EventBatch, ReadStats, Option<String>);
-
-    /// Decodes `data` in requests of `max` events, handing over at most `piece` bytes at a time,
-    /// through the fast path or the checked one alone.
-    fn decode_all(
-        data: &[u8],
-        max: usize,
-        piece: usize,
-        fast: bool,
-        opts: &ReadOptions,
-    ) -> Decoded {
-        let mut sink = Sink::new("mem".into(), Bounds::Sensor(Resolution::new(40, 30)), opts);
-        let (mut last_t32, mut wraps) = (None, 0u64);
-        let mut out = EventBatch::default();
-        let mut pos = 0usize;
-        loop {
-            let got = sink.read_with(&mut out, max, |sink, out| {
-                while !sink.full() {
-                    let end = data.len().min(pos + piece);
-                    if end - pos < RECORD_BYTES {
-                        sink.finish();
-                        return Ok(());
-                    }
-                    let (bytes, at) = (&data[pos..end], pos as u64);
-                    pos += if fast {
-                        decode(bytes, at, &mut last_t32, &mut wraps, sink, out)?
-                    } else {
-                        decode_checked(bytes, at, &mut last_t32, &mut wraps, sink, out)?
-                    };
-                }
-                Ok(())
-            });
-            match got {
-                Ok(0) => return (out, sink.stats.clone(), None),
-                Ok(_) => {}
-                Err(e) => return (out, sink.stats.clone(), Some(e.to_string())),
-            }
-        }
-    }
 
     /// Records with coordinates a little past the 40x30 sensor, now and then a bad polarity,
     /// times that mostly rise (sometimes step back, sometimes wrap).
@@ -500,18 +466,16 @@ mod tests {
             piece in prop::sample::select(vec![8usize, 13, 64, 1 << 20]),
             clamp in any::<bool>(),
         ) {
-            let opts = ReadOptions {
-                disorder: if clamp { Disorder::Clamp } else { Disorder::Error },
-                ..ReadOptions::default()
-            };
-            let fast = decode_all(&data, max, piece, true, &opts);
-            let checked = decode_all(&data, max, piece, false, &opts);
-            prop_assert_eq!(&fast.0.t_ns, &checked.0.t_ns);
-            prop_assert_eq!(&fast.0.x, &checked.0.x);
-            prop_assert_eq!(&fast.0.y, &checked.0.y);
-            prop_assert_eq!(&fast.0.polarity, &checked.0.polarity);
-            prop_assert_eq!(&fast.1, &checked.1);
-            prop_assert_eq!(&fast.2, &checked.2);
+            let opts = options(clamp, false);
+            let (mut last, mut wraps) = (None, 0u64);
+            let fast = decode_all(&data, max, piece, &opts, |b, at, sink, out| {
+                decode(b, at, &mut last, &mut wraps, sink, out)
+            });
+            let (mut last, mut wraps) = (None, 0u64);
+            let checked = decode_all(&data, max, piece, &opts, |b, at, sink, out| {
+                decode_checked(b, at, &mut last, &mut wraps, sink, out)
+            });
+            assert_same(&fast, &checked)?;
         }
     }
 

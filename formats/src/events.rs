@@ -654,6 +654,83 @@ impl Sink {
     }
 }
 
+/// Support for the binary readers' tests that hold the fast path to the checked one.
+#[cfg(test)]
+pub(crate) mod fast_vs_checked {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// What a decode gave: the events, the statistics and the error that ended it, if any.
+    pub(crate) type Decoded = (EventBatch, ReadStats, Option<String>);
+
+    /// Feeds `bytes` to `decode` (the bytes from the current position, their offset, the sink
+    /// and the batch; returns the bytes consumed) on a 40x30 sensor, in requests of `max`
+    /// events and at most `piece` bytes at a time (buffer boundaries), until the input ends
+    /// (a call that consumes nothing ends it: less than a word is left) or an error ends it.
+    pub(crate) fn decode_all(
+        bytes: &[u8],
+        max: usize,
+        piece: usize,
+        opts: &ReadOptions,
+        mut decode: impl FnMut(&[u8], u64, &mut Sink, &mut EventBatch) -> Result<usize>,
+    ) -> Decoded {
+        let mut sink = Sink::new("mem".into(), Bounds::Sensor(Resolution::new(40, 30)), opts);
+        let mut out = EventBatch::default();
+        let mut pos = 0usize;
+        loop {
+            let got = sink.read_with(&mut out, max, |sink, out| {
+                while !sink.full() {
+                    let end = bytes.len().min(pos + piece);
+                    let used = if pos < end {
+                        decode(&bytes[pos..end], pos as u64, sink, out)?
+                    } else {
+                        0
+                    };
+                    if used == 0 {
+                        sink.finish();
+                        return Ok(());
+                    }
+                    pos += used;
+                }
+                Ok(())
+            });
+            match got {
+                Ok(0) => return (out, sink.stats.clone(), None),
+                Ok(_) => {}
+                Err(e) => return (out, sink.stats.clone(), Some(e.to_string())),
+            }
+        }
+    }
+
+    /// Options: out-of-order times clamped or refused, unknown words skipped or refused.
+    pub(crate) fn options(clamp: bool, skip_unknown: bool) -> ReadOptions {
+        ReadOptions {
+            disorder: if clamp {
+                Disorder::Clamp
+            } else {
+                Disorder::Error
+            },
+            unknown_words: if skip_unknown {
+                UnknownWords::Skip
+            } else {
+                UnknownWords::Error
+            },
+            ..ReadOptions::default()
+        }
+    }
+
+    /// The two decodes gave the same events, statistics and error.
+    pub(crate) fn assert_same(fast: &Decoded, checked: &Decoded) -> Result<(), TestCaseError> {
+        prop_assert_eq!(&fast.0.t_ns, &checked.0.t_ns);
+        prop_assert_eq!(&fast.0.x, &checked.0.x);
+        prop_assert_eq!(&fast.0.y, &checked.0.y);
+        prop_assert_eq!(&fast.0.polarity, &checked.0.polarity);
+        prop_assert_eq!(&fast.1, &checked.1);
+        prop_assert_eq!(&fast.2, &checked.2);
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -366,51 +366,8 @@ impl<W: Write> crate::EventWriter for Evt2Writer<W> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::events::{Bounds, Disorder, ReadOptions, ReadStats, UnknownWords};
+    use crate::events::fast_vs_checked::{assert_same, decode_all, options};
     use proptest::prelude::*;
-
-    /// What a decode gave: the events, the statistics and the error that ended it, if any.
-    type Decoded = (EventBatch, ReadStats, Option<String>);
-
-    /// Decodes `words` in requests of `max` events, handing the decoder at most `piece` bytes at
-    /// a time (buffer boundaries), through the fast path or the checked one alone.
-    fn decode_all(
-        words: &[u8],
-        max: usize,
-        piece: usize,
-        fast: bool,
-        opts: &ReadOptions,
-    ) -> Decoded {
-        let mut sink = Sink::new("mem".into(), Bounds::Sensor(Resolution::new(40, 30)), opts);
-        let mut d = Evt2Decoder::default();
-        let mut out = EventBatch::default();
-        let mut pos = 0usize;
-        loop {
-            let got = sink.read_with(&mut out, max, |sink, out| {
-                while !sink.full() {
-                    if pos >= words.len() {
-                        sink.finish();
-                        return Ok(());
-                    }
-                    let end = words.len().min(pos + piece);
-                    let (bytes, at) = (&words[pos..end], pos as u64);
-                    let used = if fast {
-                        d.decode(bytes, at, sink, out)?
-                    } else {
-                        d.decode_checked(bytes, at, sink, out)?
-                    };
-                    // A piece shorter than a word: the caller would wait for more bytes.
-                    pos += if used == 0 { end - pos } else { used };
-                }
-                Ok(())
-            });
-            match got {
-                Ok(0) => return (out, sink.stats.clone(), None),
-                Ok(_) => {}
-                Err(e) => return (out, sink.stats.clone(), Some(e.to_string())),
-            }
-        }
-    }
 
     /// A word: mostly events with coordinates a little past the 40x30 sensor, time bases that
     /// mostly rise (sometimes step back, sometimes wrap), and a few rare or unknown types.
@@ -456,20 +413,14 @@ mod tests {
             clamp in any::<bool>(),
             skip_unknown in any::<bool>(),
         ) {
-            let opts = ReadOptions {
-                disorder: if clamp { Disorder::Clamp } else { Disorder::Error },
-                unknown_words: if skip_unknown { UnknownWords::Skip } else { UnknownWords::Error },
-                ..ReadOptions::default()
-            };
+            let opts = options(clamp, skip_unknown);
             let bytes = ordered(words);
-            let fast = decode_all(&bytes, max, piece, true, &opts);
-            let checked = decode_all(&bytes, max, piece, false, &opts);
-            prop_assert_eq!(&fast.0.t_ns, &checked.0.t_ns);
-            prop_assert_eq!(&fast.0.x, &checked.0.x);
-            prop_assert_eq!(&fast.0.y, &checked.0.y);
-            prop_assert_eq!(&fast.0.polarity, &checked.0.polarity);
-            prop_assert_eq!(&fast.1, &checked.1);
-            prop_assert_eq!(&fast.2, &checked.2);
+            let mut d = Evt2Decoder::default();
+            let fast = decode_all(&bytes, max, piece, &opts, |b, at, sink, out| d.decode(b, at, sink, out));
+            let mut d = Evt2Decoder::default();
+            let checked =
+                decode_all(&bytes, max, piece, &opts, |b, at, sink, out| d.decode_checked(b, at, sink, out));
+            assert_same(&fast, &checked)?;
         }
     }
 
