@@ -38,7 +38,7 @@ use neuspike_schemas::{Event, EventBatch};
 
 use crate::binary::{Out, WriteSummary, ns_to_us, us_to_ns};
 use crate::error::{FormatError, Location, Result};
-use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
+use crate::events::{BLOCK_EVENTS, Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::header::resolve_resolution;
 
 /// The first bytes of every AEDAT 4 file.
@@ -749,7 +749,7 @@ impl<R: Read> EventReader for Aedat4Reader<R> {
                 let b = &packets.payload;
                 // A block at a time, straight into `out`'s columns; when any of its events is
                 // bad, or out of place, it is taken back and emitted event by event below.
-                let k = (cur.events - cur.next).min(sink.room()).min(BLOCK);
+                let k = (cur.events - cur.next).min(sink.room()).min(BLOCK_EVENTS);
                 let at = cur.start + cur.next * EVENT_BYTES;
                 let start = out.len();
                 if decode_block(&b[at..at + k * EVENT_BYTES], out) && sink.accept_block(out, start)
@@ -787,9 +787,6 @@ impl<R: Read> EventReader for Aedat4Reader<R> {
         })
     }
 }
-
-/// Events decoded per block by [`Aedat4Reader`]'s fast path.
-const BLOCK: usize = 4096;
 
 /// Appends the `Event` structs of `records` to `out`'s columns (µs to ns, `on` to ±1); `false`
 /// when one has a negative or overflowing time, a negative coordinate or a polarity byte other

@@ -209,25 +209,18 @@ fn decode(
     sink: &mut Sink,
     out: &mut EventBatch,
 ) -> Result<usize> {
-    let whole = data.len() - data.len() % RECORD_BYTES;
-    let mut consumed = 0usize;
-    while consumed < whole && !sink.full() {
-        let (saved, start) = (*last_t32, out.len());
-        let max = sink.room().min(BLOCK_EVENTS);
-        let n = decode_fast(&data[consumed..whole], last_t32, *wraps, out, max);
-        if n > 0 {
-            if sink.accept_block(out, start) {
-                consumed += n;
-                continue;
-            }
-            *last_t32 = saved;
-            out.truncate(start);
-        }
-        let end = consumed + n.max(RECORD_BYTES);
-        let records = &data[consumed..end];
-        consumed += decode_checked(records, at + consumed as u64, last_t32, wraps, sink, out)?;
-    }
-    Ok(consumed)
+    let mut state = (*last_t32, *wraps);
+    let decoded = sink.decode_blocks::<_, RECORD_BYTES>(
+        data,
+        at,
+        &mut state,
+        out,
+        |(last, wraps), records, out, max| decode_fast(records, last, *wraps, out, max),
+        |(last, wraps), records, at, sink, out| decode_checked(records, at, last, wraps, sink, out),
+    );
+    // The state stands after the records decoded, an error's included.
+    (*last_t32, *wraps) = state;
+    decoded
 }
 
 /// A record's two words: the time in µs (32 bits) and the packed coordinates and polarity.
@@ -238,9 +231,6 @@ fn words(rec: &[u8]) -> (u32, u32) {
         u32::from_le_bytes([rec[4], rec[5], rec[6], rec[7]]),
     )
 }
-
-/// Records a fast block decodes at most before the sink checks them.
-const BLOCK_EVENTS: usize = 4096;
 
 /// The fast path: decodes the records at the start of `data` straight into `out`'s columns, at
 /// most `max_events`, and returns the bytes consumed (`last_t32` then stands after them). It

@@ -330,6 +330,10 @@ pub(crate) use sink_accessors;
 ///
 /// A decoder pushes events with [`Sink::emit`] until [`Sink::full`]; events of a multi-event word
 /// that do not fit in the caller's request wait in an overflow queue for the next call.
+/// Events a reader's fast path decodes at most before the sink checks them
+/// ([`Sink::decode_blocks`]).
+pub(crate) const BLOCK_EVENTS: usize = 4096;
+
 pub(crate) struct Sink {
     pub(crate) path: PathBuf,
     /// Bounds: `x < width`, `y < height`. `u32` so that "unknown" (65,536) admits every `u16`.
@@ -451,6 +455,45 @@ impl Sink {
     #[inline]
     pub(crate) fn room(&self) -> usize {
         self.room
+    }
+
+    /// A binary reader's decode loop over the whole units of `UNIT` bytes (words, records) of
+    /// `bytes`, which start at file offset `offset`, until this sink is full; returns the bytes
+    /// consumed.
+    ///
+    /// `fast(state, bytes, out, max)` decodes up to `max` events (at most [`BLOCK_EVENTS`])
+    /// straight into `out` and returns the bytes it used; [`Sink::accept_block`] then checks the
+    /// block in column passes. A block refused is taken back (events and `state`) and, like every
+    /// unit the fast path leaves, goes through `checked(state, bytes, offset, sink, out)`, which
+    /// emits event by event and names the fault or repairs it.
+    pub(crate) fn decode_blocks<S: Copy, const UNIT: usize>(
+        &mut self,
+        bytes: &[u8],
+        offset: u64,
+        state: &mut S,
+        out: &mut EventBatch,
+        mut fast: impl FnMut(&mut S, &[u8], &mut EventBatch, usize) -> usize,
+        mut checked: impl FnMut(&mut S, &[u8], u64, &mut Sink, &mut EventBatch) -> Result<usize>,
+    ) -> Result<usize> {
+        let whole = bytes.len() - bytes.len() % UNIT;
+        let mut consumed = 0usize;
+        while consumed < whole && !self.full() {
+            let (saved, start) = (*state, out.len());
+            let max = self.room().min(BLOCK_EVENTS);
+            let n = fast(state, &bytes[consumed..whole], out, max);
+            if n > 0 {
+                if self.accept_block(out, start) {
+                    consumed += n;
+                    continue;
+                }
+                *state = saved;
+                out.truncate(start);
+            }
+            let end = consumed + n.max(UNIT);
+            let at = offset + consumed as u64;
+            consumed += checked(state, &bytes[consumed..end], at, self, out)?;
+        }
+        Ok(consumed)
     }
 
     /// Accepts the events a decoder appended to `out[start..]` in one go (no more than

@@ -52,9 +52,6 @@ const WRAP_THRESHOLD: u32 = 1 << (TIME_HIGH_BITS - 1);
 /// Largest coordinate a word can hold.
 pub const MAX_COORD: u32 = (1 << 11) - 1;
 
-/// Events a fast block decodes at most before the sink checks them.
-const BLOCK_EVENTS: usize = 4096;
-
 /// Decoder state across buffers.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Evt2Decoder {
@@ -80,26 +77,14 @@ impl Evt2Decoder {
         sink: &mut Sink,
         out: &mut EventBatch,
     ) -> Result<usize> {
-        let whole = bytes.len() - bytes.len() % WORD_BYTES;
-        let mut consumed = 0usize;
-        while consumed < whole && !sink.full() {
-            let saved = *self;
-            let start = out.len();
-            let max = sink.room().min(BLOCK_EVENTS);
-            let n = self.decode_fast(&bytes[consumed..whole], out, max);
-            if n > 0 {
-                if sink.accept_block(out, start) {
-                    consumed += n;
-                    continue;
-                }
-                *self = saved;
-                out.truncate(start);
-            }
-            let end = consumed + n.max(WORD_BYTES);
-            let at = offset + consumed as u64;
-            consumed += self.decode_checked(&bytes[consumed..end], at, sink, out)?;
-        }
-        Ok(consumed)
+        sink.decode_blocks::<_, WORD_BYTES>(
+            bytes,
+            offset,
+            self,
+            out,
+            |d: &mut Self, b: &[u8], out: &mut EventBatch, max| d.decode_fast(b, out, max),
+            |d, b, at, sink, out| d.decode_checked(b, at, sink, out),
+        )
     }
 
     /// The fast path: decodes the events and time bases at the start of `bytes` straight into

@@ -73,8 +73,6 @@ const TIME_MASK: u32 = (1 << TIME_BITS) - 1;
 /// A `TIME_HIGH` this many steps below its predecessor (or more) is a wrap.
 const WRAP_THRESHOLD: u32 = 1 << (TIME_BITS - 1);
 
-/// Events a fast block decodes at most before the sink checks them.
-const BLOCK_EVENTS: usize = 4096;
 /// The word types [`Evt3Decoder::decode_fast`] decodes, as a bit set over the 16 types.
 const FAST_KINDS: u16 = ROW_COLUMN_LOW
     | 1 << word::VECT_BASE_X
@@ -116,27 +114,15 @@ impl Evt3Decoder {
         sink: &mut Sink,
         out: &mut EventBatch,
     ) -> Result<usize> {
-        let whole = bytes.len() - bytes.len() % WORD_BYTES;
         let (width, _) = sink.bounds();
-        let mut consumed = 0usize;
-        while consumed < whole && !sink.full() {
-            let saved = *self;
-            let start = out.len();
-            let max = sink.room().min(BLOCK_EVENTS);
-            let n = self.decode_fast(&bytes[consumed..whole], width, out, max);
-            if n > 0 {
-                if sink.accept_block(out, start) {
-                    consumed += n;
-                    continue;
-                }
-                *self = saved;
-                out.truncate(start);
-            }
-            let end = consumed + n.max(WORD_BYTES);
-            let at = offset + consumed as u64;
-            consumed += self.decode_checked(&bytes[consumed..end], at, sink, out)?;
-        }
-        Ok(consumed)
+        sink.decode_blocks::<_, WORD_BYTES>(
+            bytes,
+            offset,
+            self,
+            out,
+            |d: &mut Self, b: &[u8], out: &mut EventBatch, max| d.decode_fast(b, width, out, max),
+            |d, b, at, sink, out| d.decode_checked(b, at, sink, out),
+        )
     }
 
     /// The fast path: decodes the ordinary words at the start of `bytes` (rows, columns,
