@@ -52,7 +52,7 @@ def mean_row(runs: list[dict]) -> dict:
 def device(cfg: dict) -> str:
     if cfg["device"] == "cuda":
         return "one H100 GPU shared by several runs at once (models/README.md)"
-    return f"{cfg['device']} (a 2-core machine shared with builds and other runs, so the wall time overstates)"
+    return f"{cfg['device']} ({cfg['cpu_seconds']:,.0f} CPU-seconds)"
 
 
 def row(name: str, r: dict) -> str:
@@ -67,6 +67,7 @@ def main() -> None:
     ap.add_argument("--run", required=True, help="the model's entry in the evaluation")
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--note", default="", help="a line added to the training section")
+    ap.add_argument("--speed-note", default="", help="a paragraph added to the speed section")
     args = ap.parse_args()
     cfg = json.loads(args.model.with_suffix(".json").read_text())
     ev = json.loads(args.eval.read_text())
@@ -178,7 +179,7 @@ def main() -> None:
         "with mimalloc, and its time includes copying the inputs into the padded tensor, as the node "
         "does; onnxruntime's does not.",
         "",
-    ]
+    ] + ([args.speed_note, ""] if args.speed_note else [])
     args.model.with_suffix(".md").write_text("\n".join(lines))
     print("\n".join(lines))
 

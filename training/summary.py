@@ -36,7 +36,7 @@ def main() -> None:
         return order[mode], base, ["ssim", "grad", "none"].index(aux), steps, val
 
     for (mode, base, aux, steps, val), runs in sorted(groups.items(), key=key):
-        label = f"{mode}, base {base}, aux {aux}, {steps // 1000}k steps" + (", best on validation" if val else "")
+        label = f"{mode}, base {base}, aux {aux}, {steps / 1000:g}k steps" + (", best on validation" if val else "")
         for name, r in sorted(runs, key=lambda x: (x[1]["config"]["seed"], x[0])):
             c = r["config"]
             print(f"| {label} | {name} (seed {c['seed']}) | {c['device']} | {fmt(r)} |")
