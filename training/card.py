@@ -38,7 +38,15 @@ def tract_times(model: str, threads: str, runs: int) -> tuple[dict[int, float], 
 
 def recipe(cfg: dict) -> tuple:
     """What makes two runs the same configuration, seed and device aside."""
-    return cfg["base"], cfg["mode"], cfg["aux"], cfg["steps"], "val" in cfg
+    return cfg["base"], cfg["mode"], cfg["aux"], cfg["steps"], "val" in cfg, cfg.get("l2", "mean")
+
+
+def l2_text(cfg: dict) -> str:
+    """The L2 term, as `train.py --l2` chose it."""
+    if cfg.get("l2", "mean") == "psnr":
+        return ("L2 on luminance, each sample's weighted by 1 / (its MSE + 1e-6) and the weights "
+                "normalised (the gradient of the mean PSNR, at plain L2's scale)")
+    return "L2 on luminance"
 
 
 def same(a: dict, b: dict, *keys: str) -> bool:
@@ -107,10 +115,10 @@ def main() -> None:
            f"({cfg['best_val_psnr']:.2f} dB) on a validation set scored every 500 steps "
            f"({cfg['val_samples']} samples of 96x96 made like the training set with `--seed 1`; "
            "never the held-out set)." if "val" in cfg else ""),
-        f"- Loss: L2 on luminance + {cfg['aux_weight']} x {cfg['aux']} "
+        f"- Loss: {l2_text(cfg)} + {cfg['aux_weight']} x {cfg['aux']} "
         "(the paper's VGG perceptual term needs pretrained weights that cannot be downloaded here)."
         if cfg["aux"] != "none"
-        else "- Loss: L2 on luminance only (the comparison run for the auxiliary term).",
+        else f"- Loss: {l2_text(cfg)} only (the comparison run for the auxiliary term).",
         f"- PyTorch {cfg['torch']}; exported and checked against onnxruntime (max |diff| < 1e-4) by "
         "`training/export.py`; `models/" + name + ".ref/` is the reference tract must reproduce "
         "(`nodes/infer/tests/learned.rs`).",

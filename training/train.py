@@ -82,6 +82,20 @@ def augment(tensors: list[torch.Tensor], k: int) -> list[torch.Tensor]:
     return [t.flip(-1) for t in out] if k >= 4 else out
 
 
+def l2_loss(lum: torch.Tensor, truth: torch.Tensor, how: str) -> torch.Tensor:
+    """L2 between prediction and truth. `mean`: over every pixel of the batch. `psnr`: each
+    sample's MSE weighted by 1 / (its MSE + 1e-6), the weights (not differentiated) normalised to
+    sum 1. Its gradient is that of the mean of the samples' log MSE, i.e. of the mean PSNR we score
+    by, scaled to plain L2's size, so the auxiliary term keeps its weight. Without it, the
+    darkest, noisiest samples dominate the batch's MSE and a bright sample's small gain error
+    (a large PSNR loss) barely counts. The 1e-6 (60 dB) bounds the weight of a perfect sample."""
+    if how == "mean":
+        return F.mse_loss(lum, truth)
+    mse = ((lum - truth) ** 2).mean(dim=(1, 2, 3))
+    w = 1.0 / (mse.detach() + 1e-6)
+    return (w * mse).sum() / w.sum()
+
+
 @torch.no_grad()
 def validation_psnr(model: NeuSpikeNet, val: data.Split, batch: int = 50) -> float:
     """Mean per-sample PSNR on `val` (luminance clipped to [0, 1], REFERENCE.md's definition; a
@@ -105,6 +119,13 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=4000)
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--lr", type=float, default=2e-3)
+    ap.add_argument(
+        "--l2",
+        default="mean",
+        choices=["mean", "psnr"],
+        help="mean: plain L2 over the batch; psnr: each sample's L2 weighted by 1 / its MSE (the "
+        "gradient of the batch's mean PSNR, at plain L2's scale)",
+    )
     ap.add_argument("--aux", default="ssim", choices=["ssim", "grad", "none"])
     ap.add_argument("--aux-weight", type=float, default=0.1)
     ap.add_argument("--seed", type=int, default=0)
@@ -140,7 +161,7 @@ def main() -> None:
         *xs, truth = augment([*(getattr(train, n)[idx] for n in names), train.truth[idx]], int(rng.integers(0, 8)))
         xs = [x.float() for x in xs]
         lum = model(*xs) * gain
-        loss = F.mse_loss(lum, truth)
+        loss = l2_loss(lum, truth, args.l2)
         if args.aux == "ssim":
             loss = loss + args.aux_weight * ssim_loss(lum.clamp(0, 1), truth, blur)
         elif args.aux == "grad":
@@ -169,6 +190,7 @@ def main() -> None:
         "steps": args.steps,
         "batch": args.batch,
         "lr": args.lr,
+        "l2": args.l2,
         "aux": args.aux,
         "aux_weight": args.aux_weight,
         "seed": args.seed,
