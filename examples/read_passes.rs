@@ -35,7 +35,11 @@ fn pass(bytes: &[u8], opts: &ReadOptions) -> eyre::Result<(usize, f64)> {
 fn main() -> eyre::Result<()> {
     let mut args = std::env::args().skip(1);
     let path = args.next().unwrap_or_else(|| {
-        concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/real/prophesee-evt2-640x480.raw").into()
+        concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../shared/data/real/prophesee-evt2-640x480.raw"
+        )
+        .into()
     });
     let passes: usize = match args.next() {
         Some(s) => s.parse().wrap_err_with(|| format!("PASSES: {s:?}"))?,
@@ -52,7 +56,11 @@ fn main() -> eyre::Result<()> {
     for _ in 0..passes.max(1) {
         for ((name, bytes), t) in files.iter().zip(&mut times) {
             let (n, s) = pass(bytes, &opts)?;
-            eyre::ensure!(n == events.len(), "{name}: {n} events, not {}", events.len());
+            eyre::ensure!(
+                n == events.len(),
+                "{name}: {n} events, not {}",
+                events.len()
+            );
             t.push(s);
         }
     }

@@ -445,8 +445,8 @@ fn integration_fast(
 /// `p exp(-(t_k - t_i) / tau) exp((t_k - t_base) / tau)` are computed in vectorised passes
 /// ([`exp_neg`]), then added one by one; the output is a vectorised pass over the pixels. No
 /// branch depends on a polarity. For `tau -> 0` only events at `t_k` itself weigh: their `G` is
-/// cleared again after the channel is written (it was 0 before), for `tau = inf` `G` is the
-/// signed count.
+/// cleared again once the channels move past `t_k` (it was 0 before; channels repeating `t_k`
+/// weigh them again), for `tau = inf` `G` is the signed count.
 fn integrate_block(
     events: EventSlice,
     ts_ns: &[i64],
@@ -460,6 +460,8 @@ fn integrate_block(
     let mut batch = ChannelBatch::default();
     let mut rest = events;
     let mut t_base = ts_ns.first().copied().unwrap_or(0);
+    // The first event whose `G` a `tau -> 0` integration has not cleared yet.
+    let mut uncleared = 0;
     for (k, &t_k) in ts_ns.iter().enumerate() {
         let (now, later) = rest.split_at(rest.t_ns.partition_point(|&t| t <= t_k));
         rest = later;
@@ -504,10 +506,15 @@ fn integrate_block(
                 }
             }
         }
-        if matches!(decay, Decay::Instant) {
-            for (&x, &y) in now.x.iter().zip(now.y) {
+        // For `tau -> 0`, the events at `t_k` leave `G` once the instants move past `t_k` (a
+        // repeated instant counts them again).
+        if matches!(decay, Decay::Instant) && ts_ns.get(k + 1) != Some(&t_k) {
+            let done = events.len() - rest.len();
+            let at_t_k = events.range(uncleared..done);
+            for (&x, &y) in at_t_k.x.iter().zip(at_t_k.y) {
                 sums[(usize::from(y) - y0) * w + usize::from(x)][1] = 0.0;
             }
+            uncleared = done;
         }
     }
 }
@@ -1160,6 +1167,25 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_repeated_instant_weighs_the_events_at_it_each_time_with_tau_zero() {
+        // Two ON events at 0 ns and one at 100 ns, all at one pixel; the instant 100 ns twice.
+        let e = EventSlice {
+            t_ns: &[0, 0, 100],
+            x: &[0; 3],
+            y: &[0; 3],
+            polarity: &[1; 3],
+        };
+        let ts = [100, 100, 200];
+        let mut slow = Array3::<f32>::zeros((3, 1, 1));
+        event_integration_reference(e, 0, &ts, 0.0, slow.view_mut()).expect("reference");
+        let mut fast = Array3::<f32>::from_elem((3, 1, 1), f32::NAN);
+        event_integration_into(e, 0, &ts, 0.0, fast.view_mut()).expect("fast");
+        // At 100 ns: 1 + 1 for the earlier events, 1 + exp(0) = 2 for the one at the instant.
+        assert_eq!(fast.as_slice(), Some(&[4.0, 4.0, 3.0][..]));
+        assert_eq!(fast, slow);
     }
 
     proptest! {
