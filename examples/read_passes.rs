@@ -5,8 +5,8 @@
 //! The EVT 3.0 bytes are the EVT 2.0 file's events re-encoded by our writer, as in
 //! `cargo bench -p neuspike-formats --bench bench_read`.
 //!
-//! `cargo run --release --example read_passes -- [FILE.raw] [PASSES]` (default: the shared real
-//! EVT 2.0 recording, 200 passes of each).
+//! `cargo run --release --example read_passes -- [FILE.raw] [PASSES]`: FILE is a 640x480 EVT 2.0
+//! recording, read at that resolution (default: the shared real one), 200 passes of each.
 
 use std::time::Instant;
 
