@@ -2,8 +2,10 @@
 //! and prints each reader's best and median pass. On a shared, noisy machine the best pass is
 //! the figure least disturbed by other work, and EVT 2.0 in the same run is the baseline.
 //!
-//! The EVT 3.0 bytes are the EVT 2.0 file's events re-encoded by our writer, as in
-//! `cargo bench -p neuspike-formats --bench bench_read`.
+//! The EVT 3.0 bytes are the EVT 2.0 file's events re-encoded by our writer, twice, as in
+//! `cargo bench -p neuspike-formats --bench bench_read`: in its shortest words, and with every
+//! run of two or more events in one whole 32-column vector group
+//! (`Evt3Writer::with_full_vector_groups`), a stream heavy with vectors.
 //!
 //! `cargo run --release --example read_passes -- [FILE.raw] [PASSES]`: FILE is a 640x480 EVT 2.0
 //! recording, read at that resolution (default: the shared real one), 200 passes of each.
@@ -48,11 +50,21 @@ fn main() -> eyre::Result<()> {
     let evt2 = std::fs::read(&path).wrap_err_with(|| format!("reading {path}"))?;
     let opts = ReadOptions::with_resolution(640, 480);
     let events = read_all(&mut RawReader::from_reader(&evt2[..], &path, &opts)?)?;
-    let mut w = Evt3Writer::new(Vec::new(), "memory", Resolution::new(640, 480))?;
-    w.write_batch(&events)?;
-    let evt3 = w.finish()?.0;
-    let files = [("EVT 2.0", &evt2), ("EVT 3.0", &evt3)];
-    let mut times = [Vec::new(), Vec::new()];
+    let evt3 = |full_groups: bool| -> eyre::Result<Vec<u8>> {
+        let mut w = Evt3Writer::new(Vec::new(), "memory", Resolution::new(640, 480))?;
+        if full_groups {
+            w = w.with_full_vector_groups();
+        }
+        w.write_batch(&events)?;
+        Ok(w.finish()?.0)
+    };
+    let (shortest, groups) = (evt3(false)?, evt3(true)?);
+    let files = [
+        ("EVT 2.0", &evt2),
+        ("EVT 3.0", &shortest),
+        ("EVT 3.0, full vector groups", &groups),
+    ];
+    let mut times = [Vec::new(), Vec::new(), Vec::new()];
     for _ in 0..passes.max(1) {
         for ((name, bytes), t) in files.iter().zip(&mut times) {
             let (n, s) = pass(bytes, &opts)?;

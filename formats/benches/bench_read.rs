@@ -160,15 +160,22 @@ fn bench_read(c: &mut Criterion) {
         )
     });
 
-    let mut w = Evt3Writer::new(Vec::new(), "mem", Resolution::new(640, 480)).expect("writer");
-    w.write_batch(&events).expect("write");
-    let evt3 = w.finish().expect("finish").0;
-    event_group(c, "evt3_events", &evt3, events.len() as u64, |b, chunk| {
-        drain(
-            RawReader::from_reader(b, "mem", &opts640).expect("raw"),
-            chunk,
-        )
-    });
+    // The same events in EVT 3.0 as our writer encodes them, and with a whole 32-column vector
+    // group for every run of two or more (a stream heavy with vectors).
+    for (name, full_groups) in [("evt3_events", false), ("evt3_groups_events", true)] {
+        let mut w = Evt3Writer::new(Vec::new(), "mem", Resolution::new(640, 480)).expect("writer");
+        if full_groups {
+            w = w.with_full_vector_groups();
+        }
+        w.write_batch(&events).expect("write");
+        let evt3 = w.finish().expect("finish").0;
+        event_group(c, name, &evt3, events.len() as u64, |b, chunk| {
+            drain(
+                RawReader::from_reader(b, "mem", &opts640).expect("raw"),
+                chunk,
+            )
+        });
+    }
 
     let mut w = DatWriter::new(Vec::new(), "mem", Resolution::new(640, 480)).expect("writer");
     w.write_batch(&events).expect("write");

@@ -385,14 +385,20 @@ impl Evt3Decoder {
 const VECTOR_SPAN: u16 = 32;
 
 /// Writes events as a Prophesee RAW EVT 3.0 file: a `%` header, then `TIME_HIGH`/`TIME_LOW`/
-/// `EVT_ADDR_Y` words when the time or row changes, and for each event either an `EVT_ADDR_X`, or,
-/// when at least two consecutive events share time, row and polarity with increasing columns
-/// within 32 pixels, one `VECT_BASE_X, VECT_12, VECT_12, VECT_8` group (the grouping Prophesee's
-/// decoder expects). Times are floored to microseconds and wrap every 2^24 µs
-/// ([`CLOCK_PERIOD_US`]), as on the sensor, with extra `TIME_HIGH` words over long gaps so that a
-/// reader can always tell a wrap from a jump. The format has no field for whole periods, so
-/// reading the file back gives times modulo [`CLOCK_PERIOD_US`] at its start (later wraps are
-/// undone).
+/// `EVT_ADDR_Y` words when the time or row changes, and the events in as few words as this
+/// writer finds (the format's purpose is compactness). Consecutive events that share time, row
+/// and polarity with increasing columns form a run; in a run, an event with at least two more
+/// within the 12 columns from it starts a vector, `VECT_BASE_X` then a `VECT_12` (or a `VECT_8`
+/// when its events lie in the first 8 columns) for each stretch of 12 columns that holds at
+/// least two of the run's events (two events in one word, where `EVT_ADDR_X` takes one each);
+/// every other event is one `EVT_ADDR_X`. A dense 32-column run is thus the usual
+/// `VECT_BASE_X, VECT_12, VECT_12, VECT_8` group. [`Evt3Writer::with_full_vector_groups`] writes
+/// the larger encoding of earlier versions instead.
+///
+/// Times are floored to microseconds and wrap every 2^24 µs ([`CLOCK_PERIOD_US`]), as on the
+/// sensor, with extra `TIME_HIGH` words over long gaps so that a reader can always tell a wrap
+/// from a jump. The format has no field for whole periods, so reading the file back gives times
+/// modulo [`CLOCK_PERIOD_US`] at its start (later wraps are undone).
 pub struct Evt3Writer<W: Write> {
     out: Out<W>,
     resolution: Resolution,
@@ -400,6 +406,7 @@ pub struct Evt3Writer<W: Write> {
     last_high: Option<u64>,
     last_low: Option<u32>,
     last_y: Option<u16>,
+    full_groups: bool,
     summary: WriteSummary,
 }
 
@@ -424,8 +431,18 @@ impl<W: Write> Evt3Writer<W> {
             last_high: None,
             last_low: None,
             last_y: None,
+            full_groups: false,
             summary: WriteSummary::default(),
         })
+    }
+
+    /// Writes every run of at least two events within 32 columns as one whole
+    /// `VECT_BASE_X, VECT_12, VECT_12, VECT_8` group (four words, whatever it carries), as this
+    /// writer did before it looked for the shortest words: larger files (11% on the real events
+    /// of `bench_read`), kept to time and test readers on streams heavy with vector groups.
+    pub fn with_full_vector_groups(mut self) -> Self {
+        self.full_groups = true;
+        self
     }
 
     fn put(&mut self, kind: u8, payload: u32) -> Result<()> {
@@ -467,6 +484,28 @@ impl<W: Write> Evt3Writer<W> {
         Ok(t_us)
     }
 
+    /// Checks events `from..to` of `b`, vector events after the first of their vector (which
+    /// [`Self::prepare`] checked), in the vector word whose events start at `word_start` (so
+    /// event `word_start` is the `summary.items`-th written): bounds and polarity; their time
+    /// and row are the first's. Counts floored times.
+    fn check_vector_rest(
+        &mut self,
+        b: &EventBatch,
+        word_start: usize,
+        from: usize,
+        to: usize,
+    ) -> Result<()> {
+        for k in from..to {
+            let ek = b.get(k);
+            let index = self.summary.items + (k - word_start) as u64;
+            check_event(&self.out, index, &ek, self.resolution, None, 0)?;
+        }
+        if b.t_ns[word_start] % 1000 != 0 {
+            self.summary.floored_timestamps += (to - from) as u64;
+        }
+        Ok(())
+    }
+
     /// Appends one event; events must come in non-decreasing time order.
     pub fn write_event(&mut self, e: &Event) -> Result<()> {
         self.prepare(e)?;
@@ -476,58 +515,92 @@ impl<W: Write> Evt3Writer<W> {
         Ok(())
     }
 
-    /// Appends every event of a batch, vectorising runs.
+    /// Appends every event of a batch, vectorising runs (see [`Evt3Writer`]).
     pub fn write_batch(&mut self, b: &EventBatch) -> Result<()> {
         let n = b.len();
         let mut i = 0;
         while i < n {
             let e = b.get(i);
-            // The run of events after `e` that one vector group can carry.
+            // The run of events after `e`: same time, row and polarity, columns increasing
+            // (within one group's 32 columns for full groups).
             let mut j = i + 1;
-            let mut prev_x = e.x;
             while j < n
                 && b.t_ns[j] == e.t_ns
                 && b.y[j] == e.y
                 && b.polarity[j] == e.polarity
-                && b.x[j] > prev_x
-                && b.x[j] - e.x < VECTOR_SPAN
+                && b.x[j] > b.x[j - 1]
+                && (!self.full_groups || b.x[j] - e.x < VECTOR_SPAN)
             {
-                prev_x = b.x[j];
                 j += 1;
             }
-            if j - i < 2 {
-                self.write_event(&e)?;
-                i += 1;
-                continue;
+            if self.full_groups {
+                self.write_group(b, i, j)?;
+            } else {
+                self.write_run(b, i, j)?;
             }
-            self.prepare(&e)?;
-            if e.t_ns % 1000 != 0 {
-                self.summary.floored_timestamps += (j - i - 1) as u64;
-            }
-            for k in i + 1..j {
-                // Checked like any event (bounds, polarity); time and row are e's.
-                let ek = b.get(k);
-                check_event(
-                    &self.out,
-                    self.summary.items + (k - i) as u64,
-                    &ek,
-                    self.resolution,
-                    None,
-                    0,
-                )?;
-            }
-            let mut mask = 0u32;
-            for k in i..j {
-                mask |= 1 << (b.x[k] - e.x);
-            }
-            let pol = if e.polarity > 0 { POLARITY_BIT } else { 0 };
-            self.put(word::VECT_BASE_X, u32::from(e.x) | pol)?;
-            self.put(word::VECT_12, mask & 0xFFF)?;
-            self.put(word::VECT_12, (mask >> 12) & 0xFFF)?;
-            self.put(word::VECT_8, (mask >> 24) & 0xFF)?;
-            self.summary.items += (j - i) as u64;
             i = j;
         }
+        Ok(())
+    }
+
+    /// Writes the run `i..j` of `b` (see [`Evt3Writer::write_batch`]) in the shortest words.
+    fn write_run(&mut self, b: &EventBatch, i: usize, j: usize) -> Result<()> {
+        let pol = if b.polarity[i] > 0 { POLARITY_BIT } else { 0 };
+        // `k + m < j && x[k + m] < x + span`: the run has m more events within `span` columns
+        // from x (the columns increase strictly).
+        let more_within =
+            |k: usize, m: usize, x: u32, span: u32| k + m < j && u32::from(b.x[k + m]) < x + span;
+        let mut k = i;
+        while k < j {
+            let x0 = u32::from(b.x[k]);
+            if !more_within(k, 2, x0, 12) {
+                self.write_event(&b.get(k))?;
+                k += 1;
+                continue;
+            }
+            let first = k;
+            self.prepare(&b.get(k))?;
+            self.put(word::VECT_BASE_X, x0 | pol)?;
+            let mut base = x0;
+            loop {
+                let end = k + b.x[k..j].partition_point(|&x| u32::from(x) < base + 12);
+                let (kind, span) = if u32::from(b.x[end - 1]) < base + 8 {
+                    (word::VECT_8, 8)
+                } else {
+                    (word::VECT_12, 12)
+                };
+                self.check_vector_rest(b, k, k.max(first + 1), end)?;
+                let mask = b.x[k..end]
+                    .iter()
+                    .fold(0u32, |m, &x| m | 1 << (u32::from(x) - base));
+                self.put(kind, mask)?;
+                self.summary.items += (end - k) as u64;
+                k = end;
+                base += span;
+                if !more_within(k, 1, base, 12) {
+                    break;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the run `i..j` of `b` (within 32 columns) as [`Evt3Writer::with_full_vector_groups`]
+    /// says: one event as `EVT_ADDR_X`, more as one whole group.
+    fn write_group(&mut self, b: &EventBatch, i: usize, j: usize) -> Result<()> {
+        let e = b.get(i);
+        if j - i < 2 {
+            return self.write_event(&e);
+        }
+        self.prepare(&e)?;
+        self.check_vector_rest(b, i, i + 1, j)?;
+        let mask = b.x[i..j].iter().fold(0u32, |m, &x| m | 1 << (x - e.x));
+        let pol = if e.polarity > 0 { POLARITY_BIT } else { 0 };
+        self.put(word::VECT_BASE_X, u32::from(e.x) | pol)?;
+        self.put(word::VECT_12, mask & 0xFFF)?;
+        self.put(word::VECT_12, (mask >> 12) & 0xFFF)?;
+        self.put(word::VECT_8, (mask >> 24) & 0xFF)?;
+        self.summary.items += (j - i) as u64;
         Ok(())
     }
 

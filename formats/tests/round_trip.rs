@@ -115,25 +115,39 @@ proptest! {
     #[test]
     fn evt3_round_trip_modulo_the_24_bit_clock(
         evs in events_strategy(1280, 720, 0..(1u64 << 30), gaps(1 << 27)),
-        runs in prop::collection::vec((0u16..1280, 1usize..40), 0..20),
+        runs in prop::collection::vec((0u16..1280, prop::collection::vec(1usize..15, 1..40)), 0..20),
+        full_groups in any::<bool>(),
         n in 1usize..64,
     ) {
-        // Add runs of neighbours at one time and row, which the writer vectorises.
+        // Add runs of neighbours at one time and row, which the writer vectorises: columns
+        // from dense to 14 apart, so vectors start, go on and stop.
         let mut evs = evs;
-        for (x0, len) in runs {
+        for (x0, steps) in runs {
             if let Some(&e) = evs.last() {
-                for k in 0..len {
-                    let x = x0 as usize + k * (1 + k % 3);
+                let mut x = usize::from(x0);
+                for step in steps {
                     if x < 1280 {
                         evs.push(Event { x: x as u16, ..e });
                     }
+                    x += step;
                 }
             }
         }
         let r = Resolution::new(1280, 720);
         let mut w = Evt3Writer::new(Vec::new(), "mem", r).unwrap();
+        if full_groups {
+            w = w.with_full_vector_groups();
+        }
         w.write_batch(&batch(&evs, r)).unwrap();
-        let (bytes, _) = w.finish().unwrap();
+        let (bytes, s) = w.finish().unwrap();
+        prop_assert_eq!(s.items, evs.len() as u64);
+        // Never more words than one `EVT_ADDR_X` per event.
+        let mut singles = Evt3Writer::new(Vec::new(), "mem", r).unwrap();
+        for e in &evs {
+            singles.write_event(e).unwrap();
+        }
+        let singles = singles.finish().unwrap().0;
+        prop_assert!(full_groups || bytes.len() <= singles.len(), "{} > {}", bytes.len(), singles.len());
         let mut reader = RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
         let got = read_in_chunks(&mut reader, n);
         assert_stats_match(reader.stats(), &got);
@@ -221,19 +235,46 @@ fn evt3_writer_vectorises_runs() {
             polarity: 1,
         })
         .collect();
-    let mut w = Evt3Writer::new(Vec::new(), "mem", r).unwrap();
-    w.write_batch(&batch(&row, r)).unwrap();
-    let (bytes, s) = w.finish().unwrap();
-    assert_eq!(s.items, 32);
-    let header = bytes.iter().rposition(|&b| b == b'\n').unwrap() + 1;
-    // TIME_HIGH, TIME_LOW, ADDR_Y, then one VECT_BASE_X + VECT_12 + VECT_12 + VECT_8 group.
-    assert_eq!(bytes.len() - header, 7 * 2);
-    let got = drain(
-        &mut RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap(),
-        5,
-    )
-    .0;
-    assert_same_events(&got, &row);
+    // Words after the header, and the events read back.
+    let write = |events: &[Event], full_groups: bool| {
+        let mut w = Evt3Writer::new(Vec::new(), "mem", r).unwrap();
+        if full_groups {
+            w = w.with_full_vector_groups();
+        }
+        w.write_batch(&batch(events, r)).unwrap();
+        let (bytes, s) = w.finish().unwrap();
+        assert_eq!(s.items, events.len() as u64);
+        let header = bytes.iter().rposition(|&b| b == b'\n').unwrap() + 1;
+        // The type of each word: the top 4 bits of its second (little-endian) byte.
+        let words: Vec<u8> = bytes[header..].chunks_exact(2).map(|w| w[1] >> 4).collect();
+        let got = drain(
+            &mut RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap(),
+            5,
+        )
+        .0;
+        assert_same_events(&got, events);
+        words
+    };
+    // TIME_HIGH, TIME_LOW, ADDR_Y, then one VECT_BASE_X + VECT_12 + VECT_12 + VECT_8 group,
+    // either way.
+    for full_groups in [false, true] {
+        assert_eq!(
+            write(&row, full_groups),
+            [8, 6, 0, 3, 4, 4, 5],
+            "{full_groups}"
+        );
+    }
+    // Two events 31 columns apart: two EVT_ADDR_X words, or a whole group of four.
+    let at = |xs: &[u16]| -> Vec<Event> { xs.iter().map(|&x| Event { x, ..row[0] }).collect() };
+    let pair = at(&[100, 131]);
+    assert_eq!(write(&pair, false), [8, 6, 0, 2, 2]);
+    assert_eq!(write(&pair, true), [8, 6, 0, 3, 4, 4, 5]);
+    // Three within 12 columns start a vector (100: a VECT_12 for 100, 103, 107 and 109), a
+    // stretch of 12 columns with two events goes on with it (112: 119 and 121), one with fewer
+    // stops it; 140 is alone; 200, 201 and 202 are a vector again, a VECT_8 as they lie within 8.
+    let spread = at(&[100, 103, 107, 109, 119, 121, 140, 200, 201, 202]);
+    assert_eq!(write(&spread, false), [8, 6, 0, 3, 4, 4, 2, 3, 5]);
+    assert_eq!(write(&spread, true), [8, 6, 0, 3, 4, 4, 5, 2, 3, 4, 4, 5]);
 }
 
 #[test]
@@ -296,4 +337,30 @@ fn writers_refuse_what_their_format_cannot_hold() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("too long for a 32-bit clock"), "{e}");
+}
+
+#[test]
+fn evt3_writer_names_the_event_outside_the_sensor_inside_a_vector() {
+    let r = Resolution::new(20, 10);
+    // One run: a vector of 0, 1, 2 and then of 13, 14 and 20, the sixth event (index 5).
+    let mut b = EventBatch::empty(20, 10, 0, 0, 0);
+    for x in [0, 1, 2, 13, 14, 20] {
+        b.push(Event {
+            t_ns: 7_000,
+            x,
+            y: 3,
+            polarity: -1,
+        });
+    }
+    for full_groups in [false, true] {
+        let mut w = Evt3Writer::new(Vec::new(), "out.raw", r).unwrap();
+        if full_groups {
+            w = w.with_full_vector_groups();
+        }
+        let e = w.write_batch(&b).unwrap_err().to_string();
+        assert!(
+            e.starts_with("out.raw: cannot write event 5: ") && e.contains("(20, 3) is outside"),
+            "{full_groups}: {e}"
+        );
+    }
 }
