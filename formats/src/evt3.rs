@@ -193,13 +193,15 @@ impl Evt3Decoder {
         let mut n = start;
         let mut used = 0usize;
         // x < width <= 65,536 and y < 2,048 here: both fit u16.
-        let mut push = |n: &mut usize, t_ns: i64, x: u32, y: u32, on: bool| {
-            ts[*n] = t_ns;
-            xs[*n] = x as u16;
-            ys[*n] = y as u16;
-            ps[*n] = if on { 1 } else { -1 };
-            *n += 1;
-        };
+        macro_rules! push {
+            ($t_ns:expr, $x:expr, $y:expr, $on:expr) => {{
+                ts[n] = $t_ns;
+                xs[n] = $x as u16;
+                ys[n] = $y as u16;
+                ps[n] = if $on { 1 } else { -1 };
+                n += 1;
+            }};
+        }
         let words = bytes.len() / WORD_BYTES;
         while used < words {
             // Room for the most one word gives: a `VECT_12` with every bit valid.
@@ -226,8 +228,12 @@ impl Evt3Decoder {
                     }
                     let payload = u32::from(word) & 0xFFF;
                     let coord = payload & COORD_MASK;
-                    push(&mut n, t_ns, coord, y, payload & POLARITY_BIT != 0);
-                    n -= usize::from(kind != word::ADDR_X);
+                    ts[n] = t_ns;
+                    xs[n] = coord as u16;
+                    ys[n] = y as u16;
+                    // Bit 11, the polarity, as +1 or -1.
+                    ps[n] = (payload >> 10 & 2) as i8 - 1;
+                    n += usize::from(kind == word::ADDR_X);
                     y = select(kind == word::ADDR_Y, coord, y);
                     let t_low = high_ns + i64::from(payload) * 1000;
                     t_ns = select(kind == word::TIME_LOW, t_low, t_ns);
@@ -253,7 +259,7 @@ impl Evt3Decoder {
                             while valid != 0 {
                                 let i = valid.trailing_zeros();
                                 valid &= valid - 1;
-                                push(&mut n, t_ns, coord + i, y, on);
+                                push!(t_ns, coord + i, y, on);
                             }
                             (base_x, base_on) = (Some(coord + VECTOR_SPAN as u32), on);
                             used += 4;
@@ -272,7 +278,7 @@ impl Evt3Decoder {
                     while valid != 0 {
                         let i = valid.trailing_zeros();
                         valid &= valid - 1;
-                        push(&mut n, t_ns, base + i, y, base_on);
+                        push!(t_ns, base + i, y, base_on);
                     }
                     base_x = Some(base.saturating_add(k));
                 }
