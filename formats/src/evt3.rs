@@ -444,7 +444,7 @@ impl<W: Write> Evt3Writer<W> {
 
     /// Writes every run of at least two events within 32 columns as one whole
     /// `VECT_BASE_X, VECT_12, VECT_12, VECT_8` group (four words, whatever it carries), as this
-    /// writer did before it looked for the shortest words: larger files (11% on the real events
+    /// writer did before it looked for the shortest words: larger files (14% on the real events
     /// of `bench_read`), kept to time and test readers on streams heavy with vector groups.
     pub fn with_full_vector_groups(mut self) -> Self {
         self.full_groups = true;
