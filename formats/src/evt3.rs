@@ -515,8 +515,7 @@ impl<W: Write> Evt3Writer<W> {
     /// Appends one event; events must come in non-decreasing time order.
     pub fn write_event(&mut self, e: &Event) -> Result<()> {
         self.prepare(e)?;
-        let pol = if e.polarity > 0 { POLARITY_BIT } else { 0 };
-        self.put(word::ADDR_X, u32::from(e.x) | pol)?;
+        self.put(word::ADDR_X, u32::from(e.x) | polarity_bit(e.polarity))?;
         self.summary.items += 1;
         Ok(())
     }
@@ -551,7 +550,7 @@ impl<W: Write> Evt3Writer<W> {
 
     /// Writes the run `i..j` of `b` (see [`Evt3Writer::write_batch`]) in the shortest words.
     fn write_run(&mut self, b: &EventBatch, i: usize, j: usize) -> Result<()> {
-        let pol = if b.polarity[i] > 0 { POLARITY_BIT } else { 0 };
+        let pol = polarity_bit(b.polarity[i]);
         // `k + m < j && x[k + m] < x + span`: the run has m more events within `span` columns
         // from x (the columns increase strictly).
         let more_within =
@@ -601,8 +600,7 @@ impl<W: Write> Evt3Writer<W> {
         self.prepare(&e)?;
         self.check_vector_rest(b, i, i + 1, j)?;
         let mask = b.x[i..j].iter().fold(0u32, |m, &x| m | 1 << (x - e.x));
-        let pol = if e.polarity > 0 { POLARITY_BIT } else { 0 };
-        self.put(word::VECT_BASE_X, u32::from(e.x) | pol)?;
+        self.put(word::VECT_BASE_X, u32::from(e.x) | polarity_bit(e.polarity))?;
         self.put(word::VECT_12, mask & 0xFFF)?;
         self.put(word::VECT_12, (mask >> 12) & 0xFFF)?;
         self.put(word::VECT_8, (mask >> 24) & 0xFF)?;
@@ -614,6 +612,11 @@ impl<W: Write> Evt3Writer<W> {
     pub fn finish(self) -> Result<(W, WriteSummary)> {
         self.out.finish_with(self.summary)
     }
+}
+
+/// The polarity bit of an `EVT_ADDR_X` or `VECT_BASE_X` payload for a (checked) polarity of ±1.
+fn polarity_bit(polarity: i8) -> u32 {
+    if polarity > 0 { POLARITY_BIT } else { 0 }
 }
 
 impl<W: Write> crate::EventWriter for Evt3Writer<W> {
