@@ -38,7 +38,7 @@ def tract_times(model: str, threads: str, runs: int) -> tuple[dict[int, float], 
 
 def recipe(cfg: dict) -> tuple:
     """What makes two runs the same configuration, seed and device aside."""
-    return cfg["base"], cfg["mode"], cfg["aux"], cfg["steps"], "val" in cfg, cfg.get("l2", "mean")
+    return cfg["base"], cfg["mode"], cfg["aux"], cfg["steps"], "val" in cfg, cfg.get("l2", "mean"), cfg.get("gated", False)
 
 
 def l2_text(cfg: dict) -> str:

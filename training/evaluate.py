@@ -21,7 +21,9 @@ from neuspike_net import NeuSpikeNet
 def load_model(path: pathlib.Path) -> tuple[NeuSpikeNet, dict]:
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
     cfg = ckpt["config"]
-    model = NeuSpikeNet(base=cfg["base"], channels=cfg["channels"], mode=cfg["mode"])
+    model = NeuSpikeNet(
+        base=cfg["base"], channels=cfg["channels"], mode=cfg["mode"], gated=cfg.get("gated", False)
+    )
     model.load_state_dict(ckpt["state"])
     return model.eval(), cfg
 

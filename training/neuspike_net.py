@@ -65,17 +65,27 @@ class SpatialAttention(nn.Module):
 
 
 class Fusion(nn.Module):
-    """Eq. 11-12: CA on each path, summed; the skip is the sum times SA(sum + decoder feature)."""
+    """Eq. 11-12: CA on each path, summed; the skip is the sum times SA(sum + decoder feature).
 
-    def __init__(self, channels: int, paths: int):
+    `gated` scales each path after the first by a learned per-channel weight that starts at 0
+    (as ReZero starts its residual branches): the network starts as the texture path alone and
+    lets the motion path in as far as training finds it helps. Ungated, both paths weigh 1."""
+
+    def __init__(self, channels: int, paths: int, gated: bool = False):
         super().__init__()
         self.ca = nn.ModuleList(ChannelAttention(channels) for _ in range(paths))
         self.sa = SpatialAttention()
+        self.gates = (
+            nn.ParameterList(nn.Parameter(torch.zeros(1, channels, 1, 1)) for _ in range(paths - 1))
+            if gated
+            else None
+        )
 
     def fuse(self, feats: list[torch.Tensor]) -> torch.Tensor:
         out = self.ca[0](feats[0])
-        for ca, f in zip(self.ca[1:], feats[1:]):
-            out = out + ca(f)
+        for i, (ca, f) in enumerate(zip(self.ca[1:], feats[1:])):
+            term = ca(f)
+            out = out + (term * self.gates[i] if self.gates is not None else term)
         return out
 
     def skip(self, fused: torch.Tensor, decoder: torch.Tensor) -> torch.Tensor:
@@ -123,16 +133,16 @@ class NeuSpikeNet(nn.Module):
     """`forward(spike, events)` -> firing rate (or, event-only, luminance) `[B, 1, H, W]`; an
     ablation ignores the input it does not use (it is not even an input of its ONNX export)."""
 
-    def __init__(self, base: int = 16, channels: int = 32, mode: str = "fused"):
+    def __init__(self, base: int = 16, channels: int = 32, mode: str = "fused", gated: bool = False):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
-        self.mode, self.base, self.channels = mode, base, channels
+        self.mode, self.base, self.channels, self.gated = mode, base, channels, gated
         self.output = "luminance" if mode == "event" else "rate"
         paths = 2 if mode == "fused" else 1
         self.encoders = nn.ModuleList(Encoder(channels, base) for _ in range(paths))
         # One fusion module per encoder scale (the head's scale included, for the last skip).
-        self.fusions = nn.ModuleList(Fusion(base << i, paths) for i in range(ENCODER_LAYERS + 1))
+        self.fusions = nn.ModuleList(Fusion(base << i, paths, gated) for i in range(ENCODER_LAYERS + 1))
         deep = base << ENCODER_LAYERS
         self.residual = nn.Sequential(*(Residual(deep) for _ in range(RESIDUAL_BLOCKS)))
         self.up = nn.ModuleList(

@@ -26,19 +26,21 @@ def main() -> None:
         if "config" in r:
             c = r["config"]
             l2 = c.get("l2", "mean")
-            groups[(c["mode"], c["base"], c["aux"], c["steps"], "val" in c, l2)].append((name, r))
+            key = (c["mode"], c["base"], c["aux"], c["steps"], "val" in c, l2, c.get("gated", False))
+            groups[key].append((name, r))
     order = {"fused": 0, "spike": 1, "event": 2}
     print("| configuration | run | device | PSNR normal | PSNR complex | SSIM normal | SSIM complex |")
     print("|---|---|---|---|---|---|---|")
     for k in ("tfp", "tfi"):
         print(f"| {k.upper()} (classical) | | | {fmt(ev[k])} |")
     def key(g):
-        mode, base, aux, steps, val, l2 = g[0]
-        return order[mode], base, ["ssim", "grad", "none"].index(aux), steps, val, l2
+        mode, base, aux, steps, val, l2, gated = g[0]
+        return order[mode], base, ["ssim", "grad", "none"].index(aux), steps, val, l2, gated
 
-    for (mode, base, aux, steps, val, l2), runs in sorted(groups.items(), key=key):
+    for (mode, base, aux, steps, val, l2, gated), runs in sorted(groups.items(), key=key):
         label = f"{mode}, base {base}, aux {aux}, {steps / 1000:g}k steps" + (", best on validation" if val else "")
         label += ", L2 weighted by 1/MSE" if l2 == "psnr" else ""
+        label += ", motion path gated from 0" if gated else ""
         for name, r in sorted(runs, key=lambda x: (x[1]["config"]["seed"], x[0])):
             c = r["config"]
             print(f"| {label} | {name} (seed {c['seed']}) | {c['device']} | {fmt(r)} |")

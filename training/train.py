@@ -129,6 +129,11 @@ def main() -> None:
     ap.add_argument("--aux", default="ssim", choices=["ssim", "grad", "none"])
     ap.add_argument("--aux-weight", type=float, default=0.1)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--gated",
+        action="store_true",
+        help="fused: the motion path enters each fusion through a per-channel weight that starts at 0",
+    )
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
     ap.add_argument("--val", type=pathlib.Path, help="validation set: keep the best checkpoint on it")
     ap.add_argument("--val-every", type=int, default=500)
@@ -141,7 +146,7 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     train = data.load(args.train).to(device)
-    model = NeuSpikeNet(base=args.base, channels=train.spike.shape[1], mode=args.mode).to(device)
+    model = NeuSpikeNet(base=args.base, channels=train.spike.shape[1], mode=args.mode, gated=args.gated).to(device)
     names = model.inputs()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.steps, pct_start=0.05)
@@ -186,6 +191,7 @@ def main() -> None:
     config = {
         "base": args.base,
         "mode": args.mode,
+        "gated": args.gated,
         "channels": int(train.spike.shape[1]),
         "steps": args.steps,
         "batch": args.batch,
