@@ -139,6 +139,8 @@ def main() -> None:
     ap.add_argument("--val-every", type=int, default=500)
     ap.add_argument("--out", type=pathlib.Path, required=True)
     args = ap.parse_args()
+    if args.gated and args.mode != "fused":
+        ap.error(f"--gated weighs the motion path of a fused network; mode {args.mode} has one path")
 
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
