@@ -98,8 +98,8 @@ enum Command {
         /// Also print the time per operator kind (median of the runs, on the last thread count).
         #[arg(long)]
         profile: bool,
-        /// How tract runs the convolutions: auto (as the infer node: time both, keep the
-        /// faster), direct or im2col.
+        /// How tract runs the convolutions: auto (as the infer node: time each path, keep the
+        /// fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
         #[arg(long, default_value = "auto")]
         conv: neuspike_infer::learned::ConvPath,
     },
@@ -298,7 +298,7 @@ fn main() -> eyre::Result<()> {
                     );
                 }
                 println!("slowest nodes:");
-                for t in p.slowest(12) {
+                for t in p.slowest(usize::MAX) {
                     println!("  {:<48} {:<22} {:>8.2} ms", t.node, t.op, t.ms);
                 }
             }

@@ -10,7 +10,10 @@
 //!
 //! A kernel run through [`with_isa`] must give the same bits on every instruction set; that holds
 //! for IEEE add, sub, mul, div, sqrt, min, max and compares (Rust never fuses a multiply and an
-//! add unless asked to), and each kernel's tests check it on every [`Isa`] this CPU has.
+//! add unless asked to), and each kernel's tests check it on every [`Isa`] this CPU has. A kernel
+//! that wants fused multiply-adds asks with [`f32::mul_add`]: one rounding on every instruction
+//! set, one instruction on [`Isa::Avx2`] and [`Isa::Avx512`] (both include FMA), a call to the
+//! C library's exact `fmaf` on [`Isa::Baseline`] (slow, but the same bits).
 #![deny(missing_docs)]
 
 /// The instruction sets kernels can be compiled for, narrowest first (so `a <= b` says that code
@@ -19,9 +22,10 @@
 pub enum Isa {
     /// Whatever the compilation target guarantees (SSE2 on x86-64).
     Baseline,
-    /// x86-64 AVX2 (256-bit vectors).
+    /// x86-64 AVX2 and FMA (256-bit vectors; every CPU with AVX2 but a few 2013 VIA parts has
+    /// FMA too).
     Avx2,
-    /// x86-64 AVX-512 F and BW (512-bit vectors).
+    /// x86-64 AVX-512 F and BW (512-bit vectors; AVX-512 F includes FMA).
     Avx512,
 }
 
@@ -50,10 +54,12 @@ pub fn detect() -> Isa {
     {
         if std::arch::is_x86_feature_detected!("avx512f")
             && std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("fma")
         {
             return Isa::Avx512;
         }
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
             return Isa::Avx2;
         }
     }
@@ -81,7 +87,7 @@ pub fn with_isa<R>(isa: Isa, kernel: impl FnOnce() -> R) -> R {
             // SAFETY: `isa <= detect()`: the CPU supports AVX-512 F and BW.
             #[allow(unsafe_code)]
             Isa::Avx512 => return unsafe { x86::avx512(kernel) },
-            // SAFETY: `isa <= detect()`: the CPU supports AVX2.
+            // SAFETY: `isa <= detect()`: the CPU supports AVX2 and FMA.
             #[allow(unsafe_code)]
             Isa::Avx2 => return unsafe { x86::avx2(kernel) },
             Isa::Baseline => {}
@@ -93,13 +99,13 @@ pub fn with_isa<R>(isa: Isa, kernel: impl FnOnce() -> R) -> R {
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    #[target_feature(enable = "avx2")]
+    #[target_feature(enable = "avx2,fma")]
     #[inline]
     pub fn avx2<R>(kernel: impl FnOnce() -> R) -> R {
         kernel()
     }
 
-    #[target_feature(enable = "avx512f,avx512bw")]
+    #[target_feature(enable = "avx512f,avx512bw,fma")]
     #[inline]
     pub fn avx512<R>(kernel: impl FnOnce() -> R) -> R {
         kernel()
@@ -125,6 +131,20 @@ mod tests {
         let want = sum(&xs);
         for isa in Isa::ALL {
             assert_eq!(with_isa(isa, || sum(&xs)), want, "{}", isa.name());
+        }
+        // Fused multiply-adds round once everywhere: not the bits of a multiply then an add.
+        let fused = |xs: &[f32]| {
+            let mut acc = [0.1f32; 8];
+            for c in xs.chunks_exact(8) {
+                for j in 0..8 {
+                    acc[j] = c[j].mul_add(1.0 / 3.0, acc[j]);
+                }
+            }
+            acc
+        };
+        let want = fused(&xs);
+        for isa in Isa::ALL {
+            assert_eq!(with_isa(isa, || fused(&xs)), want, "{}", isa.name());
         }
         assert!(Isa::Baseline.is_supported());
         assert!(detect().is_supported());

@@ -87,17 +87,22 @@ type Plan = Arc<TypedRunnableModel>;
 
 /// How tract computes the network's spatial convolutions. Measured at 256x400 on one thread
 /// (`neuspike bench-model --conv`): the direct convolution was faster for base width 8 and im2col
-/// with a matrix product faster for base 24 (563 against 757 ms), so the default measures both
-/// on the first frame of each size and keeps the faster.
+/// with a matrix product faster for base 24 (563 against 757 ms); neuspike's own 3x3 kernel beats
+/// both on the full- and half-resolution layers. The default times each path on the first frame
+/// of each size and keeps the fastest.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ConvPath {
-    /// Plan both, time each on the frame, keep the faster (the default).
+    /// Plan each path, time each on the frame, keep the fastest (the default).
     #[default]
     Auto,
     /// tract's direct spatial convolution where it applies.
     Direct,
     /// im2col and a matrix product everywhere (`TRACT_DISABLE_DIRECT_SPATIAL`).
     Im2col,
+    /// neuspike's register-blocked kernel for the 3x3, stride-1 and 2 convolutions with output rows
+    /// of at least [`crate::conv3x3::MIN_WIDTH`] points ([`crate::conv3x3`]), tract's direct
+    /// convolution for the others.
+    Blocked,
 }
 
 impl std::fmt::Display for ConvPath {
@@ -106,6 +111,7 @@ impl std::fmt::Display for ConvPath {
             ConvPath::Auto => "auto",
             ConvPath::Direct => "direct",
             ConvPath::Im2col => "im2col",
+            ConvPath::Blocked => "blocked",
         })
     }
 }
@@ -118,8 +124,9 @@ impl std::str::FromStr for ConvPath {
             "auto" => Ok(ConvPath::Auto),
             "direct" => Ok(ConvPath::Direct),
             "im2col" => Ok(ConvPath::Im2col),
+            "blocked" => Ok(ConvPath::Blocked),
             other => Err(format!(
-                "convolution path `{other}`: expected auto, direct or im2col"
+                "convolution path `{other}`: expected auto, direct, im2col or blocked"
             )),
         }
     }
@@ -316,7 +323,13 @@ impl LearnedModel {
         )])
         .map_err(|e| model_error(&self.path, chain(&e)))?;
         scope
-            .enter(|| model.into_optimized().and_then(|m| m.into_runnable()))
+            .enter(|| {
+                let mut model = model.into_typed()?.into_decluttered()?;
+                if path == ConvPath::Blocked {
+                    crate::conv3x3::use_conv3x3(&mut model, crate::conv3x3::MIN_WIDTH)?;
+                }
+                model.into_optimized()?.into_runnable()
+            })
             .map_err(|e| {
                 model_error(
                     &self.path,
@@ -338,7 +351,7 @@ impl LearnedModel {
     }
 
     /// The plan for padded size `(h, w)`: the kept one, or a new one (for [`ConvPath::Auto`],
-    /// the faster of both paths on `values`).
+    /// the fastest path on `values`).
     fn plan_for(&mut self, h: usize, w: usize, values: &TVec<TValue>) -> Result<Plan, InferError> {
         if let Some((size, plan, _)) = &self.plan
             && *size == (h, w)
@@ -347,13 +360,16 @@ impl LearnedModel {
         }
         let (plan, path) = match self.conv {
             ConvPath::Auto => {
-                let direct = self.build_plan(h, w, ConvPath::Direct)?;
-                let im2col = self.build_plan(h, w, ConvPath::Im2col)?;
-                if self.fastest_run(&direct, values)? <= self.fastest_run(&im2col, values)? {
-                    (direct, ConvPath::Direct)
-                } else {
-                    (im2col, ConvPath::Im2col)
+                let plan = self.build_plan(h, w, ConvPath::Direct)?;
+                let mut best = (self.fastest_run(&plan, values)?, plan, ConvPath::Direct);
+                for path in [ConvPath::Im2col, ConvPath::Blocked] {
+                    let plan = self.build_plan(h, w, path)?;
+                    let t = self.fastest_run(&plan, values)?;
+                    if t < best.0 {
+                        best = (t, plan, path);
+                    }
                 }
+                (best.1, best.2)
             }
             path => (self.build_plan(h, w, path)?, path),
         };
@@ -426,7 +442,19 @@ impl LearnedModel {
             let dst = plain
                 .as_slice_mut::<f32>()
                 .map_err(|e| model_error(&self.path, chain(&e)))?;
-            pad_edge_into(*x, hp, wp, dst);
+            // Channel by channel across tract's threads: a copy of megabytes, memory-bound, that
+            // one core alone does at half the speed of two.
+            let planes = dst.chunks_mut((hp * wp).max(1));
+            let copy = |(ch, dst): (usize, &mut [f32])| {
+                pad_edge_into(x.slice(ndarray::s![ch..ch + 1, .., ..]), hp, wp, dst)
+            };
+            match tract_linalg::multithread::current_tract_executor() {
+                tract_linalg::multithread::Executor::MultiThread(pool) => {
+                    use rayon::prelude::*;
+                    pool.install(|| planes.enumerate().par_bridge().for_each(copy))
+                }
+                _ => planes.enumerate().for_each(copy),
+            }
             values.push(TValue::from_const(self.buffers[i].clone()));
         }
         Ok(values)

@@ -31,6 +31,7 @@ use std::str::FromStr;
 
 use ndarray::{ArrayView2, ArrayViewMut2, Zip};
 
+pub mod conv3x3;
 mod fastmath;
 mod filter;
 mod fusion;

@@ -47,8 +47,8 @@ struct Args {
     /// learned: the ONNX network (`models/*.onnx`).
     #[arg(long)]
     model: Option<PathBuf>,
-    /// learned: how tract runs the convolutions: auto (time both on the first frame of each size,
-    /// keep the faster), direct or im2col.
+    /// learned: how tract runs the convolutions: auto (time each path on the first frame of each
+    /// size, keep the fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
     #[arg(long, default_value = "auto")]
     conv: ConvPath,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).

@@ -264,7 +264,12 @@ fn both_convolution_paths_reproduce_the_reference_and_auto_keeps_one() {
     for path in shipped() {
         let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
         let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
-        for conv in [ConvPath::Direct, ConvPath::Im2col, ConvPath::Auto] {
+        for conv in [
+            ConvPath::Direct,
+            ConvPath::Im2col,
+            ConvPath::Blocked,
+            ConvPath::Auto,
+        ] {
             let mut model = LearnedModel::load(&path).expect("load");
             model.set_conv_path(conv);
             assert_eq!(model.conv_path_in_use(), None);
@@ -278,16 +283,63 @@ fn both_convolution_paths_reproduce_the_reference_and_auto_keeps_one() {
             );
             let used = model.conv_path_in_use().expect("planned");
             if conv == ConvPath::Auto {
-                assert!(matches!(used, ConvPath::Direct | ConvPath::Im2col));
+                assert_ne!(used, ConvPath::Auto);
             } else {
                 assert_eq!(used, conv);
             }
         }
     }
     assert_eq!("im2col".parse::<ConvPath>(), Ok(ConvPath::Im2col));
+    assert_eq!("blocked".parse::<ConvPath>(), Ok(ConvPath::Blocked));
     assert_eq!(ConvPath::default().to_string(), "auto");
     let err = "fast".parse::<ConvPath>().unwrap_err();
     assert!(err.contains("`fast`") && err.contains("im2col"), "{err}");
+}
+
+#[test]
+fn neuspikes_convolution_computes_what_tracts_does_on_wide_frames() {
+    // The reference frames are 24 wide, narrower than the rows `conv3x3` takes over: repeat
+    // them to 336 so the full- and half-resolution layers run on it.
+    for path in shipped() {
+        let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
+        let wide: Vec<Array3<f32>> = inputs
+            .iter()
+            .map(|a| {
+                let a = a.index_axis(Axis(0), 0);
+                let tiles: Vec<_> = (0..14).map(|_| a.view()).collect();
+                ndarray::concatenate(Axis(2), &tiles).expect("tiles")
+            })
+            .collect();
+        let views: Vec<ArrayView3<f32>> = wide.iter().map(|a| a.view()).collect();
+        let mut outputs = Vec::new();
+        for conv in [ConvPath::Direct, ConvPath::Blocked] {
+            let mut model = LearnedModel::load(&path).expect("load");
+            model.set_conv_path(conv);
+            let ops: Vec<String> = model
+                .profile(&views)
+                .expect("profile")
+                .into_iter()
+                .map(|t| t.op)
+                .collect();
+            let ours = ops.iter().filter(|op| *op == "NeuspikeConv3x3").count();
+            if conv == ConvPath::Blocked {
+                assert!(
+                    ours >= 3,
+                    "{}: {ours} convolutions of neuspike's",
+                    path.display()
+                );
+            } else {
+                assert_eq!(ours, 0);
+            }
+            outputs.push(model.run(&views).expect("run"));
+        }
+        let diff = max_diff(&outputs[0], &outputs[1]);
+        assert!(
+            diff < 1e-4,
+            "{}: blocked differs from direct by {diff}",
+            path.display()
+        );
+    }
 }
 
 #[test]

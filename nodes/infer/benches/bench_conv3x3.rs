@@ -1,0 +1,81 @@
+//! Speed of [`Conv3x3`], neuspike's 3x3 convolution, against tract's own convolution on the same
+//! weights and input, measured in the same run, at the shapes that take most of a NeuSpike-Net's
+//! time (base width 16 at 256x400):
+//!
+//! - `head_32to16_256x400`: an encoder's head (32 representation channels in), and the last merge;
+//! - `down_16to32_256x400_stride2`: an encoder's first, stride-2 layer;
+//! - `residual_128to128_32x50`: a residual block at an eighth of the resolution.
+//!
+//! Throughput in multiply-adds. `tract-direct` is tract's direct convolution, `tract-im2col`
+//! im2col and a matrix product (`TRACT_DISABLE_DIRECT_SPATIAL`), both planned as the infer node
+//! plans them; everything runs on one thread.
+//!
+//! `cargo bench -p neuspike-infer --bench bench_conv3x3 -- --warm-up-time 1 --measurement-time 3`
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use ndarray::{Array1, Array4};
+use neuspike_infer::conv3x3::Conv3x3;
+use std::hint::black_box;
+use tract_onnx::prelude::*;
+
+/// Values in [-1, 1], a fixed pattern.
+fn pattern(n: usize, seed: u32) -> Vec<f32> {
+    (0..n)
+        .map(|i| {
+            let k = (i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8;
+            (k % 2001) as f32 / 1000.0 - 1.0
+        })
+        .collect()
+}
+
+fn bench_shape(
+    c: &mut Criterion,
+    name: &str,
+    (c_in, c_out, stride): (usize, usize, usize),
+    (h, w): (usize, usize),
+) {
+    let weights =
+        Array4::from_shape_vec((c_out, c_in, 3, 3), pattern(c_out * c_in * 9, 1)).expect("weights");
+    let bias = Array1::from(pattern(c_out, 2));
+    let conv = Conv3x3::new(weights.view(), bias.as_slice().expect("contiguous"), stride)
+        .expect("a 3x3 convolution");
+    let input = pattern(c_in * h * w, 3);
+    let (ho, wo) = (conv.out_len(h), conv.out_len(w));
+    let mut output = vec![0f32; c_out * ho * wo];
+    let mut group = c.benchmark_group(name);
+    group.throughput(Throughput::Elements((c_out * ho * wo * c_in * 9) as u64));
+    group.bench_function("neuspike", |b| {
+        b.iter(|| {
+            conv.run(black_box(&input), (h, w), &mut output, None)
+                .expect("runs")
+        })
+    });
+    let tensor = Tensor::from_shape(&[1, c_in, h, w], &input).expect("input tensor");
+    for (label, im2col) in [("tract-direct", false), ("tract-im2col", true)] {
+        let model = conv.tract_model(h, w).expect("a one-convolution model");
+        let scope = tract_onnx::tract_core::knobs::KnobScope::new([(
+            "TRACT_DISABLE_DIRECT_SPATIAL",
+            if im2col { "true" } else { "false" },
+        )])
+        .expect("a knob scope");
+        let plan = scope
+            .enter(|| model.into_optimized()?.into_runnable())
+            .expect("a runnable plan");
+        group.bench_function(label, |b| {
+            b.iter(|| {
+                plan.run(tvec![black_box(tensor.clone()).into_tvalue()])
+                    .expect("runs")
+            })
+        });
+    }
+    group.finish();
+}
+
+fn convolutions(c: &mut Criterion) {
+    bench_shape(c, "head_32to16_256x400", (32, 16, 1), (256, 400));
+    bench_shape(c, "down_16to32_256x400_stride2", (16, 32, 2), (256, 400));
+    bench_shape(c, "residual_128to128_32x50", (128, 128, 1), (32, 50));
+}
+
+criterion_group!(benches, convolutions);
+criterion_main!(benches);

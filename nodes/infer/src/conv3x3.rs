@@ -1,0 +1,885 @@
+//! The 3x3 convolution of the learned networks (stride 1, padding 1, no groups), register-blocked,
+//! and the tract operator that runs it in place of tract's own.
+//!
+//! Most of a NeuSpike-Net's time goes to these convolutions at full and half resolution (the
+//! encoders' heads, 32 channels in; the decoder's merges). tract computes them either as im2col
+//! and a matrix product, which writes a 9x copy of the input, or as its direct convolution, which
+//! keeps 4 output channels by 16 points in registers and reads, per tap, an offset, two input
+//! vectors and four weights for eight multiply-adds. [`Conv3x3`] keeps 4 output channels by 24
+//! points (12 vector accumulators) and walks the taps in a fixed order (input channel, row,
+//! column), so a tap costs three input vectors and four weights for twelve multiply-adds and no
+//! offset table. The three input rows an output row reads are first copied, per channel, into a
+//! zero-bordered scratch row, so the kernel has no edge cases. Output rows are split across
+//! tract's thread pool.
+//!
+//! [`Conv3x3::reference`] is the scalar definition; the fast path takes the same products in the
+//! same order (bias, then input channel, kernel row, kernel column; a tap outside the image reads
+//! 0), without fused multiply-adds, so the two agree exactly on every instruction set.
+
+use std::sync::Arc;
+
+use ndarray::{Array3, ArrayView3, ArrayView4};
+use rayon::prelude::*;
+use tract_onnx::prelude::*;
+use tract_onnx::tract_core::internal::*;
+
+/// Lanes of one vector of the kernel (one AVX2 register of `f32`).
+const LANES: usize = 8;
+/// Vectors of output points one block keeps in registers.
+const VECTORS: usize = 2;
+/// Output channels one block keeps in registers.
+const OUTS: usize = 4;
+/// Taps of the kernel.
+const TAPS: usize = 9;
+/// Vectors of output points of one tile of a row.
+const TILE: usize = 4;
+/// Input channels of one block.
+const CHANNELS: usize = 8;
+
+/// A 3x3, padding-1 convolution of stride 1 or 2 with its weights packed for the kernel.
+#[derive(Clone, Debug)]
+pub struct Conv3x3 {
+    c_in: usize,
+    c_out: usize,
+    stride: usize,
+    /// `[c_out / 4][c_in][9][4]`: for a group of four output channels, an input channel and a tap,
+    /// the four weights side by side.
+    packed: Vec<f32>,
+    bias: Vec<f32>,
+}
+
+/// Why a convolution cannot be a [`Conv3x3`].
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Conv3x3Error {
+    /// The weights are not `[O, C, 3, 3]`.
+    #[error("weights of shape {0:?}, not [O, C, 3, 3]")]
+    Weights(Vec<usize>),
+    /// The output channels are not a multiple of four.
+    #[error("{0} output channels, not a multiple of 4")]
+    Channels(usize),
+    /// The stride is neither 1 nor 2.
+    #[error("stride {0}, not 1 or 2")]
+    Stride(usize),
+    /// The bias has neither one value per output channel nor a single one.
+    #[error("a bias of {got} values for {channels} output channels")]
+    Bias {
+        /// Values in the bias.
+        got: usize,
+        /// Output channels.
+        channels: usize,
+    },
+    /// The input is not `[C, H, W]` with the weights' `C`, or the output does not fit it.
+    #[error("input {input:?} and output of {output} values for a {c_in}-to-{c_out} convolution")]
+    Shape {
+        /// The input's shape.
+        input: Vec<usize>,
+        /// The output's length.
+        output: usize,
+        /// Input channels of the weights.
+        c_in: usize,
+        /// Output channels of the weights.
+        c_out: usize,
+    },
+}
+
+impl Conv3x3 {
+    /// Packs `weights` (`[O, C, 3, 3]`, ONNX's layout) and `bias` (`O` values, or one for all)
+    /// for a convolution of `stride` (1 or 2, both axes).
+    pub fn new(
+        weights: ArrayView4<f32>,
+        bias: &[f32],
+        stride: usize,
+    ) -> Result<Conv3x3, Conv3x3Error> {
+        let (c_out, c_in, kh, kw) = weights.dim();
+        if (kh, kw) != (3, 3) || c_in == 0 || c_out == 0 {
+            return Err(Conv3x3Error::Weights(weights.shape().to_vec()));
+        }
+        if !c_out.is_multiple_of(OUTS) {
+            return Err(Conv3x3Error::Channels(c_out));
+        }
+        if !(1..=2).contains(&stride) {
+            return Err(Conv3x3Error::Stride(stride));
+        }
+        let bias = match bias.len() {
+            n if n == c_out => bias.to_vec(),
+            1 => vec![bias[0]; c_out],
+            got => {
+                return Err(Conv3x3Error::Bias {
+                    got,
+                    channels: c_out,
+                });
+            }
+        };
+        let mut packed = Vec::with_capacity(c_out * c_in * TAPS);
+        for g in 0..c_out / OUTS {
+            for c in 0..c_in {
+                for ky in 0..3 {
+                    for kx in 0..3 {
+                        packed.extend((0..OUTS).map(|o| weights[[g * OUTS + o, c, ky, kx]]));
+                    }
+                }
+            }
+        }
+        Ok(Conv3x3 {
+            c_in,
+            c_out,
+            stride,
+            packed,
+            bias,
+        })
+    }
+
+    /// Input channels.
+    pub fn c_in(&self) -> usize {
+        self.c_in
+    }
+
+    /// Output channels.
+    pub fn c_out(&self) -> usize {
+        self.c_out
+    }
+
+    /// The stride (1 or 2).
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// Output rows (or columns) for `n` input ones: `(n - 1) / stride + 1`, 0 for 0.
+    pub fn out_len(&self, n: usize) -> usize {
+        if n == 0 { 0 } else { (n - 1) / self.stride + 1 }
+    }
+
+    /// The weight of output channel `o`, input channel `c`, tap `(ky, kx)`.
+    fn weight(&self, o: usize, c: usize, ky: usize, kx: usize) -> f32 {
+        let g = o / OUTS;
+        self.packed[((g * self.c_in + c) * TAPS + ky * 3 + kx) * OUTS + o % OUTS]
+    }
+
+    fn check(&self, input: &[usize], output: usize) -> Result<(), Conv3x3Error> {
+        match *input {
+            [c, h, w]
+                if c == self.c_in && output == self.c_out * self.out_len(h) * self.out_len(w) =>
+            {
+                Ok(())
+            }
+            _ => Err(Conv3x3Error::Shape {
+                input: input.to_vec(),
+                output,
+                c_in: self.c_in,
+                c_out: self.c_out,
+            }),
+        }
+    }
+
+    /// The same convolution as a one-node tract model of tract's own operator, input
+    /// `[1, C, h, w]` (tests and benchmarks compare the two).
+    pub fn tract_model(&self, h: usize, w: usize) -> TractResult<TypedModel> {
+        use tract_onnx::tract_core::ops::cnn::{Conv, KernelFormat, PaddingSpec, PoolSpec};
+        use tract_onnx::tract_core::ops::nn::DataFormat;
+        let (c, o) = (self.c_in, self.c_out);
+        let weights: Vec<f32> = (0..o * c * TAPS)
+            .map(|i| self.weight(i / (c * TAPS), i / TAPS % c, i % TAPS / 3, i % 3))
+            .collect();
+        let mut model = TypedModel::default();
+        let x = model.add_source("x", f32::fact([1, c, h, w]))?;
+        let k = model.add_const("k", Tensor::from_shape(&[o, c, 3, 3], &weights)?)?;
+        let b = model.add_const("b", Tensor::from_shape(&[o], &self.bias)?)?;
+        let conv = Conv {
+            pool_spec: PoolSpec {
+                data_format: DataFormat::NCHW,
+                kernel_shape: tvec![3, 3],
+                padding: PaddingSpec::Explicit(tvec![1, 1], tvec![1, 1]),
+                dilations: None,
+                strides: Some(tvec![self.stride, self.stride]),
+                input_channels: c,
+                output_channels: o,
+            },
+            kernel_fmt: KernelFormat::OIHW,
+            group: 1,
+            q_params: None,
+        };
+        let y = model.wire_node("conv", conv, &[x, k, b])?;
+        model.select_output_outlets(&y)?;
+        Ok(model)
+    }
+
+    /// The scalar definition: `[O, (H - 1) / s + 1, (W - 1) / s + 1]` from `[C, H, W]`, each
+    /// output the bias then, input channel by channel, kernel row by row, column by column, one
+    /// fused multiply-add per tap (a tap off the image reads 0).
+    pub fn reference(&self, input: ArrayView3<f32>) -> Result<Array3<f32>, Conv3x3Error> {
+        let (_, h, w) = input.dim();
+        let (ho, wo) = (self.out_len(h), self.out_len(w));
+        self.check(input.shape(), self.c_out * ho * wo)?;
+        let at = |c: usize, y: isize, x: isize| -> f32 {
+            if y < 0 || x < 0 || y >= h as isize || x >= w as isize {
+                0.0
+            } else {
+                input[[c, y as usize, x as usize]]
+            }
+        };
+        let s = self.stride as isize;
+        Ok(Array3::from_shape_fn((self.c_out, ho, wo), |(o, y, x)| {
+            let mut acc = self.bias[o];
+            for c in 0..self.c_in {
+                for ky in 0..3 {
+                    for kx in 0..3 {
+                        let v = at(
+                            c,
+                            y as isize * s + ky as isize - 1,
+                            x as isize * s + kx as isize - 1,
+                        );
+                        acc = self.weight(o, c, ky, kx).mul_add(v, acc);
+                    }
+                }
+            }
+            acc
+        }))
+    }
+
+    /// The convolution of `input` (`[C, H, W]`, row-major) into `output` (`[O, H', W']`, see
+    /// [`out_len`](Self::out_len)), output rows split across `pool` (or this thread when `None`).
+    pub fn run(
+        &self,
+        input: &[f32],
+        hw: (usize, usize),
+        output: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), Conv3x3Error> {
+        self.run_on(neuspike_simd::detect(), input, hw, output, pool)
+    }
+
+    /// [`run`](Self::run) compiled for `isa` (or the widest below it this CPU has).
+    pub fn run_on(
+        &self,
+        isa: neuspike_simd::Isa,
+        input: &[f32],
+        (h, w): (usize, usize),
+        output: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), Conv3x3Error> {
+        if input.len() != self.c_in * h * w {
+            return Err(Conv3x3Error::Shape {
+                input: vec![input.len()],
+                output: output.len(),
+                c_in: self.c_in,
+                c_out: self.c_out,
+            });
+        }
+        self.check(&[self.c_in, h, w], output.len())?;
+        let (ho, wo) = (self.out_len(h), self.out_len(w));
+        if ho == 0 || wo == 0 {
+            return Ok(());
+        }
+        let threads = pool.map_or(1, |p| p.current_num_threads());
+        // A few bands per thread, so a slow thread does not hold the others up.
+        let bands = if threads > 1 {
+            (4 * threads).min(ho)
+        } else {
+            1
+        };
+        let rows = ho.div_ceil(bands);
+        // Band b gets rows [b * rows, ..) of every output plane.
+        let mut tasks: Vec<(usize, Vec<&mut [f32]>)> = (0..ho.div_ceil(rows))
+            .map(|b| (b * rows, Vec::new()))
+            .collect();
+        for plane in output.chunks_mut(ho * wo) {
+            for (task, band) in tasks.iter_mut().zip(plane.chunks_mut(rows * wo)) {
+                task.1.push(band);
+            }
+        }
+        let band = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
+            neuspike_simd::with_isa(
+                isa,
+                #[inline(always)]
+                || match self.stride {
+                    1 => self.band::<1>(input, (h, w), y0, &mut planes),
+                    _ => self.band::<2>(input, (h, w), y0, &mut planes),
+                },
+            )
+        };
+        match pool {
+            Some(pool) if threads > 1 => pool.install(|| tasks.into_par_iter().for_each(band)),
+            _ => tasks.into_iter().for_each(band),
+        }
+        Ok(())
+    }
+
+    /// Output rows `y0..` of every plane in `planes` (each a band of whole rows), stride `S`.
+    ///
+    /// The kernel reads tap `(ky, kx)` of output points `x..x + 8` as one aligned vector: for
+    /// each input row it reads, each channel and each `kx`, the row is copied into a scratch row
+    /// of whole vectors, `row[x] = input[S x + kx - 1]`, 0 off the image. Three input rows are
+    /// kept (the slot of row `iy` is `iy mod 3`), so going down one output row copies only the
+    /// `S` input rows it has not read yet.
+    #[inline(always)]
+    fn band<const S: usize>(
+        &self,
+        input: &[f32],
+        (h, w): (usize, usize),
+        y0: usize,
+        planes: &mut [&mut [f32]],
+    ) {
+        let wo = self.out_len(w);
+        let nv = wo.div_ceil(LANES);
+        let wv = nv * LANES;
+        let mut scratch = vec![Vector::default(); self.c_in * 9 * nv];
+        let mut line = vec![0f32; S * (wv + 2)];
+        let mut held: [Option<isize>; 3] = [None; 3];
+        let mut out = vec![0f32; self.c_out * wv];
+        let n_rows = planes.first().map_or(0, |p| p.len() / wo);
+        for y in y0..y0 + n_rows {
+            let mut slots = [0; 3];
+            for (ky, slot) in slots.iter_mut().enumerate() {
+                let iy = (y * S + ky) as isize - 1;
+                *slot = iy.rem_euclid(3) as usize;
+                if held[*slot] != Some(iy) {
+                    let inside = usize::try_from(iy).ok().filter(|&iy| iy < h);
+                    for c in 0..self.c_in {
+                        let src = inside.map(|iy| &input[(c * h + iy) * w..][..w]);
+                        let rows = &mut scratch[(c * 9 + *slot * 3) * nv..][..3 * nv];
+                        Self::shifted::<S>(src, w, &mut line, rows);
+                    }
+                    held[*slot] = Some(iy);
+                }
+            }
+            // Tiles of points by blocks of channels, so that a group's weights for the block
+            // and the block's scratch rows for the tile stay in the L1 cache while the group
+            // walks the tile; the partial sums wait in `out` between channel blocks.
+            for x0 in (0..nv).step_by(TILE) {
+                let x1 = (x0 + TILE).min(nv);
+                for c0 in (0..self.c_in).step_by(CHANNELS) {
+                    let cs = c0..(c0 + CHANNELS).min(self.c_in);
+                    for g in 0..self.c_out / OUTS {
+                        let mut x = x0;
+                        while x + VECTORS <= x1 {
+                            let at = (x, g, cs.clone());
+                            self.block::<VECTORS>(&scratch, nv, at, slots, &mut out, wv);
+                            x += VECTORS;
+                        }
+                        while x < x1 {
+                            self.block::<1>(&scratch, nv, (x, g, cs.clone()), slots, &mut out, wv);
+                            x += 1;
+                        }
+                    }
+                }
+            }
+            for (o, plane) in planes.iter_mut().enumerate() {
+                plane[(y - y0) * wo..][..wo].copy_from_slice(&out[o * wv..][..wo]);
+            }
+        }
+    }
+
+    /// The three scratch rows (`kx` = 0, 1, 2, `nv` vectors each) of one input row `src` (`None`
+    /// off the image), through `line` (`S * (8 nv + 2)` values).
+    ///
+    /// Stride 1: `line` is the row shifted right by one, tap `kx` of point `x` at `x + kx`.
+    /// Stride 2: the even columns (`2x`: tap 1 at `x`) then the odd ones shifted right by one
+    /// (`2x - 1`: tap 0 at `x`, tap 2 at `x + 1`).
+    #[inline(always)]
+    fn shifted<const S: usize>(
+        src: Option<&[f32]>,
+        w: usize,
+        line: &mut [f32],
+        rows: &mut [Vector],
+    ) {
+        let len = line.len() / S;
+        let (first, second) = line.split_at_mut(len);
+        match (S, src) {
+            (1, Some(src)) => first[1..=w].copy_from_slice(src),
+            (_, Some(src)) => {
+                for (e, &v) in first.iter_mut().zip(src.iter().step_by(2)) {
+                    *e = v;
+                }
+                for (o, &v) in second[1..].iter_mut().zip(src.iter().skip(1).step_by(2)) {
+                    *o = v;
+                }
+            }
+            (_, None) => {
+                first.fill(0.0);
+                second.fill(0.0);
+            }
+        }
+        let taps: [(&[f32], usize); 3] = if S == 1 {
+            [(first, 0), (first, 1), (first, 2)]
+        } else {
+            [(second, 0), (first, 0), (second, 1)]
+        };
+        let nv = rows.len() / 3;
+        for (row, (from, off)) in rows.chunks_exact_mut(nv).zip(taps) {
+            for (v, from) in row.iter_mut().zip(from[off..].chunks_exact(LANES)) {
+                v.0.copy_from_slice(from);
+            }
+        }
+    }
+
+    /// Output points `8x..8x + 8P` of one row, output channels `4g..4g + 4`, input channels
+    /// `cs`, the input rows in scratch `slots` (for kernel rows 0, 1, 2), into `out`
+    /// (`[O][wv]`), which holds the sums of the channels before `cs` (the bias before the first).
+    #[inline(always)]
+    fn block<const P: usize>(
+        &self,
+        scratch: &[Vector],
+        nv: usize,
+        (x, g, cs): (usize, usize, std::ops::Range<usize>),
+        slots: [usize; 3],
+        out: &mut [f32],
+        wv: usize,
+    ) {
+        let mut acc = [[[0f32; LANES]; P]; OUTS];
+        for (o, acc) in acc.iter_mut().enumerate() {
+            if cs.start == 0 {
+                *acc = [[self.bias[g * OUTS + o]; LANES]; P];
+            } else {
+                let src = &out[(g * OUTS + o) * wv + x * LANES..][..P * LANES];
+                for (acc, src) in acc.iter_mut().zip(src.chunks_exact(LANES)) {
+                    acc.copy_from_slice(src);
+                }
+            }
+        }
+        let weights =
+            &self.packed[((g * self.c_in + cs.start) * TAPS) * OUTS..][..cs.len() * TAPS * OUTS];
+        for (c, wc) in cs.zip(weights.chunks_exact(TAPS * OUTS)) {
+            let rows = &scratch[c * 9 * nv..][..9 * nv];
+            for (&slot, wr) in slots.iter().zip(wc.chunks_exact(3 * OUTS)) {
+                for (kx, wk) in wr.chunks_exact(OUTS).enumerate() {
+                    let v = &rows[(slot * 3 + kx) * nv + x..][..P];
+                    for (acc, &wo) in acc.iter_mut().zip(wk) {
+                        for (acc, v) in acc.iter_mut().zip(v) {
+                            fma8(acc, wo, &v.0);
+                        }
+                    }
+                }
+            }
+        }
+        for (o, acc) in acc.iter().enumerate() {
+            let dst = &mut out[(g * OUTS + o) * wv + x * LANES..][..P * LANES];
+            for (dst, acc) in dst.chunks_exact_mut(LANES).zip(acc) {
+                dst.copy_from_slice(acc);
+            }
+        }
+    }
+}
+
+/// `acc += w v`, lane by lane, one rounding each (one instruction where the ISA has FMA).
+#[inline(always)]
+fn fma8(acc: &mut [f32; LANES], w: f32, v: &[f32; LANES]) {
+    for (a, &v) in acc.iter_mut().zip(v) {
+        *a = w.mul_add(v, *a);
+    }
+}
+
+/// One vector of the kernel, aligned as the instruction set likes.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(32))]
+struct Vector([f32; LANES]);
+
+/// The tract operator running a [`Conv3x3`] on `[N, C, H, W]` input.
+#[derive(Clone, Debug)]
+pub struct Conv3x3Op(pub Arc<Conv3x3>);
+
+impl PartialEq for Conv3x3Op {
+    fn eq(&self, other: &Self) -> bool {
+        let (a, b) = (&self.0, &other.0);
+        a.c_in == b.c_in
+            && a.c_out == b.c_out
+            && a.packed
+                .iter()
+                .map(|v| v.to_bits())
+                .eq(b.packed.iter().map(|v| v.to_bits()))
+            && a.bias
+                .iter()
+                .map(|v| v.to_bits())
+                .eq(b.bias.iter().map(|v| v.to_bits()))
+    }
+}
+
+impl Eq for Conv3x3Op {}
+
+impl Op for Conv3x3Op {
+    fn name(&self) -> StaticName {
+        "NeuspikeConv3x3".into()
+    }
+
+    fn info(&self) -> TractResult<Vec<String>> {
+        Ok(vec![format!(
+            "{} -> {} channels",
+            self.0.c_in, self.0.c_out
+        )])
+    }
+
+    op_as_typed_op!();
+}
+
+impl EvalOp for Conv3x3Op {
+    op_out_of_plan!();
+
+    fn eval(&self, _ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
+        let input = args_1!(inputs);
+        let &[n, c, h, w] = input.shape() else {
+            bail!(
+                "NeuspikeConv3x3 takes [N, C, H, W], got {:?}",
+                input.shape()
+            );
+        };
+        ensure!(
+            c == self.0.c_in,
+            "{c} input channels, expected {}",
+            self.0.c_in
+        );
+        let (ho, wo) = (self.0.out_len(h), self.0.out_len(w));
+        let pool = match tract_linalg::multithread::current_tract_executor() {
+            tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
+            _ => None,
+        };
+        let input = input.try_as_plain_ram()?;
+        let x = input.as_slice::<f32>()?;
+        // Allocated zeroed (fresh pages come zeroed from the system, untouched until the threads
+        // write their rows) and moved into the tensor, not copied.
+        let mut y = vec![0f32; n * self.0.c_out * ho * wo];
+        if c * h * w > 0 && ho * wo > 0 {
+            let planes = x
+                .chunks_exact(c * h * w)
+                .zip(y.chunks_exact_mut(self.0.c_out * ho * wo));
+            for (x, y) in planes {
+                self.0.run(x, (h, w), y, pool.as_deref())?;
+            }
+        }
+        let output = tract_ndarray::ArrayD::from_shape_vec(vec![n, self.0.c_out, ho, wo], y)?;
+        Ok(tvec!(output.into_tensor().into_tvalue()))
+    }
+}
+
+impl TypedOp for Conv3x3Op {
+    fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
+        let [input] = inputs else {
+            bail!("NeuspikeConv3x3 takes one input");
+        };
+        ensure!(input.datum_type == f32::datum_type() && input.rank() == 4);
+        let mut shape: TVec<TDim> = input.shape.iter().cloned().collect();
+        shape[1] = self.0.c_out.into();
+        if self.0.stride == 2 {
+            // (n - 1) / 2 + 1 for n >= 1.
+            shape[2] = shape[2].clone().div_ceil(2);
+            shape[3] = shape[3].clone().div_ceil(2);
+        }
+        Ok(tvec!(f32::fact(shape)))
+    }
+
+    as_op!();
+}
+
+/// The constant value on `outlet`, if it has one.
+fn konst(model: &TypedModel, outlet: OutletId) -> Option<Arc<Tensor>> {
+    model.outlet_fact(outlet).ok()?.konst.clone()
+}
+
+/// Output widths from which [`use_conv3x3`] is worth it in the networks. Measured on their
+/// convolutions at 256x400 (`neuspike bench-model --profile`, one thread, base width 16, AVX2):
+/// 23 against tract's 31 ms at width 400 (32 channels in), 7.9 against 9.2 ms for the stride-2
+/// layer from 400 to 200, a tie at width 200 and 32 or 64 channels, 11.4 against 8.6 ms at width
+/// 100 and 64 channels, 12.1 against 7.6 at width 50 and 128. Narrow rows of many channels are
+/// better served by tract's matrix product, which keeps twelve accumulators to our eight.
+pub const MIN_WIDTH: usize = 160;
+
+/// The [`Conv3x3`] that computes `node`, if it is a 3x3, padding-1 convolution of stride 1 or 2
+/// without dilation, groups or quantisation, on f32 NCHW input of a known width giving at least
+/// `min_width` output points per row, with constant weights and bias.
+fn as_conv3x3(model: &TypedModel, node: &TypedNode, min_width: usize) -> Option<Conv3x3> {
+    use tract_onnx::tract_core::ops::cnn::{Conv, KernelFormat, PaddingSpec};
+    use tract_onnx::tract_core::ops::nn::DataFormat;
+    let conv = node.op_as::<Conv>()?;
+    let spec = &conv.pool_spec;
+    let all =
+        |v: &Option<TVec<usize>>, n: usize| v.as_ref().is_none_or(|v| v.iter().all(|&s| s == n));
+    let stride = if all(&spec.strides, 1) {
+        1
+    } else if all(&spec.strides, 2) && spec.strides.as_ref().is_some_and(|s| s.len() == 2) {
+        2
+    } else {
+        return None;
+    };
+    let padded = match &spec.padding {
+        PaddingSpec::Explicit(before, after) => {
+            before.iter().chain(after).all(|&p| p == 1) && before.len() == 2 && after.len() == 2
+        }
+        // The same output size pads one row on each side at stride 1 only.
+        PaddingSpec::SameUpper | PaddingSpec::SameLower => stride == 1,
+        _ => false,
+    };
+    if conv.q_params.is_some()
+        || conv.group != 1
+        || conv.kernel_fmt != KernelFormat::OIHW
+        || spec.data_format != DataFormat::NCHW
+        || spec.kernel_shape.as_slice() != [3, 3]
+        || !all(&spec.dilations, 1)
+        || !padded
+        || node.inputs.len() != 3
+    {
+        return None;
+    }
+    let fact = model.outlet_fact(node.inputs[0]).ok()?;
+    if fact.datum_type != f32::datum_type() || fact.rank() != 4 {
+        return None;
+    }
+    let width = fact.shape[3].to_usize().ok()?;
+    if (width.max(1) - 1) / stride + 1 < min_width {
+        return None;
+    }
+    let kernel = konst(model, node.inputs[1])?;
+    let bias = konst(model, node.inputs[2])?;
+    // tract's ndarray is not ours: the values go across as a vector, in logical order.
+    let kernel = kernel.to_plain_array_view::<f32>().ok()?;
+    let &[o, c, kh, kw] = kernel.shape() else {
+        return None;
+    };
+    let values: Vec<f32> = kernel.iter().copied().collect();
+    let kernel = ArrayView4::from_shape((o, c, kh, kw), &values).ok()?;
+    let bias: Vec<f32> = bias
+        .to_plain_array_view::<f32>()
+        .ok()?
+        .iter()
+        .copied()
+        .collect();
+    Conv3x3::new(kernel, &bias, stride).ok()
+}
+
+/// Replaces every convolution of the (decluttered) `model` that a [`Conv3x3`] computes with
+/// output rows of at least `min_width` points ([`MIN_WIDTH`] where it pays) by a
+/// [`Conv3x3Op`]; returns how many.
+pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usize> {
+    let mut replaced = 0;
+    for id in model.eval_order()? {
+        let node = model.node(id);
+        let Some(conv) = as_conv3x3(model, node, min_width) else {
+            continue;
+        };
+        let patch = TypedModelPatch::replace_single_op(
+            model,
+            node,
+            &[node.inputs[0]],
+            Conv3x3Op(Arc::new(conv)),
+        )?;
+        patch.apply(model)?;
+        replaced += 1;
+    }
+    Ok(replaced)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::{Array1, Array4};
+    use proptest::prelude::*;
+
+    fn pattern(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| {
+                let k = (i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8;
+                (k % 2001) as f32 / 1000.0 - 1.0
+            })
+            .collect()
+    }
+
+    fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> Conv3x3 {
+        let weights =
+            Array4::from_shape_vec((c_out, c_in, 3, 3), pattern(c_out * c_in * 9, seed)).unwrap();
+        let bias = Array1::from(pattern(c_out, seed + 1));
+        Conv3x3::new(weights.view(), bias.as_slice().unwrap(), stride).unwrap()
+    }
+
+    /// The fast path on every instruction set and thread count against the reference, exactly.
+    fn check(c_in: usize, c_out: usize, stride: usize, (h, w): (usize, usize), seed: u32) {
+        let conv = conv(c_in, c_out, stride, seed);
+        let (ho, wo) = (conv.out_len(h), conv.out_len(w));
+        let input = pattern(c_in * h * w, seed + 2);
+        let view = ArrayView3::from_shape((c_in, h, w), &input).unwrap();
+        let want = conv.reference(view).unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        for isa in neuspike_simd::Isa::ALL
+            .into_iter()
+            .filter(|i| i.is_supported())
+        {
+            for pool in [None, Some(&pool)] {
+                let mut got = vec![f32::NAN; c_out * ho * wo];
+                conv.run_on(isa, &input, (h, w), &mut got, pool).unwrap();
+                assert_eq!(
+                    got.as_slice(),
+                    want.as_slice().unwrap(),
+                    "{c_in}->{c_out} at {h}x{w}, stride {stride}, {isa:?}, pool {}",
+                    pool.is_some()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn matches_the_reference_at_the_networks_sizes() {
+        check(32, 8, 1, (16, 400), 1);
+        check(8, 16, 1, (9, 200), 2);
+        check(64, 64, 1, (5, 50), 3);
+        check(8, 16, 2, (16, 400), 4);
+        check(32, 64, 2, (9, 101), 5);
+    }
+
+    #[test]
+    fn matches_the_reference_at_edges() {
+        // Widths below, at and around one vector and one block; one row; one column.
+        for (h, w) in [
+            (1, 1),
+            (1, 7),
+            (2, 8),
+            (3, 9),
+            (4, 23),
+            (5, 24),
+            (3, 25),
+            (6, 33),
+            (7, 1),
+        ] {
+            for stride in [1, 2] {
+                check(3, 4, stride, (h, w), (h * 100 + w) as u32);
+            }
+        }
+    }
+
+    #[test]
+    fn a_single_tap_is_a_shift() {
+        // Only the top-left tap is 1: output (y, x) is input (y - 1, x - 1), 0 off the image.
+        let mut weights = Array4::zeros((4, 1, 3, 3));
+        weights[[2, 0, 0, 0]] = 1.0;
+        let conv = Conv3x3::new(weights.view(), &[0.0], 1).unwrap();
+        let (h, w) = (5, 30);
+        let input: Vec<f32> = (0..h * w).map(|i| i as f32 + 1.0).collect();
+        let mut out = vec![f32::NAN; 4 * h * w];
+        conv.run(&input, (h, w), &mut out, None).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let want = if y == 0 || x == 0 {
+                    0.0
+                } else {
+                    input[(y - 1) * w + x - 1]
+                };
+                assert_eq!(out[2 * h * w + y * w + x], want, "({y}, {x})");
+                assert_eq!(out[y * w + x], 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn refuses_what_it_cannot_compute() {
+        let w = Array4::<f32>::zeros((6, 2, 3, 3));
+        assert_eq!(
+            Conv3x3::new(w.view(), &[0.0], 1).unwrap_err(),
+            Conv3x3Error::Channels(6)
+        );
+        let w = Array4::<f32>::zeros((4, 2, 5, 5));
+        assert!(matches!(
+            Conv3x3::new(w.view(), &[0.0], 1),
+            Err(Conv3x3Error::Weights(_))
+        ));
+        let w = Array4::<f32>::zeros((4, 2, 3, 3));
+        assert_eq!(
+            Conv3x3::new(w.view(), &[0.0; 3], 1).unwrap_err(),
+            Conv3x3Error::Bias {
+                got: 3,
+                channels: 4
+            }
+        );
+        assert_eq!(
+            Conv3x3::new(w.view(), &[0.0], 3).unwrap_err(),
+            Conv3x3Error::Stride(3)
+        );
+        assert_eq!(
+            Conv3x3::new(w.view(), &[0.0], 0).unwrap_err(),
+            Conv3x3Error::Stride(0)
+        );
+        let conv = Conv3x3::new(w.view(), &[0.0; 4], 1).unwrap();
+        let mut out = vec![0.0; 4 * 6];
+        assert!(conv.run(&[0.0; 5], (2, 3), &mut out, None).is_err());
+        assert!(conv.run(&[0.0; 12], (2, 3), &mut out[..5], None).is_err());
+        // Stride 2 writes ceil(2 / 2) x ceil(3 / 2) points per channel, not 2 x 3.
+        let conv = Conv3x3::new(w.view(), &[0.0; 4], 2).unwrap();
+        assert!(conv.run(&[0.0; 12], (2, 3), &mut out, None).is_err());
+        assert!(conv.run(&[0.0; 12], (2, 3), &mut out[..8], None).is_ok());
+    }
+
+    /// A model of one tract `Conv` (3x3, padding 1, `stride`) and its input.
+    fn one_conv(c: usize, o: usize, stride: usize, (h, w): (usize, usize)) -> (TypedModel, Tensor) {
+        let model = conv(c, o, stride, 7).tract_model(h, w).unwrap();
+        let input = Tensor::from_shape(&[1, c, h, w], &pattern(c * h * w, 9)).unwrap();
+        (model, input)
+    }
+
+    #[test]
+    fn the_operator_computes_what_tracts_convolution_does() {
+        for (stride, (h, w)) in [(1, (7, 19)), (2, (8, 20)), (2, (7, 19)), (2, (1, 2))] {
+            let (model, input) = one_conv(5, 8, stride, (h, w));
+            let run = |model: TypedModel| {
+                let plan = model.into_optimized().unwrap().into_runnable().unwrap();
+                let out = plan.run(tvec![input.clone().into_tvalue()]).unwrap();
+                out[0].clone().into_tensor()
+            };
+            let want = run(model.clone());
+            let mut ours = model;
+            assert_eq!(
+                use_conv3x3(&mut ours.clone(), w.div_ceil(stride) + 1).unwrap(),
+                0
+            );
+            assert_eq!(use_conv3x3(&mut ours, w.div_ceil(stride)).unwrap(), 1);
+            assert!(ours.nodes().iter().any(|n| n.op_is::<Conv3x3Op>()));
+            let got = run(ours);
+            assert_eq!(got.shape(), want.shape(), "stride {stride}, {h}x{w}");
+            let got = got
+                .to_plain_array_view::<f32>()
+                .unwrap()
+                .iter()
+                .copied()
+                .collect::<Vec<_>>();
+            let want = want
+                .to_plain_array_view::<f32>()
+                .unwrap()
+                .iter()
+                .copied()
+                .collect::<Vec<_>>();
+            for (i, (g, w)) in got.iter().zip(want).enumerate() {
+                // 45 products of values below 1 in another order: a few ulps of 45.
+                assert!(
+                    (g - w).abs() < 1e-4,
+                    "stride {stride}, {h}x{w}, value {i}: {g} vs {w}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn convolutions_it_cannot_compute_are_left_to_tract() {
+        use tract_onnx::tract_core::ops::cnn::Conv;
+        for (o, stride) in [(6, 1), (8, 3)] {
+            // A stride-1 model with the stride or the channels changed behind the kernel's back.
+            let mut conv = conv(3, 8, 1, 7);
+            conv.stride = stride;
+            conv.c_out = o;
+            conv.bias.truncate(o);
+            let mut model = conv.tract_model(9, 9).unwrap();
+            assert_eq!(
+                use_conv3x3(&mut model, 1).unwrap(),
+                0,
+                "{o} outputs, stride {stride}"
+            );
+            assert!(model.nodes().iter().any(|n| n.op_is::<Conv>()));
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        #[test]
+        fn matches_the_reference_anywhere(
+            c_in in 1usize..6, groups in 1usize..4, stride in 1usize..=2, h in 1usize..9,
+            w in 1usize..60, seed: u32
+        ) {
+            check(c_in, 4 * groups, stride, (h, w), seed);
+        }
+    }
+}
