@@ -183,7 +183,8 @@ def main() -> None:
         f"`neuspike bench-model models/{name}.onnx --height 256 --width 400` and "
         f"`python training/bench_ort.py models/{name}.onnx --height 256 --width 400`: median of "
         f"{args.runs} runs after a warm-up, the same input pattern. tract's convolutions are those the infer node's default "
-        "`--conv auto` chose (it times both paths on the first frame and keeps the faster) "
+        "`--conv auto` chose (it times each path, tract's direct convolution, im2col, and neuspike's "
+        "3x3 kernel on the wide layers, on the first frame and keeps the fastest) "
         "with mimalloc, and its time includes copying the inputs into the padded tensor, as the node "
         "does; onnxruntime's does not.",
         "",

@@ -1,20 +1,25 @@
-//! The 3x3 convolution of the learned networks (stride 1, padding 1, no groups), register-blocked,
-//! and the tract operator that runs it in place of tract's own.
+//! The 3x3 convolution of the learned networks (padding 1, stride 1 or 2, no groups),
+//! register-blocked, and the tract operator that runs it in place of tract's own.
 //!
-//! Most of a NeuSpike-Net's time goes to these convolutions at full and half resolution (the
-//! encoders' heads, 32 channels in; the decoder's merges). tract computes them either as im2col
-//! and a matrix product, which writes a 9x copy of the input, or as its direct convolution, which
-//! keeps 4 output channels by 16 points in registers and reads, per tap, an offset, two input
-//! vectors and four weights for eight multiply-adds. [`Conv3x3`] keeps 4 output channels by 24
-//! points (12 vector accumulators) and walks the taps in a fixed order (input channel, row,
-//! column), so a tap costs three input vectors and four weights for twelve multiply-adds and no
-//! offset table. The three input rows an output row reads are first copied, per channel, into a
-//! zero-bordered scratch row, so the kernel has no edge cases. Output rows are split across
-//! tract's thread pool.
+//! Most of a NeuSpike-Net's time goes to 3x3 convolutions, the longest at full and half
+//! resolution (the encoders' heads and first layers, the decoder's last merges). There tract
+//! either copies the input 9 times (im2col) for a matrix product, or runs its direct convolution,
+//! which walks an offset table per tap. [`Conv3x3`] keeps 4 output channels by 16 points in
+//! registers (8 vector accumulators) and reads each tap of 8 points as one aligned vector: every
+//! input row it reads is copied once per channel into three rows of whole vectors, one per
+//! column shift (`row[x] = input[s x + kx - 1]`, 0 off the image), and the three input rows of an
+//! output row are kept in a ring, so going down a row copies only the new ones. Input channels
+//! are taken 8 at a time, the partial sums waiting in an output row between blocks. Output rows
+//! are split in bands across tract's thread pool.
 //!
-//! [`Conv3x3::reference`] is the scalar definition; the fast path takes the same products in the
-//! same order (bias, then input channel, kernel row, kernel column; a tap outside the image reads
-//! 0), without fused multiply-adds, so the two agree exactly on every instruction set.
+//! On narrow rows of many channels tract's matrix product, with 12 hand-scheduled accumulators to
+//! our 8, is faster: [`use_conv3x3`] takes over only rows of at least [`MIN_WIDTH`] points.
+//! (Twelve accumulators written as plain loops were left unvectorised or spilled by the
+//! compiler.)
+//!
+//! [`Conv3x3::reference`] is the scalar definition; the fast path takes the same fused
+//! multiply-adds in the same order (bias, then input channel, kernel row, kernel column), so the
+//! two agree exactly on every instruction set.
 
 use std::sync::Arc;
 
@@ -288,14 +293,16 @@ impl Conv3x3 {
             }
         }
         let band = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
-            neuspike_simd::with_isa(
-                isa,
-                #[inline(always)]
-                || match self.stride {
-                    1 => self.band::<1>(input, (h, w), y0, &mut planes),
-                    _ => self.band::<2>(input, (h, w), y0, &mut planes),
-                },
-            )
+            BUFFERS.with_borrow_mut(|buffers| {
+                neuspike_simd::with_isa(
+                    isa,
+                    #[inline(always)]
+                    || match self.stride {
+                        1 => self.band::<1>(input, (h, w), y0, &mut planes, buffers),
+                        _ => self.band::<2>(input, (h, w), y0, &mut planes, buffers),
+                    },
+                )
+            })
         };
         match pool {
             Some(pool) if threads > 1 => pool.install(|| tasks.into_par_iter().for_each(band)),
@@ -318,14 +325,20 @@ impl Conv3x3 {
         (h, w): (usize, usize),
         y0: usize,
         planes: &mut [&mut [f32]],
+        buffers: &mut Buffers,
     ) {
         let wo = self.out_len(w);
         let nv = wo.div_ceil(LANES);
         let wv = nv * LANES;
-        let mut scratch = vec![Vector::default(); self.c_in * 9 * nv];
-        let mut line = vec![0f32; S * (wv + 2)];
+        let Buffers { scratch, line, out } = buffers;
+        // Zeroed: the copies below leave the values off the image untouched.
+        for (buffer, len) in [(&mut *line, S * (wv + 2)), (&mut *out, self.c_out * wv)] {
+            buffer.clear();
+            buffer.resize(len, 0.0);
+        }
+        scratch.clear();
+        scratch.resize(self.c_in * 9 * nv, Vector::default());
         let mut held: [Option<isize>; 3] = [None; 3];
-        let mut out = vec![0f32; self.c_out * wv];
         let n_rows = planes.first().map_or(0, |p| p.len() / wo);
         for y in y0..y0 + n_rows {
             let mut slots = [0; 3];
@@ -337,7 +350,7 @@ impl Conv3x3 {
                     for c in 0..self.c_in {
                         let src = inside.map(|iy| &input[(c * h + iy) * w..][..w]);
                         let rows = &mut scratch[(c * 9 + *slot * 3) * nv..][..3 * nv];
-                        Self::shifted::<S>(src, w, &mut line, rows);
+                        Self::shifted::<S>(src, w, line, rows);
                     }
                     held[*slot] = Some(iy);
                 }
@@ -353,11 +366,11 @@ impl Conv3x3 {
                         let mut x = x0;
                         while x + VECTORS <= x1 {
                             let at = (x, g, cs.clone());
-                            self.block::<VECTORS>(&scratch, nv, at, slots, &mut out, wv);
+                            self.block::<VECTORS>(scratch, nv, at, slots, out, wv);
                             x += VECTORS;
                         }
                         while x < x1 {
-                            self.block::<1>(&scratch, nv, (x, g, cs.clone()), slots, &mut out, wv);
+                            self.block::<1>(scratch, nv, (x, g, cs.clone()), slots, out, wv);
                             x += 1;
                         }
                     }
@@ -466,6 +479,22 @@ fn fma8(acc: &mut [f32; LANES], w: f32, v: &[f32; LANES]) {
     for (a, &v) in acc.iter_mut().zip(v) {
         *a = w.mul_add(v, *a);
     }
+}
+
+/// The working rows of [`Conv3x3::band`], kept per thread from one band to the next: fresh
+/// allocations of this size come from the system as pages faulted in on first touch.
+#[derive(Default)]
+struct Buffers {
+    /// Shifted input rows, `[C][3 slots][3 kx][nv]` vectors.
+    scratch: Vec<Vector>,
+    /// One input row rearranged for its shifts (`S * (8 nv + 2)` values).
+    line: Vec<f32>,
+    /// One output row of every channel, `[O][8 nv]`.
+    out: Vec<f32>,
+}
+
+thread_local! {
+    static BUFFERS: std::cell::RefCell<Buffers> = std::cell::RefCell::default();
 }
 
 /// One vector of the kernel, aligned as the instruction set likes.
