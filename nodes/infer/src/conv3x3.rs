@@ -355,9 +355,10 @@ impl Conv3x3 {
                     held[*slot] = Some(iy);
                 }
             }
-            // Tiles of points by blocks of channels, so that a group's weights for the block
-            // and the block's scratch rows for the tile stay in the L1 cache while the group
-            // walks the tile; the partial sums wait in `out` between channel blocks.
+            // Tiles of points by blocks of channels, the partial sums waiting in `out` between
+            // blocks: meant to keep a group's weights and the tile's scratch rows in the L1
+            // cache, though 4x8, 8x4 and 2x16 (vectors x channels) and untiled rows all timed
+            // alike in `bench_conv3x3`, within this machine's noise.
             for x0 in (0..nv).step_by(TILE) {
                 let x1 = (x0 + TILE).min(nv);
                 for c0 in (0..self.c_in).step_by(CHANNELS) {
