@@ -1,7 +1,9 @@
 //! Run-time choice of the vector instruction set for the kernels of neuspike.
 //!
-//! The kernels are written as plain loops without branches over fixed-size blocks, which the
-//! compiler vectorises. Compiled for the baseline x86-64 target they get 128-bit vectors; the
+//! Most kernels are written as plain loops without branches over fixed-size blocks, which the
+//! compiler vectorises; the one that needs more accumulators than the vectoriser keeps in
+//! registers, [`taps::accumulate`] (a convolution's inner loop), is written here with each
+//! instruction set's intrinsics. Compiled for the baseline x86-64 target they get 128-bit vectors; the
 //! machines we run on mostly have AVX2 or AVX-512. [`with_isa`] runs a kernel inside a function
 //! compiled for the widest instruction set the CPU has (checked once, at run time), so one binary
 //! is both portable and fast. This crate holds the only `unsafe` of the project: calling a
@@ -15,6 +17,8 @@
 //! set, one instruction on [`Isa::Avx2`] and [`Isa::Avx512`] (both include FMA), a call to the
 //! C library's exact `fmaf` on [`Isa::Baseline`] (slow, but the same bits).
 #![deny(missing_docs)]
+
+pub mod taps;
 
 /// The instruction sets kernels can be compiled for, narrowest first (so `a <= b` says that code
 /// for `a` runs wherever code for `b` does).

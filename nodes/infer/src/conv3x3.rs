@@ -4,18 +4,18 @@
 //! Most of a NeuSpike-Net's time goes to 3x3 convolutions, the longest at full and half
 //! resolution (the encoders' heads and first layers, the decoder's last merges). There tract
 //! either copies the input 9 times (im2col) for a matrix product, or runs its direct convolution,
-//! which walks an offset table per tap. [`Conv3x3`] keeps 4 output channels by 16 points in
-//! registers (8 vector accumulators) and reads each tap of 8 points as one aligned vector: every
-//! input row it reads is copied once per channel into three rows of whole vectors, one per
-//! column shift (`row[x] = input[s x + kx - 1]`, 0 off the image), and the three input rows of an
-//! output row are kept in a ring, so going down a row copies only the new ones. Input channels
-//! are taken 8 at a time, the partial sums waiting in an output row between blocks. Output rows
-//! are split in bands across tract's thread pool.
+//! which walks an offset table per tap. [`Conv3x3`] copies every input row it reads once per
+//! channel into a scratch row padded with the zeros off the image (stride 2: its even and its odd
+//! columns apart), so each of the 9 taps of a run of output points is one run of memory at a
+//! fixed offset. The three input rows of an output row are kept in a ring, so going down a row
+//! copies only the new ones. [`neuspike_simd::taps::accumulate`] then holds 4 output channels
+//! by 24 (AVX2) or 96 (AVX-512) points in registers, 12 or 24 accumulators, through the taps of
+//! 8 input channels at a time, the partial sums waiting in an output row between blocks. Output
+//! rows are split in bands across tract's thread pool.
 //!
-//! On narrow rows of many channels tract's matrix product, with 12 hand-scheduled accumulators to
-//! our 8, is faster: [`use_conv3x3`] takes over only rows of at least [`MIN_WIDTH`] points.
-//! (Twelve accumulators written as plain loops were left unvectorised or spilled by the
-//! compiler.)
+//! On narrow rows tract's matrix product is as fast or faster (a row is computed in whole
+//! vectors, so 50 points cost 64): [`use_conv3x3`] takes over only rows of at least
+//! [`MIN_WIDTH`] points.
 //!
 //! [`Conv3x3::reference`] is the scalar definition; the fast path takes the same fused
 //! multiply-adds in the same order (bias, then input channel, kernel row, kernel column), so the
@@ -24,20 +24,15 @@
 use std::sync::Arc;
 
 use ndarray::{Array3, ArrayView3, ArrayView4};
+use neuspike_simd::taps::{self, POINTS, Taps};
 use rayon::prelude::*;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::internal::*;
 
-/// Lanes of one vector of the kernel (one AVX2 register of `f32`).
-const LANES: usize = 8;
-/// Vectors of output points one block keeps in registers.
-const VECTORS: usize = 2;
 /// Output channels one block keeps in registers.
-const OUTS: usize = 4;
+const OUTS: usize = taps::OUTS;
 /// Taps of the kernel.
 const TAPS: usize = 9;
-/// Vectors of output points of one tile of a row.
-const TILE: usize = 4;
 /// Input channels of one block.
 const CHANNELS: usize = 8;
 
@@ -298,8 +293,8 @@ impl Conv3x3 {
                     isa,
                     #[inline(always)]
                     || match self.stride {
-                        1 => self.band::<1>(input, (h, w), y0, &mut planes, buffers),
-                        _ => self.band::<2>(input, (h, w), y0, &mut planes, buffers),
+                        1 => self.band::<1>(isa, input, (h, w), y0, &mut planes, buffers),
+                        _ => self.band::<2>(isa, input, (h, w), y0, &mut planes, buffers),
                     },
                 )
             })
@@ -313,14 +308,15 @@ impl Conv3x3 {
 
     /// Output rows `y0..` of every plane in `planes` (each a band of whole rows), stride `S`.
     ///
-    /// The kernel reads tap `(ky, kx)` of output points `x..x + 8` as one aligned vector: for
-    /// each input row it reads, each channel and each `kx`, the row is copied into a scratch row
-    /// of whole vectors, `row[x] = input[S x + kx - 1]`, 0 off the image. Three input rows are
-    /// kept (the slot of row `iy` is `iy mod 3`), so going down one output row copies only the
-    /// `S` input rows it has not read yet.
+    /// The kernel reads tap `(ky, kx)` of a row of output points as one run of memory: each
+    /// input row it reads is copied, channel by channel, into `S` scratch rows of `len` values
+    /// (see [`padded`](Self::padded)), where tap `kx` of point `x` lies at a fixed offset from `x`.
+    /// Three input rows are kept (the slot of row `iy` is `iy mod 3`), so going down one output
+    /// row copies only the `S` input rows it has not read yet.
     #[inline(always)]
     fn band<const S: usize>(
         &self,
+        isa: neuspike_simd::Isa,
         input: &[f32],
         (h, w): (usize, usize),
         y0: usize,
@@ -328,16 +324,18 @@ impl Conv3x3 {
         buffers: &mut Buffers,
     ) {
         let wo = self.out_len(w);
-        let nv = wo.div_ceil(LANES);
-        let wv = nv * LANES;
-        let Buffers { scratch, line, out } = buffers;
-        // Zeroed: the copies below leave the values off the image untouched.
-        for (buffer, len) in [(&mut *line, S * (wv + 2)), (&mut *out, self.c_out * wv)] {
-            buffer.clear();
-            buffer.resize(len, 0.0);
-        }
-        scratch.clear();
-        scratch.resize(self.c_in * 9 * nv, Vector::default());
+        // Whole vectors of output points; a scratch row also holds the taps of the last point,
+        // up to 2 past it, and keeps the next row on a 64-byte boundary.
+        let wv = wo.div_ceil(POINTS) * POINTS;
+        let len = wv + POINTS;
+        let Buffers {
+            scratch,
+            out,
+            offsets,
+        } = buffers;
+        out.resize(self.c_out * wv, 0.0);
+        // `[C][3 slots][S][len]`; every slot is written before it is read.
+        let scratch = aligned(scratch, self.c_in * 3 * S * len);
         let mut held: [Option<isize>; 3] = [None; 3];
         let n_rows = planes.first().map_or(0, |p| p.len() / wo);
         for y in y0..y0 + n_rows {
@@ -349,33 +347,36 @@ impl Conv3x3 {
                     let inside = usize::try_from(iy).ok().filter(|&iy| iy < h);
                     for c in 0..self.c_in {
                         let src = inside.map(|iy| &input[(c * h + iy) * w..][..w]);
-                        let rows = &mut scratch[(c * 9 + *slot * 3) * nv..][..3 * nv];
-                        Self::shifted::<S>(src, w, line, rows);
+                        let rows = &mut scratch[(c * 3 + *slot) * S * len..][..S * len];
+                        Self::padded::<S>(src, rows);
                     }
                     held[*slot] = Some(iy);
                 }
             }
-            // Tiles of points by blocks of channels, the partial sums waiting in `out` between
-            // blocks: meant to keep a group's weights and the tile's scratch rows in the L1
-            // cache, though 4x8, 8x4 and 2x16 (vectors x channels) and untiled rows all timed
-            // alike in `bench_conv3x3`, within this machine's noise.
-            for x0 in (0..nv).step_by(TILE) {
-                let x1 = (x0 + TILE).min(nv);
-                for c0 in (0..self.c_in).step_by(CHANNELS) {
-                    let cs = c0..(c0 + CHANNELS).min(self.c_in);
-                    for g in 0..self.c_out / OUTS {
-                        let mut x = x0;
-                        while x + VECTORS <= x1 {
-                            let at = (x, g, cs.clone());
-                            self.block::<VECTORS>(scratch, nv, at, slots, out, wv);
-                            x += VECTORS;
-                        }
-                        while x < x1 {
-                            self.block::<1>(scratch, nv, (x, g, cs.clone()), slots, out, wv);
-                            x += 1;
-                        }
+            for (row, &bias) in out.chunks_exact_mut(wv).zip(&self.bias) {
+                row.fill(bias);
+            }
+            // Blocks of input channels, the partial sums waiting in `out` between blocks, so a
+            // block's tap rows for the points in registers stay in the L1 cache.
+            for c0 in (0..self.c_in).step_by(CHANNELS) {
+                offsets.clear();
+                for c in c0..(c0 + CHANNELS).min(self.c_in) {
+                    for slot in slots {
+                        let at = (c * 3 + slot) * S * len;
+                        offsets.extend(if S == 1 {
+                            [at, at + 1, at + 2]
+                        } else {
+                            [at + len, at, at + len + 1]
+                        });
                     }
                 }
+                let taps = Taps {
+                    rows: scratch,
+                    offsets,
+                    weights: &self.packed[c0 * TAPS * OUTS..],
+                    group_stride: self.c_in * TAPS * OUTS,
+                };
+                taps::accumulate(isa, &taps, out, wv, self.c_out / OUTS, wv);
             }
             for (o, plane) in planes.iter_mut().enumerate() {
                 plane[(y - y0) * wo..][..wo].copy_from_slice(&out[o * wv..][..wo]);
@@ -383,102 +384,36 @@ impl Conv3x3 {
         }
     }
 
-    /// The three scratch rows (`kx` = 0, 1, 2, `nv` vectors each) of one input row `src` (`None`
-    /// off the image), through `line` (`S * (8 nv + 2)` values).
+    /// The `S` scratch rows (`len` values each) of one input row `src` (`None` off the image),
+    /// 0 wherever a tap falls off the image.
     ///
-    /// Stride 1: `line` is the row shifted right by one, tap `kx` of point `x` at `x + kx`.
-    /// Stride 2: the even columns (`2x`: tap 1 at `x`) then the odd ones shifted right by one
+    /// Stride 1: the row shifted right by one, tap `kx` of point `x` at `x + kx`.
+    /// Stride 2: the even columns (`2x`: tap 1 at `x`), then the odd ones shifted right by one
     /// (`2x - 1`: tap 0 at `x`, tap 2 at `x + 1`).
     #[inline(always)]
-    fn shifted<const S: usize>(
-        src: Option<&[f32]>,
-        w: usize,
-        line: &mut [f32],
-        rows: &mut [Vector],
-    ) {
-        let len = line.len() / S;
-        let (first, second) = line.split_at_mut(len);
-        match (S, src) {
-            (1, Some(src)) => first[1..=w].copy_from_slice(src),
-            (_, Some(src)) => {
-                for (e, &v) in first.iter_mut().zip(src.iter().step_by(2)) {
-                    *e = v;
-                }
-                for (o, &v) in second[1..].iter_mut().zip(src.iter().skip(1).step_by(2)) {
-                    *o = v;
-                }
-            }
-            (_, None) => {
-                first.fill(0.0);
-                second.fill(0.0);
-            }
-        }
-        let taps: [(&[f32], usize); 3] = if S == 1 {
-            [(first, 0), (first, 1), (first, 2)]
-        } else {
-            [(second, 0), (first, 0), (second, 1)]
+    fn padded<const S: usize>(src: Option<&[f32]>, rows: &mut [f32]) {
+        let Some(src) = src else {
+            rows.fill(0.0);
+            return;
         };
-        let nv = rows.len() / 3;
-        for (row, (from, off)) in rows.chunks_exact_mut(nv).zip(taps) {
-            for (v, from) in row.iter_mut().zip(from[off..].chunks_exact(LANES)) {
-                v.0.copy_from_slice(from);
+        let w = src.len();
+        let (first, second) = rows.split_at_mut(rows.len() / S);
+        if S == 1 {
+            first[0] = 0.0;
+            first[1..=w].copy_from_slice(src);
+            first[w + 1..].fill(0.0);
+        } else {
+            let (evens, odds) = (w.div_ceil(2), w / 2);
+            for (e, &v) in first.iter_mut().zip(src.iter().step_by(2)) {
+                *e = v;
             }
-        }
-    }
-
-    /// Output points `8x..8x + 8P` of one row, output channels `4g..4g + 4`, input channels
-    /// `cs`, the input rows in scratch `slots` (for kernel rows 0, 1, 2), into `out`
-    /// (`[O][wv]`), which holds the sums of the channels before `cs` (the bias before the first).
-    #[inline(always)]
-    fn block<const P: usize>(
-        &self,
-        scratch: &[Vector],
-        nv: usize,
-        (x, g, cs): (usize, usize, std::ops::Range<usize>),
-        slots: [usize; 3],
-        out: &mut [f32],
-        wv: usize,
-    ) {
-        let mut acc = [[[0f32; LANES]; P]; OUTS];
-        for (o, acc) in acc.iter_mut().enumerate() {
-            if cs.start == 0 {
-                *acc = [[self.bias[g * OUTS + o]; LANES]; P];
-            } else {
-                let src = &out[(g * OUTS + o) * wv + x * LANES..][..P * LANES];
-                for (acc, src) in acc.iter_mut().zip(src.chunks_exact(LANES)) {
-                    acc.copy_from_slice(src);
-                }
+            first[evens..].fill(0.0);
+            second[0] = 0.0;
+            for (o, &v) in second[1..].iter_mut().zip(src.iter().skip(1).step_by(2)) {
+                *o = v;
             }
+            second[odds + 1..].fill(0.0);
         }
-        let weights =
-            &self.packed[((g * self.c_in + cs.start) * TAPS) * OUTS..][..cs.len() * TAPS * OUTS];
-        for (c, wc) in cs.zip(weights.chunks_exact(TAPS * OUTS)) {
-            let rows = &scratch[c * 9 * nv..][..9 * nv];
-            for (&slot, wr) in slots.iter().zip(wc.chunks_exact(3 * OUTS)) {
-                for (kx, wk) in wr.chunks_exact(OUTS).enumerate() {
-                    let v = &rows[(slot * 3 + kx) * nv + x..][..P];
-                    for (acc, &wo) in acc.iter_mut().zip(wk) {
-                        for (acc, v) in acc.iter_mut().zip(v) {
-                            fma8(acc, wo, &v.0);
-                        }
-                    }
-                }
-            }
-        }
-        for (o, acc) in acc.iter().enumerate() {
-            let dst = &mut out[(g * OUTS + o) * wv + x * LANES..][..P * LANES];
-            for (dst, acc) in dst.chunks_exact_mut(LANES).zip(acc) {
-                dst.copy_from_slice(acc);
-            }
-        }
-    }
-}
-
-/// `acc += w v`, lane by lane, one rounding each (one instruction where the ISA has FMA).
-#[inline(always)]
-fn fma8(acc: &mut [f32; LANES], w: f32, v: &[f32; LANES]) {
-    for (a, &v) in acc.iter_mut().zip(v) {
-        *a = w.mul_add(v, *a);
     }
 }
 
@@ -486,22 +421,29 @@ fn fma8(acc: &mut [f32; LANES], w: f32, v: &[f32; LANES]) {
 /// allocations of this size come from the system as pages faulted in on first touch.
 #[derive(Default)]
 struct Buffers {
-    /// Shifted input rows, `[C][3 slots][3 kx][nv]` vectors.
-    scratch: Vec<Vector>,
-    /// One input row rearranged for its shifts (`S * (8 nv + 2)` values).
-    line: Vec<f32>,
-    /// One output row of every channel, `[O][8 nv]`.
+    /// Input rows padded for the taps, `[C][3 slots][S][len]` values, from a 64-byte boundary.
+    scratch: Vec<f32>,
+    /// One output row of every channel, `[O][wv]`.
     out: Vec<f32>,
+    /// The offsets of one block's tap rows in the scratch rows.
+    offsets: Vec<usize>,
 }
 
 thread_local! {
     static BUFFERS: std::cell::RefCell<Buffers> = std::cell::RefCell::default();
 }
 
-/// One vector of the kernel, aligned as the instruction set likes.
-#[derive(Clone, Copy, Debug, Default)]
-#[repr(C, align(32))]
-struct Vector([f32; LANES]);
+/// `len` values of `buffer` from its first 64-byte boundary (a cache line, and an AVX-512
+/// vector), growing it as needed; the values are whatever was there.
+fn aligned(buffer: &mut Vec<f32>, len: usize) -> &mut [f32] {
+    const VALUES: usize = 64 / std::mem::size_of::<f32>();
+    if buffer.len() < len + VALUES {
+        buffer.resize(len + VALUES, 0.0);
+    }
+    let skew = buffer.as_ptr().addr() % 64 / std::mem::size_of::<f32>();
+    let start = (VALUES - skew) % VALUES;
+    &mut buffer[start..start + len]
+}
 
 /// The tract operator running a [`Conv3x3`] on `[N, C, H, W]` input.
 #[derive(Clone, Debug)]
@@ -603,13 +545,12 @@ fn konst(model: &TypedModel, outlet: OutletId) -> Option<Arc<Tensor>> {
     model.outlet_fact(outlet).ok()?.konst.clone()
 }
 
-/// Output widths from which [`use_conv3x3`] is worth it in the networks. Measured on their
-/// convolutions at 256x400 (`neuspike bench-model --profile`, one thread, base width 16, AVX2):
-/// 23 against tract's 31 ms at width 400 (32 channels in), 7.9 against 9.2 ms for the stride-2
-/// layer from 400 to 200, a tie at width 200 and 32 or 64 channels, 11.4 against 8.6 ms at width
-/// 100 and 64 channels, 12.1 against 7.6 at width 50 and 128. Narrow rows of many channels are
-/// better served by tract's matrix product, which keeps twelve accumulators to our eight.
-pub const MIN_WIDTH: usize = 160;
+/// Output widths from which [`use_conv3x3`] is worth it. Measured with `neuspike bench-model
+/// --profile` (one thread, base width 16, 256x400, AVX-512) and `bench_conv3x3`: ours is faster
+/// than tract's best path at widths 400, 200 and 100 (5.7 against 7.0 ms for the 64-to-32
+/// merge at width 100, 2.7 against 3.5 for the 64-channel layers there), 1.07x slower at width
+/// 50 and 128 channels, where a row of 50 points is computed as 64.
+pub const MIN_WIDTH: usize = 80;
 
 /// The [`Conv3x3`] that computes `node`, if it is a 3x3, padding-1 convolution of stride 1 or 2
 /// without dilation, groups or quantisation, on f32 NCHW input of a known width giving at least
