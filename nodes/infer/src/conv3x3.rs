@@ -46,6 +46,8 @@ pub struct Conv3x3 {
     /// the four weights side by side.
     packed: Vec<f32>,
     bias: Vec<f32>,
+    /// Whether the output goes through `max(0, y)` (a ReLU after the convolution).
+    relu: bool,
 }
 
 /// Why a convolution cannot be a [`Conv3x3`].
@@ -126,7 +128,18 @@ impl Conv3x3 {
             stride,
             packed,
             bias,
+            relu: false,
         })
+    }
+
+    /// The same convolution followed by a ReLU, `y.max(0.0)` (0 for NaN, as tract's `Max`).
+    pub fn with_relu(self) -> Conv3x3 {
+        Conv3x3 { relu: true, ..self }
+    }
+
+    /// Whether a ReLU follows the convolution.
+    pub fn relu(&self) -> bool {
+        self.relu
     }
 
     /// Input channels.
@@ -198,7 +211,12 @@ impl Conv3x3 {
             group: 1,
             q_params: None,
         };
-        let y = model.wire_node("conv", conv, &[x, k, b])?;
+        let mut y = model.wire_node("conv", conv, &[x, k, b])?;
+        if self.relu {
+            let zero = model.add_const("zero", tensor4(&[[[[0f32]]]]))?;
+            let relu = tract_onnx::tract_core::ops::math::max();
+            y = model.wire_node("relu", relu, &[y[0], zero])?;
+        }
         model.select_output_outlets(&y)?;
         Ok(model)
     }
@@ -232,7 +250,7 @@ impl Conv3x3 {
                     }
                 }
             }
-            acc
+            if self.relu { acc.max(0.0) } else { acc }
         }))
     }
 
@@ -379,7 +397,14 @@ impl Conv3x3 {
                 taps::accumulate(isa, &taps, out, wv, self.c_out / OUTS, wv);
             }
             for (o, plane) in planes.iter_mut().enumerate() {
-                plane[(y - y0) * wo..][..wo].copy_from_slice(&out[o * wv..][..wo]);
+                let (dst, src) = (&mut plane[(y - y0) * wo..][..wo], &out[o * wv..][..wo]);
+                if self.relu {
+                    for (d, &v) in dst.iter_mut().zip(src) {
+                        *d = v.max(0.0);
+                    }
+                } else {
+                    dst.copy_from_slice(src);
+                }
             }
         }
     }
@@ -454,6 +479,8 @@ impl PartialEq for Conv3x3Op {
         let (a, b) = (&self.0, &other.0);
         a.c_in == b.c_in
             && a.c_out == b.c_out
+            && a.stride == b.stride
+            && a.relu == b.relu
             && a.packed
                 .iter()
                 .map(|v| v.to_bits())
@@ -473,9 +500,10 @@ impl Op for Conv3x3Op {
     }
 
     fn info(&self) -> TractResult<Vec<String>> {
+        let relu = if self.0.relu { ", then ReLU" } else { "" };
         Ok(vec![format!(
-            "{} -> {} channels",
-            self.0.c_in, self.0.c_out
+            "{} -> {} channels, stride {}{relu}",
+            self.0.c_in, self.0.c_out, self.0.stride
         )])
     }
 
@@ -614,9 +642,33 @@ fn as_conv3x3(model: &TypedModel, node: &TypedNode, min_width: usize) -> Option<
     Conv3x3::new(kernel, &bias, stride).ok()
 }
 
+/// The node of `model` that only applies a ReLU to `node`'s output, if its output has no other
+/// use: `max(y, 0)` (how tract-onnx writes ONNX's `Relu`) against a constant of zeros that does
+/// not broadcast `y` to a larger shape.
+fn relu_after(model: &TypedModel, node: &TypedNode) -> Option<usize> {
+    use tract_onnx::tract_core::ops::binary::TypedBinOp;
+    let out = OutletId::new(node.id, 0);
+    let [next] = node.outputs.first()?.successors.as_slice() else {
+        return None;
+    };
+    if model.output_outlets().ok()?.contains(&out) {
+        return None;
+    }
+    let relu = model.node(next.node);
+    let max = relu.op_as::<TypedBinOp>()?;
+    if max.0.name() != "Max" || relu.inputs.len() != 2 {
+        return None;
+    }
+    let zero = konst(model, relu.inputs[1 - next.slot])?;
+    let zero = zero.to_plain_array_view::<f32>().ok()?;
+    let same_shape = model.outlet_fact(OutletId::new(relu.id, 0)).ok()?.shape
+        == model.outlet_fact(out).ok()?.shape;
+    (same_shape && zero.iter().all(|&v| v == 0.0)).then_some(relu.id)
+}
+
 /// Replaces every convolution of the (decluttered) `model` that a [`Conv3x3`] computes with
 /// output rows of at least `min_width` points ([`MIN_WIDTH`] where it pays) by a
-/// [`Conv3x3Op`]; returns how many.
+/// [`Conv3x3Op`], taking in the ReLU that follows it if any; returns how many.
 pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usize> {
     let mut replaced = 0;
     for id in model.eval_order()? {
@@ -624,12 +676,21 @@ pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usiz
         let Some(conv) = as_conv3x3(model, node, min_width) else {
             continue;
         };
-        let patch = TypedModelPatch::replace_single_op(
-            model,
-            node,
-            &[node.inputs[0]],
-            Conv3x3Op(Arc::new(conv)),
-        )?;
+        let relu = relu_after(model, node);
+        let conv = if relu.is_some() {
+            conv.with_relu()
+        } else {
+            conv
+        };
+        let mut patch = TypedModelPatch::default();
+        let x = patch.tap_model(model, node.inputs[0])?;
+        let y = patch.wire_node(&node.name, Conv3x3Op(Arc::new(conv)), &[x])?;
+        let last = relu.unwrap_or(id);
+        patch.shunt_outside(model, OutletId::new(last, 0), y[0])?;
+        patch.obliterate(id)?;
+        if let Some(relu) = relu {
+            patch.obliterate(relu)?;
+        }
         patch.apply(model)?;
         replaced += 1;
     }
@@ -661,6 +722,12 @@ mod tests {
     /// The fast path on every instruction set and thread count against the reference, exactly.
     fn check(c_in: usize, c_out: usize, stride: usize, (h, w): (usize, usize), seed: u32) {
         let conv = conv(c_in, c_out, stride, seed);
+        // Half the cases with a ReLU taken in.
+        let conv = if seed % 2 == 1 {
+            conv.with_relu()
+        } else {
+            conv
+        };
         let (ho, wo) = (conv.out_len(h), conv.out_len(w));
         let input = pattern(c_in * h * w, seed + 2);
         let view = ArrayView3::from_shape((c_in, h, w), &input).unwrap();
@@ -778,7 +845,10 @@ mod tests {
 
     /// A model of one tract `Conv` (3x3, padding 1, `stride`) and its input.
     fn one_conv(c: usize, o: usize, stride: usize, (h, w): (usize, usize)) -> (TypedModel, Tensor) {
-        let model = conv(c, o, stride, 7).tract_model(h, w).unwrap();
+        // Odd sizes with a ReLU after the convolution, to check that it is taken in.
+        let conv = conv(c, o, stride, 7);
+        let conv = if h % 2 == 1 { conv.with_relu() } else { conv };
+        let model = conv.tract_model(h, w).unwrap();
         let input = Tensor::from_shape(&[1, c, h, w], &pattern(c * h * w, 9)).unwrap();
         (model, input)
     }
@@ -799,7 +869,10 @@ mod tests {
                 0
             );
             assert_eq!(use_conv3x3(&mut ours, w.div_ceil(stride)).unwrap(), 1);
-            assert!(ours.nodes().iter().any(|n| n.op_is::<Conv3x3Op>()));
+            let ours = ours.into_decluttered().unwrap();
+            let op = ours.nodes().iter().find_map(|n| n.op_as::<Conv3x3Op>());
+            assert_eq!(op.map(|op| op.0.relu()), Some(h % 2 == 1));
+            assert_eq!(ours.nodes().len(), 2, "source and ours: {ours}");
             let got = run(ours);
             assert_eq!(got.shape(), want.shape(), "stride {stride}, {h}x{w}");
             let got = got
