@@ -108,6 +108,14 @@ pub fn accumulate(
     }
 }
 
+/// `vectors` split into runs `(first, length)` of at most `most`, as even as can be: a short
+/// last run (7 as 6 + 1) would hold too few accumulators to hide the FMA latency, 4 + 3 does.
+fn blocks(vectors: usize, most: usize) -> impl Iterator<Item = (usize, usize)> {
+    let n = vectors.div_ceil(most.max(1));
+    let (base, longer) = (vectors / n.max(1), vectors % n.max(1));
+    (0..n).map(move |b| (b * base + b.min(longer), base + usize::from(b < longer)))
+}
+
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 mod x86 {
@@ -126,7 +134,7 @@ mod x86 {
         pub groups: usize,
     }
 
-    /// Every point in blocks of 3 vectors of 8 (then 2 or 1), every group for each block, so a
+    /// Every point in blocks of at most 3 vectors of 8, every group for each block, so a
     /// block's tap rows stay in the L1 cache while the groups go by.
     ///
     /// # Safety
@@ -134,20 +142,14 @@ mod x86 {
     /// [`super::accumulate`].
     #[target_feature(enable = "avx2,fma")]
     pub unsafe fn avx2(args: &Args, vectors: usize) {
-        let mut x = 0;
-        while x + 3 <= vectors {
+        for (x, p) in super::blocks(vectors, 3) {
             for g in 0..args.groups {
-                // SAFETY: points 8x..8x + 24 are below the width.
-                unsafe { block8::<3>(args, g, 8 * x) };
-            }
-            x += 3;
-        }
-        for g in 0..args.groups {
-            // SAFETY: as above, for the remaining points.
-            match vectors - x {
-                2 => unsafe { block8::<2>(args, g, 8 * x) },
-                1 => unsafe { block8::<1>(args, g, 8 * x) },
-                _ => {}
+                // SAFETY: points 8x..8(x + p) are below the width.
+                match p {
+                    3 => unsafe { block8::<3>(args, g, 8 * x) },
+                    2 => unsafe { block8::<2>(args, g, 8 * x) },
+                    _ => unsafe { block8::<1>(args, g, 8 * x) },
+                }
             }
         }
     }
@@ -191,30 +193,24 @@ mod x86 {
         }
     }
 
-    /// [`avx2`] with vectors of 16 points in blocks of 6.
+    /// [`avx2`] with vectors of 16 points in blocks of at most 6.
     ///
     /// # Safety
     /// The CPU has AVX-512 F and FMA; `args` and `vectors` (of 16 points) are within the checks
     /// of [`super::accumulate`].
     #[target_feature(enable = "avx512f,fma")]
     pub unsafe fn avx512(args: &Args, vectors: usize) {
-        let mut x = 0;
-        while x + 6 <= vectors {
+        for (x, p) in super::blocks(vectors, 6) {
             for g in 0..args.groups {
-                // SAFETY: points 16x..16x + 96 are below the width.
-                unsafe { block16::<6>(args, g, 16 * x) };
-            }
-            x += 6;
-        }
-        for g in 0..args.groups {
-            // SAFETY: as above, for the remaining points.
-            match vectors - x {
-                5 => unsafe { block16::<5>(args, g, 16 * x) },
-                4 => unsafe { block16::<4>(args, g, 16 * x) },
-                3 => unsafe { block16::<3>(args, g, 16 * x) },
-                2 => unsafe { block16::<2>(args, g, 16 * x) },
-                1 => unsafe { block16::<1>(args, g, 16 * x) },
-                _ => {}
+                // SAFETY: points 16x..16(x + p) are below the width.
+                match p {
+                    6 => unsafe { block16::<6>(args, g, 16 * x) },
+                    5 => unsafe { block16::<5>(args, g, 16 * x) },
+                    4 => unsafe { block16::<4>(args, g, 16 * x) },
+                    3 => unsafe { block16::<3>(args, g, 16 * x) },
+                    2 => unsafe { block16::<2>(args, g, 16 * x) },
+                    _ => unsafe { block16::<1>(args, g, 16 * x) },
+                }
             }
         }
     }
@@ -311,6 +307,30 @@ mod tests {
                 assert!(same, "{} at width {width}", isa.name());
             }
         }
+    }
+
+    #[test]
+    fn blocks_cover_the_row_evenly() {
+        for most in [3, 6] {
+            for vectors in 0..40 {
+                let runs: Vec<_> = blocks(vectors, most).collect();
+                let mut next = 0;
+                for &(first, len) in &runs {
+                    assert_eq!(first, next);
+                    assert!((1..=most).contains(&len), "{vectors} by {most}: {runs:?}");
+                    next += len;
+                }
+                assert_eq!(next, vectors);
+                let (min, max) = runs
+                    .iter()
+                    .fold((most, 0), |(a, b), r| (a.min(r.1), b.max(r.1)));
+                assert!(
+                    runs.is_empty() || max - min <= 1,
+                    "{vectors} by {most}: {runs:?}"
+                );
+            }
+        }
+        assert_eq!(blocks(7, 6).collect::<Vec<_>>(), [(0, 4), (4, 3)]);
     }
 
     #[test]

@@ -429,14 +429,17 @@ impl Conv3x3 {
             first[w + 1..].fill(0.0);
         } else {
             let (evens, odds) = (w.div_ceil(2), w / 2);
-            for (e, &v) in first.iter_mut().zip(src.iter().step_by(2)) {
-                *e = v;
+            // Pairs, which the compiler turns into vector shuffles (a step of 2 it does not).
+            let pairs = src.chunks_exact(2);
+            if let [last] = pairs.remainder() {
+                first[odds] = *last;
+            }
+            for ((e, o), pair) in first.iter_mut().zip(&mut second[1..]).zip(pairs) {
+                *e = pair[0];
+                *o = pair[1];
             }
             first[evens..].fill(0.0);
             second[0] = 0.0;
-            for (o, &v) in second[1..].iter_mut().zip(src.iter().skip(1).step_by(2)) {
-                *o = v;
-            }
             second[odds + 1..].fill(0.0);
         }
     }
