@@ -8,7 +8,7 @@
 //!
 //! Throughput in multiply-adds. `tract-direct` is tract's direct convolution, `tract-im2col`
 //! im2col and a matrix product (`TRACT_DISABLE_DIRECT_SPATIAL`), both planned as the infer node
-//! plans them; everything runs on one thread.
+//! plans them; everything runs on one thread but `neuspike-2-threads`, ours on two.
 //!
 //! `cargo bench -p neuspike-infer --bench bench_conv3x3 -- --warm-up-time 1 --measurement-time 3`
 
@@ -47,6 +47,17 @@ fn bench_shape(
     group.bench_function("neuspike", |b| {
         b.iter(|| {
             conv.run(black_box(&input), (h, w), &mut output, None)
+                .expect("runs")
+        })
+    });
+    // The same into the same output on two threads: how well the bands scale, page faults apart.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("a pool of two threads");
+    group.bench_function("neuspike-2-threads", |b| {
+        b.iter(|| {
+            conv.run(black_box(&input), (h, w), &mut output, Some(&pool))
                 .expect("runs")
         })
     });
