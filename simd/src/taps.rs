@@ -57,16 +57,32 @@ pub fn accumulate(
     if groups == 0 || width == 0 {
         return;
     }
-    let reach = offsets.iter().max().map_or(0, |&m| m + width);
-    assert!(reach <= rows.len(), "taps reach {reach} of {}", rows.len());
-    let reach = (groups - 1) * group_stride + OUTS * offsets.len();
+    // Checked arithmetic: a reach that wrapped around would pass the checks below.
+    let reach = offsets
+        .iter()
+        .max()
+        .map_or(Some(0), |&m| m.checked_add(width));
     assert!(
-        reach <= weights.len(),
-        "weights reach {reach} of {}",
+        reach.is_some_and(|r| r <= rows.len()),
+        "taps reach {reach:?} of {}",
+        rows.len()
+    );
+    let reach = (groups - 1)
+        .checked_mul(group_stride)
+        .and_then(|r| r.checked_add(OUTS.checked_mul(offsets.len())?));
+    assert!(
+        reach.is_some_and(|r| r <= weights.len()),
+        "weights reach {reach:?} of {}",
         weights.len()
     );
-    let reach = (OUTS * groups - 1) * out_stride + width;
-    assert!(reach <= out.len(), "outputs reach {reach} of {}", out.len());
+    let reach = OUTS
+        .checked_mul(groups)
+        .and_then(|n| (n - 1).checked_mul(out_stride)?.checked_add(width));
+    assert!(
+        reach.is_some_and(|r| r <= out.len()),
+        "outputs reach {reach:?} of {}",
+        out.len()
+    );
     assert!(
         out_stride >= width,
         "output rows of {out_stride} for {width} points"
@@ -342,6 +358,18 @@ mod tests {
             offsets: &[0, 30],
             weights: &[0.0; 8],
             group_stride: 8,
+        };
+        accumulate(Isa::Avx512, &taps, &mut [0.0; 64], 16, 1, 16);
+    }
+
+    #[test]
+    #[should_panic(expected = "taps reach None")]
+    fn a_reach_that_wraps_around_is_refused() {
+        let taps = Taps {
+            rows: &[0.0; 64],
+            offsets: &[usize::MAX - 8],
+            weights: &[0.0; 4],
+            group_stride: 4,
         };
         accumulate(Isa::Avx512, &taps, &mut [0.0; 64], 16, 1, 16);
     }
