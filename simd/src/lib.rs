@@ -1,14 +1,15 @@
 //! Run-time choice of the vector instruction set for the kernels of neuspike.
 //!
 //! Most kernels are written as plain loops without branches over fixed-size blocks, which the
-//! compiler vectorises; the one that needs more accumulators than the vectoriser keeps in
-//! registers, [`taps::accumulate`] (a convolution's inner loop), is written here with each
-//! instruction set's intrinsics. Compiled for the baseline x86-64 target they get 128-bit vectors; the
+//! compiler vectorises. Compiled for the baseline x86-64 target they get 128-bit vectors; the
 //! machines we run on mostly have AVX2 or AVX-512. [`with_isa`] runs a kernel inside a function
 //! compiled for the widest instruction set the CPU has (checked once, at run time), so one binary
-//! is both portable and fast. This crate holds the only `unsafe` of the project: calling a
-//! function compiled for an instruction set is sound exactly when the CPU supports it, which is
-//! checked right before each call.
+//! is both portable and fast. The one loop that needs more accumulators than the vectoriser
+//! keeps in registers, [`taps::accumulate`] (a convolution's inner loop), is written here with
+//! each instruction set's intrinsics, its bounds checked before the loop. This crate holds the
+//! only `unsafe` of the project: calling a function compiled for an instruction set is sound
+//! exactly when the CPU supports it, which is checked right before each call, and the
+//! intrinsics' loads and stores stay within the bounds checked.
 //!
 //! A kernel run through [`with_isa`] must give the same bits on every instruction set; that holds
 //! for IEEE add, sub, mul, div, sqrt, min, max and compares (Rust never fuses a multiply and an
