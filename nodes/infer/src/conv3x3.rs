@@ -284,9 +284,59 @@ impl Conv3x3 {
             });
         }
         self.check(&[self.c_in, h, w], output.len())?;
+        self.drive(isa, Input::Dense(input, w), (h, w), output, pool);
+        Ok(())
+    }
+
+    /// The convolution of `input` (`[C, H, W]`, each row contiguous in memory) padded to
+    /// `(hp, wp)` by repeating its last row and column ([`crate::learned::pad_edge`]), without
+    /// making the padded copy: each row is read where it lies. The output is `[O, H', W']` of
+    /// the padded size.
+    ///
+    /// # Errors
+    /// [`Conv3x3Error::Shape`] when `input` has other channels, is empty, is larger than
+    /// `(hp, wp)`, has rows that are not contiguous, or `output` does not fit.
+    pub fn run_edge_padded(
+        &self,
+        input: ArrayView3<f32>,
+        (hp, wp): (usize, usize),
+        output: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), Conv3x3Error> {
+        let (c, h, w) = input.dim();
+        let shape_error = || Conv3x3Error::Shape {
+            input: input.shape().to_vec(),
+            output: output.len(),
+            c_in: self.c_in,
+            c_out: self.c_out,
+        };
+        let rows_contiguous = w <= 1 || input.strides()[2] == 1;
+        if c != self.c_in || h == 0 || w == 0 || h > hp || w > wp || !rows_contiguous {
+            return Err(shape_error());
+        }
+        self.check(&[self.c_in, hp, wp], output.len())?;
+        self.drive(
+            neuspike_simd::detect(),
+            Input::Edge(input),
+            (hp, wp),
+            output,
+            pool,
+        );
+        Ok(())
+    }
+
+    /// Splits the output rows of `input` (of size `(h, w)`, checked) in bands across `pool`.
+    fn drive(
+        &self,
+        isa: neuspike_simd::Isa,
+        input: Input,
+        (h, w): (usize, usize),
+        output: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) {
         let (ho, wo) = (self.out_len(h), self.out_len(w));
         if ho == 0 || wo == 0 {
-            return Ok(());
+            return;
         }
         let threads = pool.map_or(1, |p| p.current_num_threads());
         // A few bands per thread, so a slow thread does not hold the others up.
@@ -321,7 +371,6 @@ impl Conv3x3 {
             Some(pool) if threads > 1 => pool.install(|| tasks.into_par_iter().for_each(band)),
             _ => tasks.into_iter().for_each(band),
         }
-        Ok(())
     }
 
     /// Output rows `y0..` of every plane in `planes` (each a band of whole rows), stride `S`.
@@ -335,7 +384,7 @@ impl Conv3x3 {
     fn band<const S: usize>(
         &self,
         isa: neuspike_simd::Isa,
-        input: &[f32],
+        input: Input,
         (h, w): (usize, usize),
         y0: usize,
         planes: &mut [&mut [f32]],
@@ -364,9 +413,9 @@ impl Conv3x3 {
                 if held[*slot] != Some(iy) {
                     let inside = usize::try_from(iy).ok().filter(|&iy| iy < h);
                     for c in 0..self.c_in {
-                        let src = inside.map(|iy| &input[(c * h + iy) * w..][..w]);
+                        let src = inside.map(|iy| input.row(c, iy, h));
                         let rows = &mut scratch[(c * 3 + *slot) * S * len..][..S * len];
-                        Self::padded::<S>(src, rows);
+                        Self::padded::<S>(src, w, rows);
                     }
                     held[*slot] = Some(iy);
                 }
@@ -409,38 +458,73 @@ impl Conv3x3 {
         }
     }
 
-    /// The `S` scratch rows (`len` values each) of one input row `src` (`None` off the image),
-    /// 0 wherever a tap falls off the image.
+    /// The `S` scratch rows (`len` values each) of one input row `src` (`None` off the image)
+    /// of `w` values, `src`'s last repeated up to `w` when it is shorter, 0 wherever a tap
+    /// falls off the image.
     ///
     /// Stride 1: the row shifted right by one, tap `kx` of point `x` at `x + kx`.
     /// Stride 2: the even columns (`2x`: tap 1 at `x`), then the odd ones shifted right by one
     /// (`2x - 1`: tap 0 at `x`, tap 2 at `x + 1`).
     #[inline(always)]
-    fn padded<const S: usize>(src: Option<&[f32]>, rows: &mut [f32]) {
-        let Some(src) = src else {
+    fn padded<const S: usize>(src: Option<&[f32]>, w: usize, rows: &mut [f32]) {
+        let Some(src) = src.filter(|s| !s.is_empty()) else {
             rows.fill(0.0);
             return;
         };
-        let w = src.len();
         let (first, second) = rows.split_at_mut(rows.len() / S);
+        let n = src.len().min(w);
+        let last = src[n - 1];
         if S == 1 {
             first[0] = 0.0;
-            first[1..=w].copy_from_slice(src);
+            first[1..=n].copy_from_slice(&src[..n]);
+            first[n + 1..=w].fill(last);
             first[w + 1..].fill(0.0);
         } else {
             let (evens, odds) = (w.div_ceil(2), w / 2);
             // Pairs, which the compiler turns into vector shuffles (a step of 2 it does not).
-            let pairs = src.chunks_exact(2);
-            if let [last] = pairs.remainder() {
-                first[odds] = *last;
+            let pairs = src[..n].chunks_exact(2);
+            let done = n / 2;
+            if let [single] = pairs.remainder() {
+                first[done] = *single;
             }
             for ((e, o), pair) in first.iter_mut().zip(&mut second[1..]).zip(pairs) {
                 *e = pair[0];
                 *o = pair[1];
             }
+            // Past the end of `src` (only when the row is padded): its last value, repeated.
+            first[n.div_ceil(2)..evens].fill(last);
+            second[done + 1..=odds].fill(last);
             first[evens..].fill(0.0);
             second[0] = 0.0;
             second[odds + 1..].fill(0.0);
+        }
+    }
+}
+
+/// Where a convolution's input rows come from.
+#[derive(Clone, Copy)]
+enum Input<'a> {
+    /// `[C, H, W]`, row-major, all of it, and its `W`.
+    Dense(&'a [f32], usize),
+    /// `[C, h, w]` with contiguous rows, read as if padded to a larger size by repeating its
+    /// last row (here) and column ([`Conv3x3::padded`]).
+    Edge(ArrayView3<'a, f32>),
+}
+
+impl<'a> Input<'a> {
+    /// Row `iy` (`< h`, the padded height) of channel `c`: `w` values for `Dense`, the
+    /// view's row (the last when `iy` is past it) for `Edge`.
+    #[inline]
+    fn row(self, c: usize, iy: usize, h: usize) -> &'a [f32] {
+        match self {
+            Input::Dense(x, w) => &x[(c * h + iy) * w..][..w],
+            Input::Edge(x) => {
+                let (_, rows, w) = x.dim();
+                let row = x.slice_move(ndarray::s![c, iy.min(rows - 1), ..]);
+                // Contiguous, as `run_edge_padded` checked; one value when not.
+                let row = row.to_slice().unwrap_or(&[]);
+                &row[..w.min(row.len())]
+            }
         }
     }
 }
@@ -700,6 +784,42 @@ pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usiz
     Ok(replaced)
 }
 
+/// Takes out of `model` each [`Conv3x3Op`] that is the only reader of a model input, so the
+/// caller runs it on the representation where it lies ([`Conv3x3::run_edge_padded`]) and feeds
+/// the model its output instead: the input is not copied into a padded tensor first. Returns,
+/// for each input of the model, the convolution taken (the input is now that convolution's
+/// output, a source named `<input>.conv`), or `None` (the input is unchanged).
+pub fn take_first_convolutions(model: &mut TypedModel) -> TractResult<Vec<Option<Arc<Conv3x3>>>> {
+    let inputs = model.input_outlets()?.to_vec();
+    let mut taken = vec![None; inputs.len()];
+    for (slot, input) in inputs.into_iter().enumerate() {
+        let source = model.node(input.node);
+        let [next] = source.outputs[input.slot].successors.as_slice() else {
+            continue;
+        };
+        let conv = model.node(next.node);
+        let Some(op) = conv.op_as::<Conv3x3Op>() else {
+            continue;
+        };
+        let out = OutletId::new(conv.id, 0);
+        if model.output_outlets()?.contains(&out) {
+            continue;
+        }
+        let name = format!("{}.conv", source.name);
+        let (conv_id, source_id, op) = (conv.id, source.id, op.0.clone());
+        let fact = model.outlet_fact(out)?.clone();
+        let mut patch = TypedModelPatch::default();
+        let new = patch.add_source(&name, fact)?;
+        // The new source takes the old one's place among the model's inputs.
+        patch.inputs.insert(new.node, source_id);
+        patch.shunt_outside(model, out, new)?;
+        patch.obliterate(conv_id)?;
+        patch.apply(model)?;
+        taken[slot] = Some(op);
+    }
+    Ok(taken)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -763,6 +883,73 @@ mod tests {
         check(64, 64, 1, (5, 50), 3);
         check(8, 16, 2, (16, 400), 4);
         check(32, 64, 2, (9, 101), 5);
+    }
+
+    #[test]
+    fn edge_padded_input_read_in_place_gives_the_padded_copys_bits() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        // (c_in, c_out, stride, real size, padded size): padded in rows, columns, both, neither,
+        // to odd and even widths, one row or column repeated many times.
+        for (i, &(c, o, stride, (h, w), (hp, wp))) in [
+            (32, 8, 1, (13, 390), (16, 400)),
+            (8, 8, 1, (16, 400), (16, 400)),
+            (4, 4, 1, (1, 1), (5, 21)),
+            (8, 16, 2, (11, 197), (16, 200)),
+            (3, 4, 2, (7, 18), (8, 21)),
+            (3, 4, 2, (8, 1), (8, 6)),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let conv = conv(c, o, stride, i as u32);
+            let input = pattern(c * h * w, i as u32 + 7);
+            let view = ArrayView3::from_shape((c, h, w), &input).unwrap();
+            let padded = crate::learned::pad_edge(view, hp, wp);
+            let padded = ArrayView3::from_shape((c, hp, wp), &padded).unwrap();
+            let want = conv.reference(padded).unwrap();
+            for pool in [None, Some(&pool)] {
+                let mut got = vec![f32::NAN; want.len()];
+                conv.run_edge_padded(view, (hp, wp), &mut got, pool)
+                    .unwrap();
+                assert_eq!(
+                    got.as_slice(),
+                    want.as_slice().unwrap(),
+                    "{c}->{o}, stride {stride}, {h}x{w} as {hp}x{wp}, pool {}",
+                    pool.is_some()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn edge_padding_refuses_what_it_cannot_read() {
+        let conv = conv(2, 4, 1, 1);
+        let input = pattern(2 * 4 * 6, 2);
+        let view = ArrayView3::from_shape((2, 4, 6), &input).unwrap();
+        let mut out = vec![0.0; 4 * 8 * 8];
+        // Larger than the padded size, rows across memory (a transposed view), empty, or an
+        // output of the wrong size: an error, nothing written.
+        let transposed = ArrayView3::from_shape((2, 6, 4), &input).unwrap();
+        let transposed = transposed.permuted_axes([0, 2, 1]);
+        for (x, hw, n) in [
+            (view, (3, 8), 4 * 3 * 8),
+            (transposed, (8, 8), 4 * 8 * 8),
+            (view.slice_move(ndarray::s![.., ..0, ..]), (8, 8), 4 * 8 * 8),
+            (view, (8, 8), 4 * 8 * 7),
+        ] {
+            out.resize(n, 0.0);
+            out.fill(0.0);
+            let err = conv.run_edge_padded(x, hw, &mut out, None);
+            assert!(
+                matches!(err, Err(Conv3x3Error::Shape { .. })),
+                "{:?} as {hw:?}: {err:?}",
+                x.shape()
+            );
+            assert!(out.iter().all(|&v| v == 0.0));
+        }
     }
 
     #[test]
@@ -898,6 +1085,63 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn a_first_convolution_is_taken_out_and_its_output_becomes_the_input() {
+        let (c, o, (h, w)) = (3, 8, (6, 20));
+        let conv = conv(c, o, 1, 3).with_relu();
+        let mut model = conv.tract_model(h, w).unwrap();
+        // A node after the convolution: one that is itself the model's output stays in.
+        let y = model.output_outlets().unwrap()[0];
+        let half = model.add_const("half", tensor4(&[[[[0.5f32]]]])).unwrap();
+        let z = model
+            .wire_node("max", tract_onnx::tract_core::ops::math::max(), &[y, half])
+            .unwrap();
+        model.select_output_outlets(&z).unwrap();
+        let mut as_output = conv.tract_model(h, w).unwrap();
+        assert_eq!(use_conv3x3(&mut as_output, 1).unwrap(), 1);
+        assert_eq!(take_first_convolutions(&mut as_output).unwrap().len(), 1);
+        assert!(take_first_convolutions(&mut as_output).unwrap()[0].is_none());
+
+        let input = pattern(c * h * w, 5);
+        let x = Tensor::from_shape(&[1, c, h, w], &input).unwrap();
+        let run = |model: TypedModel, x: Tensor| {
+            let plan = model.into_optimized().unwrap().into_runnable().unwrap();
+            let out = plan.run(tvec![x.into_tvalue()]).unwrap();
+            let out = out[0].clone().into_tensor();
+            out.to_plain_array_view::<f32>()
+                .unwrap()
+                .iter()
+                .copied()
+                .collect::<Vec<_>>()
+        };
+        let mut ours = model;
+        assert_eq!(use_conv3x3(&mut ours, 1).unwrap(), 1);
+        let want = run(ours.clone(), x);
+        let taken = take_first_convolutions(&mut ours).unwrap();
+        let [Some(first)] = taken.as_slice() else {
+            panic!("not taken: {taken:?}");
+        };
+        assert!(first.relu());
+        let inputs = ours.input_outlets().unwrap();
+        assert_eq!(inputs.len(), 1);
+        assert_eq!(ours.node(inputs[0].node).name, "x.conv");
+        assert_eq!(
+            ours.outlet_fact(inputs[0]).unwrap().shape.as_concrete(),
+            Some(&[1, o, h, w][..])
+        );
+        assert!(
+            ours.nodes()
+                .iter()
+                .all(|n| n.op_as::<Conv3x3Op>().is_none())
+        );
+        // The caller computes it, then the model does the rest: what the whole model gave.
+        let view = ArrayView3::from_shape((c, h, w), &input).unwrap();
+        let mut y = vec![0.0; o * h * w];
+        first.run_edge_padded(view, (h, w), &mut y, None).unwrap();
+        let y = Tensor::from_shape(&[1, o, h, w], &y).unwrap();
+        assert_eq!(run(ours, y), want);
     }
 
     #[test]

@@ -25,6 +25,7 @@ use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
 
 use crate::InferError;
+use crate::conv3x3::Conv3x3;
 
 /// Heights and widths the networks take are multiples of this (three stride-2 layers).
 pub const STRIDE: usize = 8;
@@ -83,7 +84,16 @@ impl LearnedOutput {
     }
 }
 
-type Plan = Arc<TypedRunnableModel>;
+/// The model optimised for one padded size, and the first convolutions it leaves to
+/// [`LearnedModel`] (one per input, or `None`; see
+/// [`take_first_convolutions`](crate::conv3x3::take_first_convolutions)).
+#[derive(Debug)]
+struct Planned {
+    runnable: Arc<TypedRunnableModel>,
+    first: Vec<Option<Arc<Conv3x3>>>,
+}
+
+type Plan = Arc<Planned>;
 
 /// How tract computes the network's spatial convolutions. Measured at 256x400 on one thread
 /// (`neuspike bench-model --conv`): the direct convolution was faster for base width 8 and im2col
@@ -323,33 +333,62 @@ impl LearnedModel {
             disable,
         )])
         .map_err(|e| model_error(&self.path, chain(&e)))?;
-        scope
+        let n_inputs = self.inputs.len();
+        let (runnable, first) = scope
             .enter(|| {
                 let mut model = model.into_typed()?.into_decluttered()?;
+                let mut first = vec![None; n_inputs];
                 if path == ConvPath::Blocked {
                     crate::conv3x3::use_conv3x3(&mut model, crate::conv3x3::MIN_WIDTH)?;
+                    first = crate::conv3x3::take_first_convolutions(&mut model)?;
                 }
-                model.into_optimized()?.into_runnable()
+                Ok((model.into_optimized()?.into_runnable()?, first))
             })
-            .map_err(|e| {
+            .map_err(|e: TractError| {
                 model_error(
                     &self.path,
                     format!("cannot be planned at {h}x{w} ({path}): {}", chain(&e)),
                 )
-            })
+            })?;
+        Ok(Arc::new(Planned { runnable, first }))
     }
 
-    /// The time of one run of `plan` on `values`, seconds.
-    fn time_run(&self, plan: &Plan, values: &TVec<TValue>) -> Result<f64, InferError> {
+    /// The time of one run of `plan` on `xs` padded to `(hp, wp)`, seconds.
+    fn time_run(
+        &mut self,
+        plan: &Plan,
+        xs: &[ArrayView3<f32>],
+        (hp, wp): (usize, usize),
+    ) -> Result<f64, InferError> {
         let start = std::time::Instant::now();
-        in_pool(|| plan.run(values.clone()))
-            .map_err(|e| model_error(&self.path, format!("run: {}", chain(&e))))?;
+        self.run_plan(plan, xs, hp, wp)?;
         Ok(start.elapsed().as_secs_f64())
+    }
+
+    /// Runs `plan` on `xs` padded to `(hp, wp)` (its inputs prepared by [`plan_inputs`]), on
+    /// tract's pool ([`in_pool`]); returns the output image, `hp * wp` values.
+    fn run_plan(
+        &mut self,
+        plan: &Plan,
+        xs: &[ArrayView3<f32>],
+        hp: usize,
+        wp: usize,
+    ) -> Result<Arc<Tensor>, InferError> {
+        let (path, buffers) = (&self.path, &mut self.buffers);
+        in_pool(|| {
+            let values = plan_inputs(path, buffers, &plan.first, xs, hp, wp)?;
+            let mut out = plan
+                .runnable
+                .run(values)
+                .map_err(|e| model_error(path, format!("run at {hp}x{wp}: {}", chain(&e))))?;
+            let image = out.pop().ok_or_else(|| model_error(path, "no output"))?;
+            Ok(image.into_arc_tensor())
+        })
     }
 
     /// The plan for padded size `(h, w)`: the kept one, or a new one (for [`ConvPath::Auto`],
     /// the fastest path on `values`).
-    fn plan_for(&mut self, h: usize, w: usize, values: &TVec<TValue>) -> Result<Plan, InferError> {
+    fn plan_for(&mut self, h: usize, w: usize, xs: &[ArrayView3<f32>]) -> Result<Plan, InferError> {
         if let Some((size, plan, _)) = &self.plan
             && *size == (h, w)
         {
@@ -365,7 +404,7 @@ impl LearnedModel {
                 // falls on all of them rather than on one plan's every run.
                 for _ in 0..AUTO_RUNS {
                     for (fastest, plan, _) in &mut candidates {
-                        *fastest = fastest.min(self.time_run(plan, values)?);
+                        *fastest = fastest.min(self.time_run(plan, xs, (h, w))?);
                     }
                 }
                 let best = candidates
@@ -412,57 +451,6 @@ impl LearnedModel {
         Ok((h, w))
     }
 
-    /// Each input padded to `hp x wp` as a `[1, C, hp, wp]` tensor, written into the last run's
-    /// tensor of that shape when nothing else holds it.
-    fn padded_inputs(
-        &mut self,
-        xs: &[ArrayView3<f32>],
-        hp: usize,
-        wp: usize,
-    ) -> Result<TVec<TValue>, InferError> {
-        let mut values = TVec::new();
-        for (i, x) in xs.iter().enumerate() {
-            let shape = [1, x.dim().0, hp, wp];
-            let reusable = self
-                .buffers
-                .get_mut(i)
-                .and_then(Arc::get_mut)
-                .is_some_and(|t| t.shape() == shape);
-            if !reusable {
-                let t =
-                    Tensor::zero::<f32>(&shape).map_err(|e| model_error(&self.path, chain(&e)))?;
-                match self.buffers.get_mut(i) {
-                    Some(b) => *b = Arc::new(t),
-                    None => self.buffers.push(Arc::new(t)),
-                }
-            }
-            let buffer = Arc::get_mut(&mut self.buffers[i]).ok_or_else(|| {
-                model_error(&self.path, "internal: an input tensor is still shared")
-            })?;
-            let mut plain = buffer
-                .try_as_plain_ram_mut()
-                .map_err(|e| model_error(&self.path, chain(&e)))?;
-            let dst = plain
-                .as_slice_mut::<f32>()
-                .map_err(|e| model_error(&self.path, chain(&e)))?;
-            // Channel by channel across tract's threads: a copy of megabytes, memory-bound, that
-            // one core alone does at half the speed of two.
-            let planes = dst.chunks_mut((hp * wp).max(1));
-            let copy = |(ch, dst): (usize, &mut [f32])| {
-                pad_edge_into(x.slice(ndarray::s![ch..ch + 1, .., ..]), hp, wp, dst)
-            };
-            match tract_linalg::multithread::current_tract_executor() {
-                tract_linalg::multithread::Executor::MultiThread(pool) => {
-                    use rayon::prelude::*;
-                    pool.install(|| planes.enumerate().par_bridge().for_each(copy))
-                }
-                _ => planes.enumerate().for_each(copy),
-            }
-            values.push(TValue::from_const(self.buffers[i].clone()));
-        }
-        Ok(values)
-    }
-
     /// Runs the network once on `xs` (as [`run`](Self::run)) and returns the time each node of
     /// the plan took, in evaluation order, after two pseudo-nodes for the work around it
     /// (`(pad inputs)`, `(plan state)`): what to look at when tract is slower than it should be
@@ -473,36 +461,38 @@ impl LearnedModel {
     pub fn profile(&mut self, xs: &[ArrayView3<f32>]) -> Result<Vec<NodeTime>, InferError> {
         let (h, w) = self.check_inputs(xs)?;
         let (hp, wp) = (h.next_multiple_of(STRIDE), w.next_multiple_of(STRIDE));
-        let mut times = Vec::new();
-        let step = |name: &str, start: std::time::Instant, times: &mut Vec<NodeTime>| {
-            times.push(NodeTime {
-                node: name.to_string(),
-                op: name.to_string(),
-                ms: start.elapsed().as_secs_f64() * 1e3,
-            })
-        };
-        let start = std::time::Instant::now();
-        let values = self.padded_inputs(xs, hp, wp)?;
-        step("(pad inputs)", start, &mut times);
-        let plan = self.plan_for(hp, wp, &values)?;
-        let start = std::time::Instant::now();
-        let mut state =
-            TypedSimpleState::new(&plan).map_err(|e| model_error(&self.path, chain(&e)))?;
-        step("(plan state)", start, &mut times);
+        let plan = self.plan_for(hp, wp, xs)?;
+        let (path, buffers) = (&self.path, &mut self.buffers);
         in_pool(|| {
-            state.run_plan_with_eval(values, |ctx, st, node, input| {
-                let start = std::time::Instant::now();
-                let out = tract_onnx::tract_core::plan::eval(ctx, st, node, input);
+            let mut times = Vec::new();
+            let step = |name: &str, start: std::time::Instant, times: &mut Vec<NodeTime>| {
                 times.push(NodeTime {
-                    node: node.name.clone(),
-                    op: node.op().name().into_owned(),
+                    node: name.to_string(),
+                    op: name.to_string(),
                     ms: start.elapsed().as_secs_f64() * 1e3,
-                });
-                out
-            })
+                })
+            };
+            let start = std::time::Instant::now();
+            let values = plan_inputs(path, buffers, &plan.first, xs, hp, wp)?;
+            step("(inputs)", start, &mut times);
+            let start = std::time::Instant::now();
+            let mut state =
+                TypedSimpleState::new(&plan.runnable).map_err(|e| model_error(path, chain(&e)))?;
+            step("(plan state)", start, &mut times);
+            state
+                .run_plan_with_eval(values, |ctx, st, node, input| {
+                    let start = std::time::Instant::now();
+                    let out = tract_onnx::tract_core::plan::eval(ctx, st, node, input);
+                    times.push(NodeTime {
+                        node: node.name.clone(),
+                        op: node.op().name().into_owned(),
+                        ms: start.elapsed().as_secs_f64() * 1e3,
+                    });
+                    out
+                })
+                .map_err(|e| model_error(path, format!("run at {hp}x{wp}: {}", chain(&e))))?;
+            Ok(times)
         })
-        .map_err(|e| model_error(&self.path, format!("run at {hp}x{wp}: {}", chain(&e))))?;
-        Ok(times)
     }
 
     /// Runs the network on one frame's representations, in [`inputs`](Self::inputs) order, each
@@ -514,11 +504,9 @@ impl LearnedModel {
     pub fn run(&mut self, xs: &[ArrayView3<f32>]) -> Result<Array2<f32>, InferError> {
         let (h, w) = self.check_inputs(xs)?;
         let (hp, wp) = (h.next_multiple_of(STRIDE), w.next_multiple_of(STRIDE));
-        let values = self.padded_inputs(xs, hp, wp)?;
-        let plan = self.plan_for(hp, wp, &values)?;
-        let out = in_pool(|| plan.run(values))
-            .map_err(|e| model_error(&self.path, format!("run at {hp}x{wp}: {}", chain(&e))))?;
-        let plain = out[0]
+        let plan = self.plan_for(hp, wp, xs)?;
+        let out = self.run_plan(&plan, xs, hp, wp)?;
+        let plain = out
             .try_as_plain_ram()
             .map_err(|e| model_error(&self.path, chain(&e)))?;
         let image = plain
@@ -532,6 +520,84 @@ impl LearnedModel {
         }
         Ok(Array2::from_shape_fn((h, w), |(y, x)| image[y * wp + x]))
     }
+}
+
+/// The plan's input tensors for `xs` padded to `(hp, wp)`: for an input the plan reads through
+/// a first convolution of its own (`first`), that convolution computed straight from the
+/// representation, its padding read in place; for the others the representation padded by
+/// repeating its last row and column ([`pad_edge`]). Each is written into `buffers`' tensor of
+/// that slot when its shape matches and nothing else holds it (a fresh 13 MB tensor per input
+/// and frame cost its page faults every time).
+fn plan_inputs(
+    path: &Path,
+    buffers: &mut Vec<Arc<Tensor>>,
+    first: &[Option<Arc<Conv3x3>>],
+    xs: &[ArrayView3<f32>],
+    hp: usize,
+    wp: usize,
+) -> Result<TVec<TValue>, InferError> {
+    let pool = match tract_linalg::multithread::current_tract_executor() {
+        tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
+        _ => None,
+    };
+    let mut values = TVec::new();
+    for (i, x) in xs.iter().enumerate() {
+        let conv = first.get(i).and_then(Option::as_ref);
+        let shape = match conv {
+            Some(conv) => [1, conv.c_out(), conv.out_len(hp), conv.out_len(wp)],
+            None => [1, x.dim().0, hp, wp],
+        };
+        let reusable = buffers
+            .get_mut(i)
+            .and_then(Arc::get_mut)
+            .is_some_and(|t| t.shape() == shape);
+        if !reusable {
+            let t = Tensor::zero::<f32>(&shape).map_err(|e| model_error(path, chain(&e)))?;
+            match buffers.get_mut(i) {
+                Some(b) => *b = Arc::new(t),
+                None => buffers.push(Arc::new(t)),
+            }
+        }
+        let buffer = Arc::get_mut(&mut buffers[i])
+            .ok_or_else(|| model_error(path, "internal: an input tensor is still shared"))?;
+        let mut plain = buffer
+            .try_as_plain_ram_mut()
+            .map_err(|e| model_error(path, chain(&e)))?;
+        let dst = plain
+            .as_slice_mut::<f32>()
+            .map_err(|e| model_error(path, chain(&e)))?;
+        match conv {
+            Some(conv) => {
+                // Rows not contiguous in memory (a view taken across): a standard copy first.
+                let copy;
+                let x = if x.dim().2 <= 1 || x.strides()[2] == 1 {
+                    x.view()
+                } else {
+                    copy = x.as_standard_layout().into_owned();
+                    copy.view()
+                };
+                conv.run_edge_padded(x, (hp, wp), dst, pool.as_deref())
+                    .map_err(|e| model_error(path, format!("first convolution: {e}")))?;
+            }
+            None => {
+                // Channel by channel across the pool: a copy of megabytes, memory-bound, that
+                // one core alone does at half the speed of two.
+                let planes = dst.chunks_mut((hp * wp).max(1));
+                let copy = |(ch, dst): (usize, &mut [f32])| {
+                    pad_edge_into(x.slice(ndarray::s![ch..ch + 1, .., ..]), hp, wp, dst)
+                };
+                match &pool {
+                    Some(pool) => {
+                        use rayon::prelude::*;
+                        pool.install(|| planes.enumerate().par_bridge().for_each(copy))
+                    }
+                    None => planes.enumerate().for_each(copy),
+                }
+            }
+        }
+        values.push(TValue::from_const(buffers[i].clone()));
+    }
+    Ok(values)
 }
 
 /// How long a pool thread waits for work, spinning, before it goes to sleep (see [`in_pool`]).
