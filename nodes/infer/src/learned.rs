@@ -9,8 +9,11 @@
 //! level, so it cannot use the camera's calibration). [`LearnedModel::load`] reads and checks the
 //! file once; [`LearnedModel::run`] pins the input shapes to the frame's size padded up to
 //! [`STRIDE`], optimises and keeps that plan until the size changes, pads each input by repeating
-//! its last row and column, runs, and crops the image back. The infer node turns a rate into
-//! luminance with the camera's calibration, as it does TFP's rate.
+//! its last row and column, runs, and crops the image back. (With neuspike's convolution, an
+//! input's first convolution reads the representation where it lies, the padding included, and
+//! the plan starts from its output: the input is never copied.) The plan runs on a thread of
+//! tract's pool, the others spinning for work between its nodes. The infer node turns a rate
+//! into luminance with the camera's calibration, as it does TFP's rate.
 //!
 //! Every failure is an [`InferError::Model`] naming the file and what is wrong: a missing,
 //! unreadable or corrupt file, inputs the network does not know, a representation of the wrong
@@ -453,7 +456,8 @@ impl LearnedModel {
 
     /// Runs the network once on `xs` (as [`run`](Self::run)) and returns the time each node of
     /// the plan took, in evaluation order, after two pseudo-nodes for the work around it
-    /// (`(pad inputs)`, `(plan state)`): what to look at when tract is slower than it should be
+    /// (`(inputs)`: the padded inputs, or the first convolutions run on the representations
+    /// in place; `(plan state)`): what to look at when tract is slower than it should be
     /// (`neuspike bench-model --profile`).
     ///
     /// # Errors
