@@ -732,7 +732,7 @@ fn as_conv3x3(model: &TypedModel, node: &TypedNode, min_width: usize) -> Option<
 /// The node of `model` that only applies a ReLU to `node`'s output, if its output has no other
 /// use: `max(y, 0)` (how tract-onnx writes ONNX's `Relu`) against a constant of zeros that does
 /// not broadcast `y` to a larger shape.
-fn relu_after(model: &TypedModel, node: &TypedNode) -> Option<usize> {
+pub(crate) fn relu_after(model: &TypedModel, node: &TypedNode) -> Option<usize> {
     use tract_onnx::tract_core::ops::binary::TypedBinOp;
     let out = OutletId::new(node.id, 0);
     let [next] = node.outputs.first()?.successors.as_slice() else {

@@ -112,9 +112,9 @@ pub enum ConvPath {
     Direct,
     /// im2col and a matrix product everywhere (`TRACT_DISABLE_DIRECT_SPATIAL`).
     Im2col,
-    /// neuspike's register-blocked kernel for the 3x3, stride-1 and 2 convolutions with output rows
-    /// of at least [`crate::conv3x3::MIN_WIDTH`] points ([`crate::conv3x3`]), tract's direct
-    /// convolution for the others.
+    /// neuspike's register-blocked kernels: for the 3x3, stride-1 and 2 convolutions with output
+    /// rows of at least [`crate::conv3x3::MIN_WIDTH`] points ([`crate::conv3x3`]) and the 2x2,
+    /// stride-2 transposed ones ([`crate::deconv2x2`]); tract's direct convolution for the others.
     Blocked,
 }
 
@@ -343,6 +343,7 @@ impl LearnedModel {
                 let mut first = vec![None; n_inputs];
                 if path == ConvPath::Blocked {
                     crate::conv3x3::use_conv3x3(&mut model, crate::conv3x3::MIN_WIDTH)?;
+                    crate::deconv2x2::use_deconv2x2(&mut model)?;
                     first = crate::conv3x3::take_first_convolutions(&mut model)?;
                 }
                 Ok((model.into_optimized()?.into_runnable()?, first))

@@ -333,6 +333,10 @@ fn same_on_both_paths(path: &Path, views: &[ArrayView3<f32>]) {
             .map(|t| t.op)
             .collect();
         let ours = ops.iter().filter(|op| *op == "NeuspikeConv3x3").count();
+        // The decoder's three upsamplings, whatever the width.
+        let ups = ops.iter().filter(|op| *op == "NeuspikeDeconv2x2").count();
+        let want_ups = if conv == ConvPath::Blocked { 3 } else { 0 };
+        assert_eq!(ups, want_ups, "{} ({conv})", path.display());
         if conv == ConvPath::Blocked {
             assert!(
                 ours >= 3,
