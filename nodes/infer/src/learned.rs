@@ -114,7 +114,8 @@ pub enum ConvPath {
     Im2col,
     /// neuspike's register-blocked kernels: for the 3x3, stride-1 and 2 convolutions with output
     /// rows of at least [`crate::conv3x3::MIN_WIDTH`] points ([`crate::conv3x3`]) and the 2x2,
-    /// stride-2 transposed ones ([`crate::deconv2x2`]); tract's direct convolution for the others.
+    /// stride-2 transposed ones ([`crate::deconv2x2`]); the skip connections' spatial attention
+    /// as one operator ([`crate::attention`]); tract's direct convolution for the others.
     Blocked,
 }
 
@@ -344,6 +345,7 @@ impl LearnedModel {
                 if path == ConvPath::Blocked {
                     crate::conv3x3::use_conv3x3(&mut model, crate::conv3x3::MIN_WIDTH)?;
                     crate::deconv2x2::use_deconv2x2(&mut model)?;
+                    crate::attention::use_spatial_attention(&mut model)?;
                     first = crate::conv3x3::take_first_convolutions(&mut model)?;
                 }
                 Ok((model.into_optimized()?.into_runnable()?, first))

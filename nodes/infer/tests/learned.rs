@@ -333,10 +333,13 @@ fn same_on_both_paths(path: &Path, views: &[ArrayView3<f32>]) {
             .map(|t| t.op)
             .collect();
         let ours = ops.iter().filter(|op| *op == "NeuspikeConv3x3").count();
-        // The decoder's three upsamplings, whatever the width.
-        let ups = ops.iter().filter(|op| *op == "NeuspikeDeconv2x2").count();
-        let want_ups = if conv == ConvPath::Blocked { 3 } else { 0 };
-        assert_eq!(ups, want_ups, "{} ({conv})", path.display());
+        // The decoder's three upsamplings and the attention of its three skip connections,
+        // whatever the width.
+        let count = |name: &str| ops.iter().filter(|op| *op == name).count();
+        let want = if conv == ConvPath::Blocked { 3 } else { 0 };
+        for name in ["NeuspikeDeconv2x2", "NeuspikeSpatialAttention"] {
+            assert_eq!(count(name), want, "{name} in {} ({conv})", path.display());
+        }
         if conv == ConvPath::Blocked {
             assert!(
                 ours >= 3,

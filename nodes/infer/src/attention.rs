@@ -1,0 +1,534 @@
+//! The spatial attention of the learned networks' skip connections (Eq. 12), as one operator.
+//!
+//! The fusion module weights the fused features `x` of a scale by a map computed from `s = x +
+//! d` (`d` the decoder's feature there): `y = x * sigmoid(conv7x7([mean_c s, max_c s]) + b)`.
+//! tract runs it as some twenty nodes (the add, a channel sum and a scale for the mean, a tree of
+//! channel slices and maxima for the max, a concatenation, the convolution, the sigmoid, the
+//! product), each a pass over megabytes on one thread: about 5 of a base-16 network's 49 ms at
+//! 256x400 on 2 threads. [`SpatialAttention`] reads `x` and `d` once for the two maps, then `x`
+//! once more for the product, its rows split across tract's pool.
+//!
+//! [`SpatialAttention::reference`] is the scalar definition; the fast path takes the same
+//! operations in the same order (the channel sum in channel order, the convolution's fused
+//! multiply-adds tap by tap), so the two agree exactly. tract's channel sum may add in another
+//! order: the two differ by rounding (tests bound it).
+
+use std::sync::Arc;
+
+use ndarray::{Array3, ArrayView3};
+use rayon::prelude::*;
+use tract_onnx::prelude::*;
+use tract_onnx::tract_core::internal::*;
+
+/// Side of the convolution's kernel.
+const K: usize = 7;
+/// Its padding on each side.
+const PAD: usize = K / 2;
+
+/// The attention's parameters: the 2-to-1 7x7 convolution (padding 3) over the channel mean and
+/// maximum, and the mean's scale.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpatialAttention {
+    /// `[2][7][7]`: the mean's taps, then the maximum's.
+    weights: Vec<f32>,
+    bias: f32,
+    /// What the channel sum is multiplied by to give the mean (`1 / C` as the network has it).
+    scale: f32,
+}
+
+/// The logistic function, `1 / (1 + exp(-z))`: 0 for `z = -inf`, 1 for `+inf`, NaN for NaN.
+#[inline(always)]
+fn sigmoid(z: f32) -> f32 {
+    1.0 / (1.0 + (-z).exp())
+}
+
+impl SpatialAttention {
+    /// From the convolution's `[1, 2, 7, 7]` weights (98 values, mean first), its bias and the
+    /// mean's scale; `None` for another number of weights.
+    pub fn new(weights: &[f32], bias: f32, scale: f32) -> Option<SpatialAttention> {
+        (weights.len() == 2 * K * K).then(|| SpatialAttention {
+            weights: weights.to_vec(),
+            bias,
+            scale,
+        })
+    }
+
+    /// The scalar definition: `y = x * sigmoid(z)`, `z` the bias then one fused multiply-add per
+    /// tap (map, kernel row, column, in order; 0 off the image) over the maps `mean = (sum of
+    /// s over channels, in channel order, from 0) * scale` and `max` of `s = x + d`.
+    ///
+    /// # Panics
+    /// When `x` and `d` differ in shape.
+    pub fn reference(&self, x: ArrayView3<f32>, d: ArrayView3<f32>) -> Array3<f32> {
+        assert_eq!(x.dim(), d.dim(), "x and d");
+        let (c, h, w) = x.dim();
+        let s = |k: usize, y: usize, i: usize| x[[k, y, i]] + d[[k, y, i]];
+        let mean = ndarray::Array2::from_shape_fn((h, w), |(y, i)| {
+            (0..c).fold(0.0f32, |a, k| a + s(k, y, i)) * self.scale
+        });
+        let max = ndarray::Array2::from_shape_fn((h, w), |(y, i)| {
+            (1..c).fold(s(0, y, i), |a, k| a.max(s(k, y, i)))
+        });
+        let maps = [mean, max];
+        let map = ndarray::Array2::from_shape_fn((h, w), |(y, i)| {
+            let mut z = self.bias;
+            for (m, map) in maps.iter().enumerate() {
+                for ky in 0..K {
+                    for kx in 0..K {
+                        let (yy, xx) = ((y + ky).wrapping_sub(PAD), (i + kx).wrapping_sub(PAD));
+                        let v = if yy < h && xx < w { map[[yy, xx]] } else { 0.0 };
+                        z = self.weights[(m * K + ky) * K + kx].mul_add(v, z);
+                    }
+                }
+            }
+            sigmoid(z)
+        });
+        Array3::from_shape_fn((c, h, w), |(k, y, i)| x[[k, y, i]] * map[[y, i]])
+    }
+
+    /// [`reference`](Self::reference) of `x` and `d` (`[C, H, W]`, row-major) into `out`, rows
+    /// split across `pool` (or this thread when `None`).
+    ///
+    /// # Errors
+    /// A message when `x`, `d` or `out` is not `C * H * W` values.
+    pub fn run(
+        &self,
+        x: &[f32],
+        d: &[f32],
+        (c, h, w): (usize, usize, usize),
+        out: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), String> {
+        let n = c.checked_mul(h).and_then(|n| n.checked_mul(w));
+        if [x.len(), d.len(), out.len()].iter().any(|&l| Some(l) != n) {
+            return Err(format!(
+                "{} and {} values in, {} out, for {c}x{h}x{w}",
+                x.len(),
+                d.len(),
+                out.len()
+            ));
+        }
+        if c == 0 || h == 0 || w == 0 {
+            return Ok(());
+        }
+        let threads = pool.map_or(1, |p| p.current_num_threads());
+        let rows = h.div_ceil(if threads > 1 { (4 * threads).min(h) } else { 1 });
+        // The two maps, zero-padded by 3 on every side, row by row: `[h + 6][2][w + 6]`.
+        let pw = w + 2 * PAD;
+        let mut maps = vec![0f32; (h + 2 * PAD) * 2 * pw];
+        let inner = &mut maps[PAD * 2 * pw..(PAD + h) * 2 * pw];
+        let maps_of = |(b, band): (usize, &mut [f32])| {
+            neuspike_simd::dispatch(
+                #[inline(always)]
+                || {
+                    for (r, row) in band.chunks_exact_mut(2 * pw).enumerate() {
+                        self.maps_row(x, d, (c, h, w), b * rows + r, row)
+                    }
+                },
+            )
+        };
+        let bands = inner.chunks_mut(rows * 2 * pw).enumerate();
+        match pool {
+            Some(pool) if threads > 1 => {
+                pool.install(|| bands.collect::<Vec<_>>().into_par_iter().for_each(maps_of))
+            }
+            _ => bands.for_each(maps_of),
+        }
+        // Band b gets rows [b * rows, ..) of every output plane.
+        let mut tasks: Vec<(usize, Vec<&mut [f32]>)> = (0..h.div_ceil(rows))
+            .map(|b| (b * rows, Vec::new()))
+            .collect();
+        for plane in out.chunks_mut(h * w) {
+            for (task, band) in tasks.iter_mut().zip(plane.chunks_mut(rows * w)) {
+                task.1.push(band);
+            }
+        }
+        let maps = &maps;
+        let product = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
+            neuspike_simd::dispatch(
+                #[inline(always)]
+                || self.product_rows(x, maps, (h, w), y0, &mut planes),
+            )
+        };
+        match pool {
+            Some(pool) if threads > 1 => pool.install(|| tasks.into_par_iter().for_each(product)),
+            _ => tasks.into_iter().for_each(product),
+        }
+        Ok(())
+    }
+
+    /// Row `y` of the mean and maximum maps of `x + d` into `row` (`[2][w + 6]`, the maps'
+    /// values at `3..3 + w`).
+    #[inline(always)]
+    fn maps_row(
+        &self,
+        x: &[f32],
+        d: &[f32],
+        (c, h, w): (usize, usize, usize),
+        y: usize,
+        row: &mut [f32],
+    ) {
+        let (mean, max) = row.split_at_mut(row.len() / 2);
+        let (mean, max) = (&mut mean[PAD..PAD + w], &mut max[PAD..PAD + w]);
+        mean.fill(0.0);
+        for k in 0..c {
+            let at = (k * h + y) * w;
+            let (xs, ds) = (&x[at..at + w], &d[at..at + w]);
+            if k == 0 {
+                for (((m, a), &xv), &dv) in mean.iter_mut().zip(max.iter_mut()).zip(xs).zip(ds) {
+                    let s = xv + dv;
+                    *m += s;
+                    *a = s;
+                }
+            } else {
+                for (((m, a), &xv), &dv) in mean.iter_mut().zip(max.iter_mut()).zip(xs).zip(ds) {
+                    let s = xv + dv;
+                    *m += s;
+                    *a = a.max(s);
+                }
+            }
+        }
+        for m in mean.iter_mut() {
+            *m *= self.scale;
+        }
+    }
+
+    /// Output rows `y0..` of every plane in `planes`: the map's row, then `x` times it.
+    #[inline(always)]
+    fn product_rows(
+        &self,
+        x: &[f32],
+        maps: &[f32],
+        (h, w): (usize, usize),
+        y0: usize,
+        planes: &mut [&mut [f32]],
+    ) {
+        let pw = w + 2 * PAD;
+        let mut z = vec![0f32; w];
+        let n_rows = planes.first().map_or(0, |p| p.len() / w);
+        for y in y0..y0 + n_rows {
+            z.fill(self.bias);
+            for m in 0..2 {
+                for ky in 0..K {
+                    // Padded row y + ky is image row y + ky - 3.
+                    let src = &maps[((y + ky) * 2 + m) * pw..][..pw];
+                    for kx in 0..K {
+                        let wt = self.weights[(m * K + ky) * K + kx];
+                        for (z, &v) in z.iter_mut().zip(&src[kx..kx + w]) {
+                            *z = wt.mul_add(v, *z);
+                        }
+                    }
+                }
+            }
+            for z in z.iter_mut() {
+                *z = sigmoid(*z);
+            }
+            for (k, plane) in planes.iter_mut().enumerate() {
+                let dst = &mut plane[(y - y0) * w..][..w];
+                let xs = &x[(k * h + y) * w..][..w];
+                for ((o, &xv), &a) in dst.iter_mut().zip(xs).zip(&z) {
+                    *o = xv * a;
+                }
+            }
+        }
+    }
+}
+
+/// The tract operator running a [`SpatialAttention`] on `x` and `d`, both `[1, C, H, W]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpatialAttentionOp(pub Arc<SpatialAttention>);
+
+impl Eq for SpatialAttentionOp {}
+
+impl Op for SpatialAttentionOp {
+    fn name(&self) -> StaticName {
+        "NeuspikeSpatialAttention".into()
+    }
+
+    op_as_typed_op!();
+}
+
+impl EvalOp for SpatialAttentionOp {
+    op_out_of_plan!();
+
+    fn eval(&self, _ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
+        let (x, d) = args_2!(inputs);
+        let &[1, c, h, w] = x.shape() else {
+            bail!(
+                "NeuspikeSpatialAttention takes [1, C, H, W], got {:?}",
+                x.shape()
+            );
+        };
+        ensure!(
+            x.shape() == d.shape(),
+            "x {:?} and d {:?}",
+            x.shape(),
+            d.shape()
+        );
+        let pool = match tract_linalg::multithread::current_tract_executor() {
+            tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
+            _ => None,
+        };
+        let (x, d) = (x.try_as_plain_ram()?, d.try_as_plain_ram()?);
+        let mut y = vec![0f32; c * h * w];
+        self.0
+            .run(
+                x.as_slice::<f32>()?,
+                d.as_slice::<f32>()?,
+                (c, h, w),
+                &mut y,
+                pool.as_deref(),
+            )
+            .map_err(|e| format_err!("{e}"))?;
+        let y = tract_ndarray::ArrayD::from_shape_vec(vec![1, c, h, w], y)?;
+        Ok(tvec!(y.into_tensor().into_tvalue()))
+    }
+}
+
+impl TypedOp for SpatialAttentionOp {
+    fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
+        let [x, d] = inputs else {
+            bail!("NeuspikeSpatialAttention takes two inputs");
+        };
+        ensure!(x.datum_type == f32::datum_type() && x.rank() == 4 && x.shape == d.shape);
+        Ok(tvec!(f32::fact(x.shape.clone())))
+    }
+
+    as_op!();
+}
+
+/// The single value of the constant on `outlet`, if it is one.
+fn scalar(model: &TypedModel, outlet: OutletId) -> Option<f32> {
+    let k = model.outlet_fact(outlet).ok()?.konst.clone()?;
+    let v = k.to_plain_array_view::<f32>().ok()?;
+    if v.len() == 1 {
+        v.iter().next().copied()
+    } else {
+        None
+    }
+}
+
+/// The binary operator of `node` if it is tract's `name` (`Add`, `Mul`, `Max`) on two inputs.
+fn binary<'m>(node: &'m TypedNode, name: &str) -> Option<&'m [OutletId]> {
+    use tract_onnx::tract_core::ops::binary::TypedBinOp;
+    let op = node.op_as::<TypedBinOp>()?;
+    (op.0.name() == name && node.inputs.len() == 2).then_some(node.inputs.as_slice())
+}
+
+/// The channel ranges of `s` whose maximum `outlet` computes, if it is a tree of `Max` over
+/// slices of `s` on axis 1, or a `ReduceMax` of `s` over axis 1 (`0..c`).
+fn max_ranges(
+    model: &TypedModel,
+    outlet: OutletId,
+    s: OutletId,
+    c: usize,
+) -> Option<Vec<(usize, usize)>> {
+    use tract_onnx::tract_core::ops::array::Slice;
+    use tract_onnx::tract_core::ops::nn::{Reduce, Reducer};
+    let node = model.node(outlet.node);
+    if let Some(inputs) = binary(node, "Max") {
+        let mut a = max_ranges(model, inputs[0], s, c)?;
+        a.extend(max_ranges(model, inputs[1], s, c)?);
+        return Some(a);
+    }
+    if node.inputs.first() != Some(&s) {
+        return None;
+    }
+    if let Some(slice) = node.op_as::<Slice>() {
+        let (start, end) = (slice.start.to_usize().ok()?, slice.end.to_usize().ok()?);
+        return (slice.axis == 1 && start < end).then_some(vec![(start, end)]);
+    }
+    let reduce = node.op_as::<Reduce>()?;
+    (reduce.axes.as_slice() == [1] && matches!(reduce.reducer, Reducer::Max))
+        .then_some(vec![(0, c)])
+}
+
+/// The attention whose product is `node` (`x * sigmoid(conv(concat(mean, max)))` over `s = x +
+/// d`, as tract declutters `Fusion.skip` of `training/neuspike_net.py`), with `x` and `d`.
+fn as_spatial_attention(
+    model: &TypedModel,
+    node: &TypedNode,
+) -> Option<(SpatialAttention, OutletId, OutletId)> {
+    use tract_onnx::tract_core::ops::array::TypedConcat;
+    use tract_onnx::tract_core::ops::cnn::{Conv, PaddingSpec};
+    use tract_onnx::tract_core::ops::nn::{DataFormat, Reduce, Reducer};
+    let inputs = binary(node, "Mul")?;
+    let (slot, sig) = inputs
+        .iter()
+        .enumerate()
+        .find(|(_, o)| model.node(o.node).op().name() == "Sigmoid")?;
+    let x = inputs[1 - slot];
+    let fact = model.outlet_fact(x).ok()?;
+    let shape = fact.shape.as_concrete()?;
+    let &[1, c, _, _] = shape else {
+        return None;
+    };
+    if fact.datum_type != f32::datum_type()
+        || model.outlet_fact(OutletId::new(node.id, 0)).ok()?.shape != fact.shape
+    {
+        return None;
+    }
+    let sig = model.node(sig.node);
+    let conv_node = model.node(sig.inputs.first()?.node);
+    let conv = conv_node.op_as::<Conv>()?;
+    let spec = &conv.pool_spec;
+    let ones = |v: &Option<TVec<usize>>| v.as_ref().is_none_or(|v| v.iter().all(|&s| s == 1));
+    let padded = match &spec.padding {
+        PaddingSpec::Explicit(b, a) => b.iter().chain(a).all(|&p| p == PAD) && b.len() == 2,
+        PaddingSpec::SameUpper | PaddingSpec::SameLower => true,
+        _ => false,
+    };
+    if conv.group != 1
+        || conv.q_params.is_some()
+        || spec.data_format != DataFormat::NCHW
+        || spec.kernel_shape.as_slice() != [K, K]
+        || !ones(&spec.strides)
+        || !ones(&spec.dilations)
+        || !padded
+        || conv_node.inputs.len() != 3
+    {
+        return None;
+    }
+    let kernel = model.outlet_fact(conv_node.inputs[1]).ok()?.konst.clone()?;
+    if kernel.shape() != [1, 2, K, K] {
+        return None;
+    }
+    let weights: Vec<f32> = kernel
+        .to_plain_array_view::<f32>()
+        .ok()?
+        .iter()
+        .copied()
+        .collect();
+    let bias = scalar(model, conv_node.inputs[2])?;
+    let concat_node = model.node(conv_node.inputs[0].node);
+    if concat_node.op_as::<TypedConcat>()?.axis != 1 || concat_node.inputs.len() != 2 {
+        return None;
+    }
+    // The mean: the channel sum of s, times a constant.
+    let norm = binary(model.node(concat_node.inputs[0].node), "Mul")?;
+    let (sum, scale) = match (scalar(model, norm[0]), scalar(model, norm[1])) {
+        (None, Some(k)) => (norm[0], k),
+        (Some(k), None) => (norm[1], k),
+        _ => return None,
+    };
+    let sum_node = model.node(sum.node);
+    let reduce = sum_node.op_as::<Reduce>()?;
+    if reduce.axes.as_slice() != [1] || !matches!(reduce.reducer, Reducer::Sum) {
+        return None;
+    }
+    let s = *sum_node.inputs.first()?;
+    // s = x + d.
+    let add = binary(model.node(s.node), "Add")?;
+    let d = match add {
+        [a, b] if *a == x => *b,
+        [a, b] if *b == x => *a,
+        _ => return None,
+    };
+    if model.outlet_fact(d).ok()?.shape != fact.shape {
+        return None;
+    }
+    // The maximum covers every channel of s.
+    let mut ranges = max_ranges(model, concat_node.inputs[1], s, c)?;
+    ranges.sort_unstable();
+    let mut covered = 0;
+    for (start, end) in ranges {
+        if start > covered || end > c {
+            return None;
+        }
+        covered = covered.max(end);
+    }
+    if covered != c {
+        return None;
+    }
+    Some((SpatialAttention::new(&weights, bias, scale)?, x, d))
+}
+
+/// Replaces every spatial attention of the (decluttered) `model` by a [`SpatialAttentionOp`];
+/// returns how many. The nodes it took over go when nothing else reads them.
+pub fn use_spatial_attention(model: &mut TypedModel) -> TractResult<usize> {
+    let mut replaced = 0;
+    for id in model.eval_order()? {
+        let node = model.node(id);
+        let Some((attention, x, d)) = as_spatial_attention(model, node) else {
+            continue;
+        };
+        let mut patch = TypedModelPatch::default();
+        let x = patch.tap_model(model, x)?;
+        let d = patch.tap_model(model, d)?;
+        let y = patch.wire_node(&node.name, SpatialAttentionOp(Arc::new(attention)), &[x, d])?;
+        patch.shunt_outside(model, OutletId::new(id, 0), y[0])?;
+        patch.apply(model)?;
+        replaced += 1;
+    }
+    Ok(replaced)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pattern(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| {
+                let k = (i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8;
+                (k % 2001) as f32 / 1000.0 - 1.0
+            })
+            .collect()
+    }
+
+    #[test]
+    fn matches_the_reference_exactly() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        for (i, &(c, h, w)) in [(16, 9, 50), (3, 1, 1), (1, 4, 7), (8, 13, 21)]
+            .iter()
+            .enumerate()
+        {
+            let a = SpatialAttention::new(&pattern(98, i as u32), 0.3, 1.0 / c as f32).unwrap();
+            let x = pattern(c * h * w, 10 + i as u32);
+            let d = pattern(c * h * w, 20 + i as u32);
+            let want = a.reference(
+                ArrayView3::from_shape((c, h, w), &x).unwrap(),
+                ArrayView3::from_shape((c, h, w), &d).unwrap(),
+            );
+            for pool in [None, Some(&pool)] {
+                let mut got = vec![f32::NAN; c * h * w];
+                a.run(&x, &d, (c, h, w), &mut got, pool).unwrap();
+                assert_eq!(got.as_slice(), want.as_slice().unwrap(), "{c}x{h}x{w}");
+            }
+        }
+    }
+
+    #[test]
+    fn extremes_and_bad_sizes() {
+        // The map saturates to 1 and 0 far from 0; NaN stays NaN (as would an infinity, which a
+        // zero weight turns into NaN); no panic.
+        let mut weights = vec![0.0; 98];
+        weights[3 * K + 3] = 1.0;
+        let a = SpatialAttention::new(&weights, 0.0, 1.0).unwrap();
+        for (x, want) in [
+            (1e30f32, Some(1e30f32)),
+            (-1e30, Some(0.0)),
+            (f32::NAN, None),
+            (2.0, Some(2.0 * sigmoid(2.0))),
+        ] {
+            let mut y = [0.0];
+            a.run(&[x], &[0.0], (1, 1, 1), &mut y, None).unwrap();
+            match want {
+                Some(v) => assert_eq!(y[0], v, "{x}"),
+                None => assert!(y[0].is_nan(), "{x}: {}", y[0]),
+            }
+        }
+        let (x, d, mut y) = ([1.0; 4], [0.0; 4], [0.0; 4]);
+        assert!(a.run(&x, &d, (1, 1, 3), &mut y, None).is_err());
+        assert!(a.run(&x, &d[..3], (1, 1, 4), &mut y, None).is_err());
+        assert!(a.run(&x, &d, (1, 2, 2), &mut y[..3], None).is_err());
+        assert!(SpatialAttention::new(&[0.0; 97], 0.0, 1.0).is_none());
+        assert_eq!(
+            (sigmoid(f32::INFINITY), sigmoid(f32::NEG_INFINITY)),
+            (1.0, 0.0)
+        );
+    }
+}
