@@ -288,6 +288,43 @@ impl Conv3x3 {
         Ok(())
     }
 
+    /// The convolution of the channel concatenation of `parts` (each `(values, channels)`,
+    /// `[channels, H, W]` row-major), without making the concatenation: each channel's rows are
+    /// read from its part.
+    ///
+    /// # Errors
+    /// [`Conv3x3Error::Shape`] when the parts' channels do not add up to the input channels, a
+    /// part is not `channels * H * W` values, or `output` does not fit.
+    pub fn run_concat(
+        &self,
+        parts: &[(&[f32], usize)],
+        (h, w): (usize, usize),
+        output: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), Conv3x3Error> {
+        let channels: usize = parts.iter().map(|p| p.1).sum();
+        let sized = parts
+            .iter()
+            .all(|&(v, c)| Some(v.len()) == c.checked_mul(h).and_then(|n| n.checked_mul(w)));
+        if channels != self.c_in || !sized {
+            return Err(Conv3x3Error::Shape {
+                input: parts.iter().map(|p| p.1).collect(),
+                output: output.len(),
+                c_in: self.c_in,
+                c_out: self.c_out,
+            });
+        }
+        self.check(&[self.c_in, h, w], output.len())?;
+        self.drive(
+            neuspike_simd::detect(),
+            Input::Parts(parts, w),
+            (h, w),
+            output,
+            pool,
+        );
+        Ok(())
+    }
+
     /// The convolution of `input` (`[C, H, W]`, each row contiguous in memory) padded to
     /// `(hp, wp)` by repeating its last row and column ([`crate::learned::pad_edge`]), without
     /// making the padded copy: each row is read where it lies. The output is `[O, H', W']` of
@@ -506,6 +543,9 @@ impl Conv3x3 {
 enum Input<'a> {
     /// `[C, H, W]`, row-major, all of it, and its `W`.
     Dense(&'a [f32], usize),
+    /// The channel concatenation of parts `(values, channels)`, each `[channels, H, W]`
+    /// row-major, and the `W`.
+    Parts(&'a [(&'a [f32], usize)], usize),
     /// `[C, h, w]` with contiguous rows, read as if padded to a larger size by repeating its
     /// last row (here) and column ([`Conv3x3::padded`]).
     Edge(ArrayView3<'a, f32>),
@@ -518,6 +558,17 @@ impl<'a> Input<'a> {
     fn row(self, c: usize, iy: usize, h: usize) -> &'a [f32] {
         match self {
             Input::Dense(x, w) => &x[(c * h + iy) * w..][..w],
+            Input::Parts(parts, w) => {
+                let mut c = c;
+                for &(x, channels) in parts {
+                    if c < channels {
+                        return &x[(c * h + iy) * w..][..w];
+                    }
+                    c -= channels;
+                }
+                // Past the last part (the channels were checked to add up): no row.
+                &[]
+            }
             Input::Edge(x) => {
                 let (_, rows, w) = x.dim();
                 let row = x.slice_move(ndarray::s![c, iy.min(rows - 1), ..]);
@@ -601,13 +652,30 @@ impl EvalOp for Conv3x3Op {
     op_out_of_plan!();
 
     fn eval(&self, _ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
-        let input = args_1!(inputs);
-        let &[n, c, h, w] = input.shape() else {
+        // One input, or the parts of its channel concatenation (see `use_conv3x3`).
+        let Some(&[n, _, h, w]) = inputs.first().map(|i| i.shape()) else {
             bail!(
                 "NeuspikeConv3x3 takes [N, C, H, W], got {:?}",
-                input.shape()
+                inputs.first().map(|i| i.shape())
             );
         };
+        let mut channels = TVec::new();
+        for input in &inputs {
+            let &[ni, c, hi, wi] = input.shape() else {
+                bail!(
+                    "NeuspikeConv3x3 takes [N, C, H, W], got {:?}",
+                    input.shape()
+                );
+            };
+            ensure!(
+                (ni, hi, wi) == (n, h, w),
+                "parts of shapes {:?} and {:?}",
+                inputs[0].shape(),
+                input.shape()
+            );
+            channels.push(c);
+        }
+        let c: usize = channels.iter().sum();
         ensure!(
             c == self.0.c_in,
             "{c} input channels, expected {}",
@@ -618,17 +686,29 @@ impl EvalOp for Conv3x3Op {
             tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
             _ => None,
         };
-        let input = input.try_as_plain_ram()?;
-        let x = input.as_slice::<f32>()?;
+        let plain = inputs
+            .iter()
+            .map(|i| i.try_as_plain_ram())
+            .collect::<TractResult<TVec<_>>>()?;
+        let values = plain
+            .iter()
+            .map(|p| p.as_slice::<f32>())
+            .collect::<TractResult<TVec<_>>>()?;
         // Allocated zeroed (fresh pages come zeroed from the system, untouched until the threads
         // write their rows) and moved into the tensor, not copied.
         let mut y = vec![0f32; n * self.0.c_out * ho * wo];
         if c * h * w > 0 && ho * wo > 0 {
-            let planes = x
-                .chunks_exact(c * h * w)
-                .zip(y.chunks_exact_mut(self.0.c_out * ho * wo));
-            for (x, y) in planes {
-                self.0.run(x, (h, w), y, pool.as_deref())?;
+            for (b, y) in y.chunks_exact_mut(self.0.c_out * ho * wo).enumerate() {
+                let parts: TVec<(&[f32], usize)> = values
+                    .iter()
+                    .zip(&channels)
+                    .map(|(v, &ci)| (&v[b * ci * h * w..][..ci * h * w], ci))
+                    .collect();
+                if let [(x, _)] = parts.as_slice() {
+                    self.0.run(x, (h, w), y, pool.as_deref())?;
+                } else {
+                    self.0.run_concat(&parts, (h, w), y, pool.as_deref())?;
+                }
             }
         }
         let output = tract_ndarray::ArrayD::from_shape_vec(vec![n, self.0.c_out, ho, wo], y)?;
@@ -638,10 +718,13 @@ impl EvalOp for Conv3x3Op {
 
 impl TypedOp for Conv3x3Op {
     fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
-        let [input] = inputs else {
-            bail!("NeuspikeConv3x3 takes one input");
+        let Some(input) = inputs.first() else {
+            bail!("NeuspikeConv3x3 takes one input or more (the parts of its concatenation)");
         };
-        ensure!(input.datum_type == f32::datum_type() && input.rank() == 4);
+        for part in inputs {
+            ensure!(part.datum_type == f32::datum_type() && part.rank() == 4);
+            ensure!(part.shape[0] == input.shape[0] && part.shape[2..] == input.shape[2..]);
+        }
         let mut shape: TVec<TDim> = input.shape.iter().cloned().collect();
         shape[1] = self.0.c_out.into();
         if self.0.stride == 2 {
@@ -753,9 +836,24 @@ pub(crate) fn relu_after(model: &TypedModel, node: &TypedNode) -> Option<usize> 
     (same_shape && zero.iter().all(|&v| v == 0.0)).then_some(relu.id)
 }
 
+/// The parts of `outlet` if it is a concatenation along channels (axis 1) read by nothing else
+/// (and not a model output): the convolution reads them in place and the concatenation goes.
+fn concatenated(model: &TypedModel, outlet: OutletId) -> TractResult<Option<TVec<OutletId>>> {
+    use tract_onnx::tract_core::ops::array::TypedConcat;
+    let node = model.node(outlet.node);
+    let only_reader = node.outputs[outlet.slot].successors.len() == 1
+        && !model.output_outlets()?.contains(&outlet);
+    Ok(node
+        .op_as::<TypedConcat>()
+        .filter(|c| c.axis == 1 && only_reader && !node.inputs.is_empty())
+        .map(|_| node.inputs.iter().copied().collect()))
+}
+
 /// Replaces every convolution of the (decluttered) `model` that a [`Conv3x3`] computes with
 /// output rows of at least `min_width` points ([`MIN_WIDTH`] where it pays) by a
-/// [`Conv3x3Op`], taking in the ReLU that follows it if any; returns how many.
+/// [`Conv3x3Op`], taking in the ReLU that follows it if any, and reading the parts of the
+/// channel concatenation before it if any (the decoder's merges: no concatenated copy);
+/// returns how many.
 pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usize> {
     let mut replaced = 0;
     for id in model.eval_order()? {
@@ -770,8 +868,9 @@ pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usiz
             conv
         };
         let mut patch = TypedModelPatch::default();
-        let x = patch.tap_model(model, node.inputs[0])?;
-        let y = patch.wire_node(&node.name, Conv3x3Op(Arc::new(conv)), &[x])?;
+        let parts = concatenated(model, node.inputs[0])?.unwrap_or_else(|| tvec![node.inputs[0]]);
+        let xs = patch.taps(model, &parts)?;
+        let y = patch.wire_node(&node.name, Conv3x3Op(Arc::new(conv)), &xs)?;
         let last = relu.unwrap_or(id);
         patch.shunt_outside(model, OutletId::new(last, 0), y[0])?;
         patch.obliterate(id)?;
@@ -798,7 +897,7 @@ pub fn take_first_convolutions(model: &mut TypedModel) -> TractResult<Vec<Option
             continue;
         };
         let conv = model.node(next.node);
-        let Some(op) = conv.op_as::<Conv3x3Op>() else {
+        let Some(op) = conv.op_as::<Conv3x3Op>().filter(|_| conv.inputs.len() == 1) else {
             continue;
         };
         let out = OutletId::new(conv.id, 0);
@@ -883,6 +982,37 @@ mod tests {
         check(64, 64, 1, (5, 50), 3);
         check(8, 16, 2, (16, 400), 4);
         check(32, 64, 2, (9, 101), 5);
+    }
+
+    #[test]
+    fn parts_of_a_concatenation_give_the_concatenations_bits() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        for (stride, (h, w)) in [(1, (9, 37)), (2, (8, 20))] {
+            let conv = conv(8, 8, stride, 4).with_relu();
+            let input = pattern(8 * h * w, 3);
+            let mut want = vec![0.0; 8 * conv.out_len(h) * conv.out_len(w)];
+            conv.run(&input, (h, w), &mut want, None).unwrap();
+            let (a, b) = input.split_at(3 * h * w);
+            for pool in [None, Some(&pool)] {
+                let mut got = vec![f32::NAN; want.len()];
+                conv.run_concat(&[(a, 3), (b, 5)], (h, w), &mut got, pool)
+                    .unwrap();
+                assert_eq!(got, want, "stride {stride}");
+            }
+            // Channels that do not add up, or a part of the wrong size: refused.
+            let mut got = vec![0.0; want.len()];
+            for parts in [
+                vec![(a, 3)],
+                vec![(a, 3), (b, 4)],
+                vec![(a, 3), (&b[1..], 5)],
+            ] {
+                let err = conv.run_concat(&parts, (h, w), &mut got, None);
+                assert!(matches!(err, Err(Conv3x3Error::Shape { .. })), "{err:?}");
+            }
+        }
     }
 
     #[test]

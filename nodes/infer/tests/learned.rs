@@ -340,6 +340,13 @@ fn same_on_both_paths(path: &Path, views: &[ArrayView3<f32>]) {
         for name in ["NeuspikeDeconv2x2", "NeuspikeSpatialAttention"] {
             assert_eq!(count(name), want, "{name} in {} ({conv})", path.display());
         }
+        // The merges read their two inputs in place; the attention's maps are its own: no
+        // concatenation is left.
+        if conv == ConvPath::Blocked {
+            assert_eq!(count("Concat"), 0, "{}", path.display());
+        } else {
+            assert!(count("Concat") >= 6, "{}", path.display());
+        }
         if conv == ConvPath::Blocked {
             assert!(
                 ours >= 3,
