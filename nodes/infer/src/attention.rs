@@ -16,7 +16,6 @@
 use std::sync::Arc;
 
 use ndarray::{Array3, ArrayView3};
-use rayon::prelude::*;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::internal::*;
 
@@ -111,49 +110,30 @@ impl SpatialAttention {
         if c == 0 || h == 0 || w == 0 {
             return Ok(());
         }
-        let threads = pool.map_or(1, |p| p.current_num_threads());
-        let rows = h.div_ceil(if threads > 1 { (4 * threads).min(h) } else { 1 });
+        let rows = crate::bands::band_rows(h, pool);
         // The two maps, zero-padded by 3 on every side, row by row: `[h + 6][2][w + 6]`.
         let pw = w + 2 * PAD;
         let mut maps = vec![0f32; (h + 2 * PAD) * 2 * pw];
         let inner = &mut maps[PAD * 2 * pw..(PAD + h) * 2 * pw];
-        let maps_of = |(b, band): (usize, &mut [f32])| {
+        let tasks = crate::bands::row_bands(inner, h * 2 * pw, 2 * pw, rows);
+        crate::bands::for_each(tasks, pool, |(y0, mut band)| {
             neuspike_simd::dispatch(
                 #[inline(always)]
                 || {
-                    for (r, row) in band.chunks_exact_mut(2 * pw).enumerate() {
-                        self.maps_row(x, d, (c, h, w), b * rows + r, row)
+                    for (r, row) in band[0].chunks_exact_mut(2 * pw).enumerate() {
+                        self.maps_row(x, d, (c, h, w), y0 + r, row)
                     }
                 },
             )
-        };
-        let bands = inner.chunks_mut(rows * 2 * pw).enumerate();
-        match pool {
-            Some(pool) if threads > 1 => {
-                pool.install(|| bands.collect::<Vec<_>>().into_par_iter().for_each(maps_of))
-            }
-            _ => bands.for_each(maps_of),
-        }
-        // Band b gets rows [b * rows, ..) of every output plane.
-        let mut tasks: Vec<(usize, Vec<&mut [f32]>)> = (0..h.div_ceil(rows))
-            .map(|b| (b * rows, Vec::new()))
-            .collect();
-        for plane in out.chunks_mut(h * w) {
-            for (task, band) in tasks.iter_mut().zip(plane.chunks_mut(rows * w)) {
-                task.1.push(band);
-            }
-        }
+        });
         let maps = &maps;
-        let product = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
+        let tasks = crate::bands::row_bands(out, h * w, w, rows);
+        crate::bands::for_each(tasks, pool, |(y0, mut planes)| {
             neuspike_simd::dispatch(
                 #[inline(always)]
                 || self.product_rows(x, maps, (h, w), y0, &mut planes),
             )
-        };
-        match pool {
-            Some(pool) if threads > 1 => pool.install(|| tasks.into_par_iter().for_each(product)),
-            _ => tasks.into_iter().for_each(product),
-        }
+        });
         Ok(())
     }
 
@@ -265,10 +245,7 @@ impl EvalOp for SpatialAttentionOp {
             x.shape(),
             d.shape()
         );
-        let pool = match tract_linalg::multithread::current_tract_executor() {
-            tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
-            _ => None,
-        };
+        let pool = crate::bands::tract_pool();
         let (x, d) = (x.try_as_plain_ram()?, d.try_as_plain_ram()?);
         let mut y = vec![0f32; c * h * w];
         self.0
@@ -466,15 +443,7 @@ pub fn use_spatial_attention(model: &mut TypedModel) -> TractResult<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn pattern(n: usize, seed: u32) -> Vec<f32> {
-        (0..n)
-            .map(|i| {
-                let k = (i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8;
-                (k % 2001) as f32 / 1000.0 - 1.0
-            })
-            .collect()
-    }
+    use crate::testing::pattern;
 
     #[test]
     fn matches_the_reference_exactly() {

@@ -25,7 +25,6 @@ use std::sync::Arc;
 
 use ndarray::{Array3, ArrayView3, ArrayView4};
 use neuspike_simd::taps::{self, POINTS, Taps};
-use rayon::prelude::*;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::internal::*;
 
@@ -375,23 +374,8 @@ impl Conv3x3 {
         if ho == 0 || wo == 0 {
             return;
         }
-        let threads = pool.map_or(1, |p| p.current_num_threads());
-        // A few bands per thread, so a slow thread does not hold the others up.
-        let bands = if threads > 1 {
-            (4 * threads).min(ho)
-        } else {
-            1
-        };
-        let rows = ho.div_ceil(bands);
-        // Band b gets rows [b * rows, ..) of every output plane.
-        let mut tasks: Vec<(usize, Vec<&mut [f32]>)> = (0..ho.div_ceil(rows))
-            .map(|b| (b * rows, Vec::new()))
-            .collect();
-        for plane in output.chunks_mut(ho * wo) {
-            for (task, band) in tasks.iter_mut().zip(plane.chunks_mut(rows * wo)) {
-                task.1.push(band);
-            }
-        }
+        let rows = crate::bands::band_rows(ho, pool);
+        let tasks = crate::bands::row_bands(output, ho * wo, wo, rows);
         let band = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
             BUFFERS.with_borrow_mut(|buffers| {
                 neuspike_simd::with_isa(
@@ -404,10 +388,7 @@ impl Conv3x3 {
                 )
             })
         };
-        match pool {
-            Some(pool) if threads > 1 => pool.install(|| tasks.into_par_iter().for_each(band)),
-            _ => tasks.into_iter().for_each(band),
-        }
+        crate::bands::for_each(tasks, pool, band);
     }
 
     /// Output rows `y0..` of every plane in `planes` (each a band of whole rows), stride `S`.
@@ -682,10 +663,7 @@ impl EvalOp for Conv3x3Op {
             self.0.c_in
         );
         let (ho, wo) = (self.0.out_len(h), self.0.out_len(w));
-        let pool = match tract_linalg::multithread::current_tract_executor() {
-            tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
-            _ => None,
-        };
+        let pool = crate::bands::tract_pool();
         let plain = inputs
             .iter()
             .map(|i| i.try_as_plain_ram())
@@ -922,17 +900,9 @@ pub fn take_first_convolutions(model: &mut TypedModel) -> TractResult<Vec<Option
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::pattern;
     use ndarray::{Array1, Array4};
     use proptest::prelude::*;
-
-    fn pattern(n: usize, seed: u32) -> Vec<f32> {
-        (0..n)
-            .map(|i| {
-                let k = (i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8;
-                (k % 2001) as f32 / 1000.0 - 1.0
-            })
-            .collect()
-    }
 
     fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> Conv3x3 {
         let weights =

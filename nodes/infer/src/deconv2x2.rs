@@ -17,7 +17,6 @@ use std::sync::Arc;
 
 use ndarray::{Array3, ArrayView3, ArrayView4};
 use neuspike_simd::taps::{self, POINTS, Taps};
-use rayon::prelude::*;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::internal::*;
 
@@ -200,18 +199,9 @@ impl Deconv2x2 {
         if h == 0 || w == 0 {
             return Ok(());
         }
-        let threads = pool.map_or(1, |p| p.current_num_threads());
-        let bands = if threads > 1 { (4 * threads).min(h) } else { 1 };
-        let rows = h.div_ceil(bands);
         // Band b gets input rows [b * rows, ..), output rows twice those, of every plane.
-        let mut tasks: Vec<(usize, Vec<&mut [f32]>)> = (0..h.div_ceil(rows))
-            .map(|b| (b * rows, Vec::new()))
-            .collect();
-        for plane in output.chunks_mut(4 * h * w) {
-            for (task, band) in tasks.iter_mut().zip(plane.chunks_mut(rows * 4 * w)) {
-                task.1.push(band);
-            }
-        }
+        let rows = crate::bands::band_rows(h, pool);
+        let tasks = crate::bands::row_bands(output, 4 * h * w, 4 * w, rows);
         let band = |(i0, mut planes): (usize, Vec<&mut [f32]>)| {
             BUFFERS.with_borrow_mut(|buffers| {
                 neuspike_simd::with_isa(
@@ -221,10 +211,7 @@ impl Deconv2x2 {
                 )
             })
         };
-        match pool {
-            Some(pool) if threads > 1 => pool.install(|| tasks.into_par_iter().for_each(band)),
-            _ => tasks.into_iter().for_each(band),
-        }
+        crate::bands::for_each(tasks, pool, band);
         Ok(())
     }
 
@@ -375,10 +362,7 @@ impl EvalOp for Deconv2x2Op {
             "{c} input channels, expected {}",
             self.0.c_in
         );
-        let pool = match tract_linalg::multithread::current_tract_executor() {
-            tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
-            _ => None,
-        };
+        let pool = crate::bands::tract_pool();
         let input = input.try_as_plain_ram()?;
         let x = input.as_slice::<f32>()?;
         let plane = self
@@ -501,16 +485,8 @@ pub fn use_deconv2x2(model: &mut TypedModel) -> TractResult<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::pattern;
     use ndarray::{Array1, Array4};
-
-    fn pattern(n: usize, seed: u32) -> Vec<f32> {
-        (0..n)
-            .map(|i| {
-                let k = (i as u32).wrapping_mul(2_654_435_761).wrapping_add(seed) >> 8;
-                (k % 2001) as f32 / 1000.0 - 1.0
-            })
-            .collect()
-    }
 
     fn deconv(c_in: usize, c_out: usize, seed: u32) -> Deconv2x2 {
         let weights =

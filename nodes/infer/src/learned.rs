@@ -543,10 +543,7 @@ fn plan_inputs(
     hp: usize,
     wp: usize,
 ) -> Result<TVec<TValue>, InferError> {
-    let pool = match tract_linalg::multithread::current_tract_executor() {
-        tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
-        _ => None,
-    };
+    let pool = crate::bands::tract_pool();
     let mut values = TVec::new();
     for (i, x) in xs.iter().enumerate() {
         let conv = first.get(i).and_then(Option::as_ref);

@@ -32,6 +32,7 @@ use std::str::FromStr;
 use ndarray::{ArrayView2, ArrayViewMut2, Zip};
 
 pub mod attention;
+mod bands;
 pub mod conv3x3;
 pub mod deconv2x2;
 mod fastmath;

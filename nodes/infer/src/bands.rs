@@ -1,0 +1,90 @@
+//! How neuspike's tract operators split their output rows across tract's thread pool.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+/// The pool of tract's current executor (`None` when it runs on the calling thread).
+pub(crate) fn tract_pool() -> Option<Arc<rayon::ThreadPool>> {
+    match tract_linalg::multithread::current_tract_executor() {
+        tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
+        _ => None,
+    }
+}
+
+/// Rows per band for `rows` rows on `pool`: a few bands per thread, so a slow thread does not
+/// hold the others up; all of them in one band on one thread. At least 1.
+pub(crate) fn band_rows(rows: usize, pool: Option<&rayon::ThreadPool>) -> usize {
+    let threads = pool.map_or(1, |p| p.current_num_threads());
+    let bands = if threads > 1 {
+        (4 * threads).min(rows)
+    } else {
+        1
+    };
+    rows.div_ceil(bands.max(1)).max(1)
+}
+
+/// `output`'s planes (`plane` values each; a last shorter one is kept as it is) cut in bands of
+/// `rows` rows of `row` values: band `b` is `(b * rows, [its rows of every plane])`.
+pub(crate) fn row_bands(
+    output: &mut [f32],
+    plane: usize,
+    row: usize,
+    rows: usize,
+) -> Vec<(usize, Vec<&mut [f32]>)> {
+    let per_band = (rows * row).max(1);
+    let mut bands: Vec<(usize, Vec<&mut [f32]>)> = (0..plane.div_ceil(per_band))
+        .map(|b| (b * rows, Vec::new()))
+        .collect();
+    for plane in output.chunks_mut(plane.max(1)) {
+        for (band, part) in bands.iter_mut().zip(plane.chunks_mut(per_band)) {
+            band.1.push(part);
+        }
+    }
+    bands
+}
+
+/// Runs `f` on every task: across `pool` when it has more than one thread, else in order here.
+pub(crate) fn for_each<T: Send>(
+    tasks: Vec<T>,
+    pool: Option<&rayon::ThreadPool>,
+    f: impl Fn(T) + Send + Sync,
+) {
+    match pool {
+        Some(pool) if pool.current_num_threads() > 1 => {
+            pool.install(|| tasks.into_par_iter().for_each(f))
+        }
+        _ => tasks.into_iter().for_each(f),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bands_cover_every_row_of_every_plane_once() {
+        for (planes, h, w, rows) in [(3, 10, 4, 3), (1, 1, 1, 1), (2, 7, 5, 7), (2, 7, 5, 9)] {
+            let mut out = vec![0.0f32; planes * h * w];
+            let bands = row_bands(&mut out, h * w, w, rows);
+            assert_eq!(bands.len(), h.div_ceil(rows));
+            for (b, (y0, parts)) in bands.into_iter().enumerate() {
+                assert_eq!(y0, b * rows);
+                assert_eq!(parts.len(), planes);
+                for part in parts {
+                    assert_eq!(part.len(), rows.min(h - y0) * w);
+                    part.iter_mut().for_each(|v| *v += 1.0);
+                }
+            }
+            assert!(out.iter().all(|&v| v == 1.0), "{planes}x{h}x{w} by {rows}");
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        assert_eq!(band_rows(256, None), 256);
+        assert_eq!(band_rows(256, Some(&pool)), 32);
+        assert_eq!(band_rows(3, Some(&pool)), 1);
+        assert_eq!(band_rows(0, Some(&pool)), 1);
+    }
+}
