@@ -346,6 +346,7 @@ impl LearnedModel {
                     crate::conv3x3::use_conv3x3(&mut model, crate::conv3x3::MIN_WIDTH)?;
                     crate::deconv2x2::use_deconv2x2(&mut model)?;
                     crate::attention::use_spatial_attention(&mut model)?;
+                    crate::attention::use_scaled_sums(&mut model)?;
                     first = crate::conv3x3::take_first_convolutions(&mut model)?;
                 }
                 Ok((model.into_optimized()?.into_runnable()?, first))

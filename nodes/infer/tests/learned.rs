@@ -340,6 +340,14 @@ fn same_on_both_paths(path: &Path, views: &[ArrayView3<f32>]) {
         for name in ["NeuspikeDeconv2x2", "NeuspikeSpatialAttention"] {
             assert_eq!(count(name), want, "{name} in {} ({conv})", path.display());
         }
+        // The channel attention of each of the four fusions (one path or two, summed).
+        let sums = count("NeuspikeScaledSum");
+        assert_eq!(
+            sums,
+            if conv == ConvPath::Blocked { 4 } else { 0 },
+            "{}",
+            path.display()
+        );
         // The merges read their two inputs in place; the attention's maps are its own: no
         // concatenation is left.
         if conv == ConvPath::Blocked {
