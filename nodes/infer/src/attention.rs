@@ -1,4 +1,6 @@
-//! The spatial attention of the learned networks' skip connections (Eq. 12), as one operator.
+//! The attention of the learned networks' fusion modules as neuspike operators: the spatial
+//! attention of the skip connections (Eq. 12), and the channel attention's products and their
+//! sum ([`ScaledSumOp`], Eq. 11).
 //!
 //! The fusion module weights the fused features `x` of a scale by a map computed from `s = x +
 //! d` (`d` the decoder's feature there): `y = x * sigmoid(conv7x7([mean_c s, max_c s]) + b)`.
