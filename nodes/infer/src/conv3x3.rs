@@ -16,9 +16,8 @@
 //! A row is computed in whole vectors, so 50 points would cost 64: at stride 1, rows narrower
 //! than 128 points are copied a few at a time one after the other into one scratch plane (each
 //! with a zero on either side) and computed as one run of points, 2 of every `w + 2` wasted
-//! (`Conv3x3::band_flat`). [`use_conv3x3`] takes over stride-1 rows of at least
-//! [`MIN_WIDTH_FLAT`] points and stride-2 rows of at least [`MIN_WIDTH`], where it is faster
-//! than tract's matrix product.
+//! (`Conv3x3::band_flat`). [`use_conv3x3`] takes over rows of at least [`MIN_WIDTH`] points,
+//! where it is faster than tract's matrix product.
 //!
 //! [`Conv3x3::reference`] is the scalar definition; the fast path takes the same fused
 //! multiply-adds in the same order (bias, then input channel, kernel row, kernel column), so the
@@ -38,8 +37,9 @@ const TAPS: usize = 9;
 /// Input channels of one block.
 const CHANNELS: usize = 8;
 /// Output rows narrower than this (stride 1) are computed a few rows at a time as one run of
-/// points ([`Conv3x3::band_flat`]), wider ones row by row.
-const FLAT_BELOW: usize = 128;
+/// points (`Conv3x3::band_flat`), wider ones row by row. At 200 (8 of 208 points wasted row by
+/// row) the two were level in `bench-model --profile`.
+pub const FLAT_BELOW: usize = 128;
 /// Values of the scratch planes of [`Conv3x3::band_flat`] (256 KB: they stay in the L2 cache
 /// beside the partial sums).
 const FLAT_SCRATCH: usize = 1 << 16;
@@ -813,18 +813,13 @@ fn konst(model: &TypedModel, outlet: OutletId) -> Option<Arc<Tensor>> {
 }
 
 /// Output widths from which [`use_conv3x3`] is worth it. Measured with `neuspike bench-model
-/// --profile` (one thread, base width 16, 256x400, AVX-512) and `bench_conv3x3`: ours is faster
-/// than tract's best path at widths 400, 200 and 100 (5.7 against 7.0 ms for the 64-to-32
-/// merge at width 100, 2.7 against 3.5 for the 64-channel layers there), 1.07x slower at width
-/// 50 and 128 channels row by row, where a row of 50 points is computed as 64 (stride 1 there
-/// now runs a few rows at a time: [`MIN_WIDTH_FLAT`]). The threshold for stride 2.
-pub const MIN_WIDTH: usize = 80;
-
-/// Output widths from which [`use_conv3x3`] takes a stride-1 convolution whatever its
-/// `min_width`: below 128 points (`FLAT_BELOW`) rows are computed a few at a time as one run
-/// of points, with 2 points of every `w + 2` wasted. Measured (`bench_conv3x3`, one thread, AVX-512): the
-/// 128-channel layer at 32x50 takes 2.10 ms against 2.49 for tract's best path (2.48 row by row).
-pub const MIN_WIDTH_FLAT: usize = 40;
+/// --profile` (base widths 16 and 24, 256x400, AVX-512) and `bench_conv3x3`: ours is faster
+/// than tract's best path at every width the networks have. At width 50, stride 1 (rows
+/// computed a few at a time, [`FLAT_BELOW`]): 2.10 against 2.49 ms for the 128-channel layer,
+/// one thread; stride 2 (a row of 50 points computed as 64): 1.44-1.54 against 1.58-1.78 ms
+/// for the 64-to-128 layer on one thread, 0.73-0.77 against 0.87-1.64 on two (tract's times
+/// with the padding it adds).
+pub const MIN_WIDTH: usize = 40;
 
 /// The [`Conv3x3`] that computes `node`, if it is a 3x3, padding-1 convolution of stride 1 or 2
 /// without dilation, groups or quantisation, on f32 NCHW input of a known width giving at least
@@ -867,13 +862,6 @@ fn as_conv3x3(model: &TypedModel, node: &TypedNode, min_width: usize) -> Option<
         return None;
     }
     let width = fact.shape[3].to_usize().ok()?;
-    // Stride 1 on rows narrower than FLAT_BELOW runs a few rows at a time, which pays from
-    // MIN_WIDTH_FLAT.
-    let min_width = if stride == 1 {
-        min_width.min(MIN_WIDTH_FLAT)
-    } else {
-        min_width
-    };
     if (width.max(1) - 1) / stride + 1 < min_width {
         return None;
     }
