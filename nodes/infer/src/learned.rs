@@ -100,9 +100,9 @@ type Plan = Arc<Planned>;
 
 /// How tract computes the network's spatial convolutions. Measured at 256x400 on one thread
 /// (`neuspike bench-model --conv`): the direct convolution was faster for base width 8 and im2col
-/// with a matrix product faster for base 24 (563 against 757 ms); neuspike's own 3x3 kernel beats
-/// both on the full- and half-resolution layers. The default times each path on the first frame
-/// of each size and keeps the fastest.
+/// with a matrix product faster for base 24 (563 against 757 ms); neuspike's own kernels beat
+/// both on every 3x3 layer at least 40 points wide (all of them at 256x400). The default times
+/// each path on the first frame of each size and keeps the fastest.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ConvPath {
     /// Plan each path, time each on the frame, keep the fastest (the default).
