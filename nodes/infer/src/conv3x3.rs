@@ -476,14 +476,7 @@ impl Conv3x3 {
                 taps::accumulate(isa, &taps, out, wv, self.c_out / OUTS, wv);
             }
             for (o, plane) in planes.iter_mut().enumerate() {
-                let (dst, src) = (&mut plane[(y - y0) * wo..][..wo], &out[o * wv..][..wo]);
-                if self.relu {
-                    for (d, &v) in dst.iter_mut().zip(src) {
-                        *d = v.max(0.0);
-                    }
-                } else {
-                    dst.copy_from_slice(src);
-                }
+                self.put(&mut plane[(y - y0) * wo..][..wo], &out[o * wv..][..wo]);
             }
         }
     }
@@ -553,17 +546,22 @@ impl Conv3x3 {
             }
             for (o, plane) in planes.iter_mut().enumerate() {
                 for r in 0..rows {
-                    let dst = &mut plane[(r0 + r) * w..][..w];
                     let src = &out[o * npts + r * pw..][..w];
-                    if self.relu {
-                        for (d, &v) in dst.iter_mut().zip(src) {
-                            *d = v.max(0.0);
-                        }
-                    } else {
-                        dst.copy_from_slice(src);
-                    }
+                    self.put(&mut plane[(r0 + r) * w..][..w], src);
                 }
             }
+        }
+    }
+
+    /// One output row from its sums: `src` as it is, or through the ReLU.
+    #[inline(always)]
+    fn put(&self, dst: &mut [f32], src: &[f32]) {
+        if self.relu {
+            for (d, &v) in dst.iter_mut().zip(src) {
+                *d = v.max(0.0);
+            }
+        } else {
+            dst.copy_from_slice(src);
         }
     }
 
