@@ -5,10 +5,10 @@
 //! `window_planes` spike planes around its reference plane `c = window_planes / 2`, exactly as
 //! the graph's align and represent nodes see it:
 //! - the **spike representation** (`channels`: 1 ISI + `channels - 1` raw planes) from the
-//!   window's packed planes, by `neuspike_represent::spike_representation_packed_into`;
+//!   window's packed planes, by the represent node's own `neuspike_represent::Representer`;
 //! - the **event integration** (`channels` instants evenly spaced over the window's events
-//!   `[t_first - T, t_last)`, Eq. 8 with `tau_ns`), by `neuspike_represent::event_integration_into`
-//!   on the events of a DVS of the same size and clock (pixel-registered);
+//!   `[t_first - T, t_last)`, Eq. 8 with `tau_ns`), by the same `Representer` on the events of a
+//!   DVS of the same size and clock (pixel-registered);
 //! - the **ground truth**: scene luminance at `t_ref`, in `[0, 1]`, light scale not applied;
 //! - the classical baselines the card compares with: TFP over the whole window and TFI, both
 //!   calibrated to luminance with the sample's `lum_per_rate = phi / light_scale`.
@@ -37,11 +37,9 @@ use ndarray::{Array2, Array3, Axis};
 use ndarray_npy::write_npy;
 use neuspike_event_source::{DvsConfig, EventCamera};
 use neuspike_infer::{luminance_from_isi_into, luminance_from_rate_into};
-use neuspike_represent::{
-    EventSlice, event_integration_into, integration_instants, isi_packed_into,
-    spike_representation_packed_into, tfp_packed_into,
-};
+use neuspike_represent::{RepresentConfig, Representer};
 use neuspike_scene::Scene;
+use neuspike_schemas::{AlignedWindow, RepresentationKind};
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -351,29 +349,34 @@ pub fn sample(
     let mut dvs = EventCamera::new(scene.clone(), dvs_cfg, t_start_ns)?;
     let batch = dvs.advance_to(t_end_ns, 0);
 
+    // The represent node's own computation of each representation, on the same window.
     let k = opts.channels;
-    let mut spike = Array3::<f32>::zeros((k, s, s));
-    spike_representation_packed_into(&chunk.bits, n, c, spike.view_mut())?;
-    let mut events = Array3::<f32>::zeros((k, s, s));
-    let ts = integration_instants(batch.t_start_ns, batch.t_end_ns, k);
-    let slice = EventSlice {
-        t_ns: &batch.t_ns,
-        x: &batch.x,
-        y: &batch.y,
-        polarity: &batch.polarity,
+    let mut represent = Representer::new(RepresentConfig {
+        repr_channels: k as u32,
+        ei_channels: k as u32,
+        tau_ns: opts.tau_ns,
+        ..RepresentConfig::default()
+    })?;
+    let window = AlignedWindow {
+        t_ref_ns,
+        ref_plane: c as u64,
+        spikes: chunk,
+        events: batch,
     };
-    event_integration_into(slice, batch.t_start_ns, &ts, opts.tau_ns, events.view_mut())?;
+    let spike = represent
+        .represent(RepresentationKind::SpikeRepr, &window)?
+        .data;
+    let events = represent
+        .represent(RepresentationKind::EventIntegration, &window)?
+        .data;
+    let rate = represent.represent(RepresentationKind::Tfp, &window)?.data;
+    let isi = represent.represent(RepresentationKind::Isi, &window)?.data;
 
     let phi = CameraConfig::default().phi;
-    let mut rate = Array2::<f32>::zeros((s, s));
-    tfp_packed_into(&chunk.bits, 0..n, rate.view_mut())?;
     let mut tfp = Array2::<f32>::zeros((s, s));
-    luminance_from_rate_into(rate.view(), phi, light, tfp.view_mut())?;
-    let mut isi = Array2::<f32>::zeros((s, s));
-    let mut valid = Array2::<bool>::from_elem((s, s), false);
-    isi_packed_into(&chunk.bits, n, c, isi.view_mut(), valid.view_mut())?;
+    luminance_from_rate_into(rate.index_axis(Axis(0), 0), phi, light, tfp.view_mut())?;
     let mut tfi = Array2::<f32>::zeros((s, s));
-    luminance_from_isi_into(isi.view(), phi, light, tfi.view_mut())?;
+    luminance_from_isi_into(isi.index_axis(Axis(0), 0), phi, light, tfi.view_mut())?;
 
     let mut truth = scene.render(t_ref_ns, s, s);
     truth.mapv_inplace(|v| v.clamp(0.0, 1.0));
@@ -385,7 +388,7 @@ pub fn sample(
         theta_on,
         theta_off,
         lum_per_rate: camera.lum_per_rate(),
-        events: batch.t_ns.len(),
+        events: window.events.t_ns.len(),
         complex: light <= COMPLEX_MAX_LIGHT || speed >= COMPLEX_MIN_SPEED_PX_S,
     };
     Ok(Sample {

@@ -121,7 +121,7 @@ enum Command {
         #[arg(long)]
         truth: Option<PathBuf>,
         /// Reconstruction method.
-        #[arg(long, value_enum, default_value = "tfp")]
+        #[arg(long, default_value = "tfp")]
         method: neuspike::reconstruct::Method,
         /// The ONNX network for `--method learned`, e.g. models/neuspike-spike-8.onnx.
         #[arg(long)]

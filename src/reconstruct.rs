@@ -10,56 +10,8 @@ use eyre::WrapErr;
 use crate::graph;
 use neuspike_infer::learned::{LearnedInput, LearnedModel};
 
-/// Reconstructions a recording can go through.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Method {
-    /// Texture from playback: mean firing over the window.
-    Tfp,
-    /// Texture from inter-spike intervals at the reference plane.
-    Tfi,
-    /// Texture from short-term plasticity: each pixel's synapse, fed every plane, read at the
-    /// reference plane.
-    Tfstp,
-    /// Events alone: Scheerlinck's high-pass filter (needs `--events`).
-    Hf,
-    /// Events with the spike camera's TFI frames: the complementary filter (needs `--events`).
-    Cf,
-    /// Events with ISI maps: NeuSpike-Net's Eq. 5-7 (needs `--events`).
-    Fusion,
-    /// A learned NeuSpike-Net (`--model models/<name>.onnx`; `--events` too when the model
-    /// reads events).
-    Learned,
-}
-
-impl Method {
-    fn name(self) -> &'static str {
-        match self {
-            Method::Tfp => "tfp",
-            Method::Tfi => "tfi",
-            Method::Tfstp => "tfstp",
-            Method::Hf => "hf",
-            Method::Cf => "cf",
-            Method::Fusion => "fusion",
-            Method::Learned => "learned",
-        }
-    }
-
-    /// The representation a classical method reads (the represent node's output), if any; the
-    /// learned method reads its model's ([`Learned`]).
-    fn representation(self) -> Option<&'static str> {
-        match self {
-            Method::Tfp => Some("tfp"),
-            Method::Tfstp => Some("stp"),
-            Method::Tfi | Method::Cf | Method::Fusion => Some("isi"),
-            Method::Hf | Method::Learned => None,
-        }
-    }
-
-    /// Whether a classical method reads align's event stream.
-    fn needs_events(self) -> bool {
-        matches!(self, Method::Hf | Method::Cf | Method::Fusion)
-    }
-}
+/// Reconstructions a recording can go through: the infer node's methods.
+pub use neuspike_infer::Method;
 
 /// What the graph needs to know of a learned model: its file and the representations it reads.
 #[derive(Clone, Debug)]
@@ -152,7 +104,7 @@ pub fn graph_yaml(
         repo.join("Cargo.toml").display()
     );
     let queue = "queue_size: 1000, queue_policy: backpressure";
-    let m = opts.method.name();
+    let m = opts.method.as_str();
     let mut y = String::new();
     let _ = writeln!(
         y,
@@ -219,7 +171,7 @@ pub fn graph_yaml(
     if events.is_some() {
         // A classical event method reads align's event stream; the learned one reads the events
         // inside the windows (represent's event integration).
-        let (outputs, types) = if opts.method.needs_events() {
+        let (outputs, types) = if opts.method.inputs().events {
             (
                 "outputs: [windows, events]".to_string(),
                 format!(
@@ -267,7 +219,12 @@ pub fn graph_yaml(
     // The represent outputs the infer node reads, each the input of the same name.
     let reprs: Vec<&str> = match learned {
         Some(l) => l.inputs.iter().map(|(i, _)| i.input_id()).collect(),
-        None => opts.method.representation().into_iter().collect(),
+        None => opts
+            .method
+            .graph_representation()
+            .map(|k| k.name())
+            .into_iter()
+            .collect(),
     };
     if !reprs.is_empty() {
         let mut args = format!("--tfp-planes {}", opts.window_planes);
@@ -314,7 +271,7 @@ pub fn graph_yaml(
             }
         }
     }
-    if opts.method.needs_events() {
+    if opts.method.inputs().events {
         inputs.push(format!("events: {{ source: align/events, {queue} }}"));
         types.push(format!("events: {}", t("EventBatch")));
     }
@@ -393,7 +350,7 @@ fn plane_period_ns(source_args: &str) -> i64 {
 
 /// Writes the graph into the output folder and runs it.
 pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
-    let m = opts.method.name();
+    let m = opts.method.as_str();
     let learned = match (opts.method, &opts.model) {
         (Method::Learned, Some(path)) => Some(Learned::load(path)?),
         (Method::Learned, None) => eyre::bail!(
@@ -407,7 +364,7 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     };
     let needs_events = match &learned {
         Some(l) => l.reads_events(),
-        None => opts.method.needs_events(),
+        None => opts.method.inputs().events,
     };
     let events = match (&opts.events, needs_events) {
         (Some(e), true) => Some(
@@ -531,7 +488,7 @@ mod tests {
             );
             let nodes = nodes(&y);
             assert_eq!(nodes.len(), 5);
-            let m = method.name();
+            let m = method.as_str();
             let infer = find(&nodes, &format!("infer-{m}"));
             assert_eq!(
                 infer["inputs"]["representation"]["source"].as_str(),
@@ -567,7 +524,7 @@ mod tests {
                 Path::new("/o"),
             );
             let nodes = nodes(&y);
-            let m = method.name();
+            let m = method.as_str();
             let ev = find(&nodes, "event-source");
             let args = ev["args"].as_str().expect("args");
             assert!(

@@ -7,8 +7,8 @@ use arrow::array::{Array, ArrayRef, Float32Array};
 use arrow::datatypes::DataType;
 use ndarray::{Array2, Array3};
 
-use crate::Message;
 use crate::meta::{self, Meta, MetaExt, Parameter, SchemaError, check_type, int_of};
+use crate::{Message, RepresentationKind};
 
 fn floats<'a>(message: &'static str, data: &'a ArrayRef) -> Result<&'a Float32Array, SchemaError> {
     check_type(message, &DataType::Float32, data.data_type())?;
@@ -46,16 +46,25 @@ fn non_finite(message: &'static str, values: &[f32]) -> Result<(), SchemaError> 
     }
 }
 
+/// The `kind` key of a representation, parsed.
+fn kind_of(m: &Meta) -> Result<RepresentationKind, SchemaError> {
+    let name = m.string("representation", meta::KIND)?;
+    name.parse().map_err(|_| SchemaError::BadKey {
+        message: "representation",
+        key: meta::KIND,
+        expected: "a representation kind",
+        found: format!("{name:?} (not one of {})", RepresentationKind::accepted()),
+    })
+}
+
 /// A representation tensor `[C, H, W]` computed at `t_ref_ns`.
 ///
-/// Kinds produced by the represent node: `tfp` (1 channel: firing rate per tick), `isi`
-/// (2 channels: inter-spike interval in ticks, validity 1/0), `spike-repr` (N channels: 1/ISI then
-/// N-1 raw planes), `event-integration` (K channels, paper Eq. 8), `stp` (1 channel: TFSTP's
-/// firing rate per tick). Numeric parameters travel as `param.<name>` metadata.
+/// The kinds the represent node produces are [`RepresentationKind`]s. Numeric parameters travel as
+/// `param.<name>` metadata.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Representation {
     /// What the tensor holds.
-    pub kind: String,
+    pub kind: RepresentationKind,
     /// The reconstruction instant, nanoseconds.
     pub t_ref_ns: i64,
     /// Sequence number (the aligned window's).
@@ -76,7 +85,7 @@ impl Message for Representation {
     fn to_arrow(&self) -> (Meta, ArrayRef) {
         let (c, h, w) = self.data.dim();
         let mut m = Meta::new();
-        m.set_string(meta::KIND, &self.kind);
+        m.set_string(meta::KIND, self.kind.name());
         m.set_int(meta::CHANNELS, int_of(c));
         m.set_int(meta::HEIGHT, int_of(h));
         m.set_int(meta::WIDTH, int_of(w));
@@ -132,7 +141,7 @@ impl Message for Representation {
             }
         })?;
         Ok(Representation {
-            kind: m.string(NAME, meta::KIND)?,
+            kind: kind_of(m)?,
             t_ref_ns: m.int(NAME, meta::T_REF_NS)?,
             seq: m.uint(NAME, meta::SEQ)?,
             params,
@@ -248,14 +257,17 @@ mod tests {
     #[test]
     fn representation_round_trip() {
         let r = Representation {
-            kind: "isi".into(),
+            kind: RepresentationKind::Isi,
             t_ref_ns: 42,
             seq: 1,
             params: [("window".to_string(), 33.0)].into_iter().collect(),
             data: Array3::from_shape_fn((2, 3, 4), |(c, y, x)| (c * 100 + y * 10 + x) as f32),
         };
-        let (m, a) = r.to_arrow();
+        let (mut m, a) = r.to_arrow();
         assert_eq!(Representation::from_arrow(&m, &a).unwrap(), r);
+        m.set_string(meta::KIND, "spike-repr");
+        let e = Representation::from_arrow(&m, &a).unwrap_err().to_string();
+        assert!(e.contains("`kind`") && e.contains("\"spike-repr\""), "{e}");
     }
 
     #[test]

@@ -1,9 +1,11 @@
 //! Every message the neuspike nodes speak, defined once.
 //!
-//! A message travels over dora as one Arrow array (the payload) plus dora metadata parameters (the
-//! header: sizes, clocks, sequence numbers). This crate owns both halves for each message type, the
-//! conversion to and from Rust types (with errors that name the key, the expected type and the value
-//! found), and the conversion between the wire layout and `ndarray` views that kernels use.
+//! A message travels over dora as one Arrow array (the payload) plus metadata parameters (the
+//! header: sizes, clocks, sequence numbers). This crate owns both halves for each message type,
+//! the conversion to and from Rust types (with errors that name the key, the expected type and
+//! the value found), and the conversion between the wire layout and `ndarray` views that kernels
+//! use. It does not depend on dora: the node runtime (`neuspike-runtime`) moves headers in and
+//! out of dora's metadata, so file tools read and write messages without linking dora.
 //!
 //! | message | payload | header keys |
 //! |---|---|---|
@@ -24,18 +26,18 @@
 
 mod events;
 mod frame;
+mod kind;
 pub mod meta;
-pub mod node;
 mod spikes;
 mod stream;
-pub mod testing;
 mod window;
 
 pub use events::{Event, EventBatch};
 pub use frame::{Frame, FrameKind, Representation};
-pub use meta::{Meta, MetaExt, SchemaError};
+pub use kind::{RepresentationKind, UnknownKind};
+pub use meta::{Meta, MetaExt, Parameter, SchemaError};
 pub use spikes::{SpikeChunk, bytes_per_plane, pack_planes, unpack_planes_into};
-pub use stream::{SeqStatus, SeqTracker, end_of_stream, is_end_of_stream};
+pub use stream::{SeqStatus, SeqTracker, end_of_stream, end_of_stream_header, is_end_of_stream};
 pub use window::AlignedWindow;
 
 /// Re-exported so that nodes name the exact Arrow dora uses.

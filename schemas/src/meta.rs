@@ -1,6 +1,28 @@
-//! Metadata keys and typed access to dora metadata parameters.
+//! Metadata keys and typed access to a message's header.
+//!
+//! The header is a map from key to [`Parameter`], the same shape as dora's metadata parameters;
+//! the node runtime (`neuspike-runtime`) converts between the two, so this crate and everything
+//! that reads messages build without dora.
 
-pub use dora_node_api::{MetadataParameters as Meta, Parameter};
+use std::collections::BTreeMap;
+
+/// A message's header: metadata parameters by key.
+pub type Meta = BTreeMap<String, Parameter>;
+
+/// One metadata value.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Parameter {
+    /// A boolean.
+    Bool(bool),
+    /// A signed 64-bit integer.
+    Integer(i64),
+    /// A 64-bit float.
+    Float(f64),
+    /// A UTF-8 string.
+    String(String),
+    /// A value of a kind no neuspike message uses (a list, a timestamp), described for errors.
+    Other(String),
+}
 
 /// Width of the sensor in pixels.
 pub const WIDTH: &str = "width";
@@ -112,7 +134,7 @@ fn describe(p: &Parameter) -> String {
         Parameter::Integer(i) => format!("the integer {i}"),
         Parameter::String(s) => format!("the string {s:?}"),
         Parameter::Float(f) => format!("the float {f}"),
-        other => format!("{other:?}"),
+        Parameter::Other(what) => what.clone(),
     }
 }
 

@@ -8,10 +8,19 @@ use crate::meta::{self, Meta, MetaExt, Parameter};
 /// The end-of-stream marker of an output that sent `count` messages (sequence numbers
 /// `0..count`): an empty payload of the stream's type, `eos = true`, `count`.
 pub fn end_of_stream<M: Message>(count: u64) -> (Meta, ArrayRef) {
+    (
+        end_of_stream_header(count),
+        new_empty_array(&M::data_type()),
+    )
+}
+
+/// The header of an end-of-stream marker after `count` messages (a count beyond `i64::MAX`
+/// saturates).
+pub fn end_of_stream_header(count: u64) -> Meta {
     let mut m = Meta::new();
     m.insert(meta::EOS.to_string(), Parameter::Bool(true));
-    m.set_int(meta::COUNT, count as i64);
-    (m, new_empty_array(&M::data_type()))
+    m.set_int(meta::COUNT, i64::try_from(count).unwrap_or(i64::MAX));
+    m
 }
 
 /// `Some(count)` when the message is an end-of-stream marker.

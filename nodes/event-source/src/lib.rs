@@ -675,6 +675,8 @@ fn pixels_of(frame: &Array2<f32>) -> &[f32] {
     frame.as_slice().unwrap_or(&[])
 }
 
+pub mod playback;
+
 #[cfg(test)]
 mod tests {
     use super::*;

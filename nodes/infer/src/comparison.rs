@@ -8,7 +8,7 @@
 //! every tick, so bright pixels have ISIs of 1 or 2 ticks and TFI is coarse; `phi = 4` gives ISIs
 //! four times longer and TFP four times fewer spikes. Every `EVAL_STRIDE` planes from plane 100 to 900, each method's
 //! luminance at the plane's instant is scored against the ground truth there (PSNR per
-//! REFERENCE.md, data range 1, plain and after the least-squares gain):
+//! docs/definitions.md, data range 1, plain and after the least-squares gain):
 //!
 //! | method | uses |
 //! |---|---|
@@ -42,7 +42,7 @@ const LAST: usize = 900;
 const EVAL_STRIDE: usize = 10;
 const ANCHOR_STRIDE: usize = 100;
 
-/// PSNR (data range 1) and PSNR after the least-squares gain, REFERENCE.md.
+/// PSNR (data range 1) and PSNR after the least-squares gain, docs/definitions.md.
 fn psnr(x: ArrayView2<f32>, truth: ArrayView2<f32>) -> (f64, f64) {
     let (mut se, mut xg, mut xx) = (0.0f64, 0.0f64, 0.0f64);
     for (&a, &g) in x.iter().zip(truth) {

@@ -3,7 +3,7 @@
 //! The spike camera measures absolute luminance where it measures an inter-spike interval:
 //! `I = phi / (ISI * light_scale)` (Eq. 3). The event camera measures changes of log luminance:
 //! `ln I(t2) - ln I(t1) = theta E(t1, t2)` (Eq. 5) with `E` the signed event count between the two
-//! instants (REFERENCE.md). Per pixel, [`PhysicsFusion`]
+//! instants (docs/definitions.md). Per pixel, [`PhysicsFusion`]
 //!
 //! - keeps an **anchor**: the log luminance of the last reliable ISI, `ln I(t0) = ln(phi /
 //!   light_scale) - ln ISI(t0)`, and the signed count `E(t0, t)` of the events since;
@@ -78,6 +78,25 @@ pub enum ThetaMode {
     /// Each pixel its own least-squares estimate; a pixel without an accepted pair uses the global
     /// one (then `theta_init`).
     PerPixel,
+}
+
+/// A name that is not a [`ThetaMode`].
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0:?} is not one of fixed, global, per-pixel")]
+pub struct UnknownThetaMode(pub String);
+
+impl std::str::FromStr for ThetaMode {
+    type Err = UnknownThetaMode;
+
+    /// `fixed`, `global` or `per-pixel`, exactly.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "fixed" => Ok(ThetaMode::Fixed),
+            "global" => Ok(ThetaMode::Global),
+            "per-pixel" => Ok(ThetaMode::PerPixel),
+            _ => Err(UnknownThetaMode(s.to_string())),
+        }
+    }
 }
 
 /// Settings of the [`PhysicsFusion`].

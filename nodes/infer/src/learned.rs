@@ -24,11 +24,13 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ndarray::{Array2, ArrayView3};
+use neuspike_schemas::RepresentationKind;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
 
 use crate::InferError;
-use crate::conv3x3::Conv3x3;
+use neuspike_tract_ops::conv3x3::Conv3x3;
+pub use neuspike_tract_ops::{pad_edge, pad_edge_into};
 
 /// Heights and widths the networks take are multiples of this (three stride-2 layers).
 pub const STRIDE: usize = 8;
@@ -51,20 +53,18 @@ impl LearnedInput {
         }
     }
 
-    /// The representation kind the represent node sends for it.
-    pub fn representation(self) -> &'static str {
+    /// The representation kind it reads: the represent node's output, and the infer node's
+    /// input, of the same name.
+    pub fn representation(self) -> RepresentationKind {
         match self {
-            LearnedInput::Spike => "spike-repr",
-            LearnedInput::Events => "event-integration",
+            LearnedInput::Spike => RepresentationKind::SpikeRepr,
+            LearnedInput::Events => RepresentationKind::EventIntegration,
         }
     }
 
-    /// The infer node's input id for it: the represent node's output of the same name.
+    /// The infer node's input id for it: the representation's name.
     pub fn input_id(self) -> &'static str {
-        match self {
-            LearnedInput::Spike => "spike_repr",
-            LearnedInput::Events => "event_integration",
-        }
+        self.representation().name()
     }
 }
 
@@ -89,7 +89,7 @@ impl LearnedOutput {
 
 /// The model optimised for one padded size, and the first convolutions it leaves to
 /// [`LearnedModel`] (one per input, or `None`; see
-/// [`take_first_convolutions`](crate::conv3x3::take_first_convolutions)).
+/// [`take_first_convolutions`](neuspike_tract_ops::conv3x3::take_first_convolutions)).
 #[derive(Debug)]
 struct Planned {
     runnable: Arc<TypedRunnableModel>,
@@ -113,9 +113,9 @@ pub enum ConvPath {
     /// im2col and a matrix product everywhere (`TRACT_DISABLE_DIRECT_SPATIAL`).
     Im2col,
     /// neuspike's register-blocked kernels: for the 3x3, stride-1 and 2 convolutions with output
-    /// rows of at least [`crate::conv3x3::MIN_WIDTH`] points ([`crate::conv3x3`]) and the 2x2,
-    /// stride-2 transposed ones ([`crate::deconv2x2`]); the skip connections' spatial attention
-    /// as one operator ([`crate::attention`]); tract's direct convolution for the others.
+    /// rows of at least [`neuspike_tract_ops::conv3x3::MIN_WIDTH`] points ([`neuspike_tract_ops::conv3x3`]) and the 2x2,
+    /// stride-2 transposed ones ([`neuspike_tract_ops::deconv2x2`]); the skip connections' spatial attention
+    /// as one operator ([`neuspike_tract_ops::attention`]); tract's direct convolution for the others.
     Blocked,
 }
 
@@ -343,11 +343,14 @@ impl LearnedModel {
                 let mut model = model.into_typed()?.into_decluttered()?;
                 let mut first = vec![None; n_inputs];
                 if path == ConvPath::Blocked {
-                    crate::conv3x3::use_conv3x3(&mut model, crate::conv3x3::MIN_WIDTH)?;
-                    crate::deconv2x2::use_deconv2x2(&mut model)?;
-                    crate::attention::use_spatial_attention(&mut model)?;
-                    crate::attention::use_scaled_sums(&mut model)?;
-                    first = crate::conv3x3::take_first_convolutions(&mut model)?;
+                    neuspike_tract_ops::conv3x3::use_conv3x3(
+                        &mut model,
+                        neuspike_tract_ops::conv3x3::MIN_WIDTH,
+                    )?;
+                    neuspike_tract_ops::deconv2x2::use_deconv2x2(&mut model)?;
+                    neuspike_tract_ops::attention::use_spatial_attention(&mut model)?;
+                    neuspike_tract_ops::attention::use_scaled_sums(&mut model)?;
+                    first = neuspike_tract_ops::conv3x3::take_first_convolutions(&mut model)?;
                 }
                 Ok((model.into_optimized()?.into_runnable()?, first))
             })
@@ -544,7 +547,7 @@ fn plan_inputs(
     hp: usize,
     wp: usize,
 ) -> Result<TVec<TValue>, InferError> {
-    let pool = crate::bands::tract_pool();
+    let pool = neuspike_tract_ops::bands::tract_pool();
     let mut values = TVec::new();
     for (i, x) in xs.iter().enumerate() {
         let conv = first.get(i).and_then(Option::as_ref);
@@ -674,30 +677,4 @@ pub fn set_threads(n: usize) {
         tract_linalg::multithread::Executor::multithread(n)
     };
     tract_linalg::multithread::set_default_executor(executor);
-}
-
-/// `x` (`[C, H, W]`) padded to `[C, hp, wp]` by repeating its last row and column, row-major.
-pub fn pad_edge(x: ArrayView3<f32>, hp: usize, wp: usize) -> Vec<f32> {
-    let mut out = vec![0.0; x.dim().0 * hp * wp];
-    pad_edge_into(x, hp, wp, &mut out);
-    out
-}
-
-/// [`pad_edge`] into `dst` (`C * hp * wp` values, `hp >= H`, `wp >= W`, as the caller
-/// guarantees; a shorter `dst` is filled as far as it goes).
-pub fn pad_edge_into(x: ArrayView3<f32>, hp: usize, wp: usize, dst: &mut [f32]) {
-    let (c, h, w) = x.dim();
-    let mut rows = dst.chunks_exact_mut(wp.max(1));
-    for ch in 0..c {
-        for y in 0..hp {
-            let Some(out) = rows.next() else { return };
-            let row = x.slice(ndarray::s![ch, y.min(h.saturating_sub(1)), ..]);
-            let (body, pad) = out.split_at_mut(w.min(wp));
-            match row.as_slice() {
-                Some(r) => body.copy_from_slice(&r[..body.len()]),
-                None => body.iter_mut().zip(row.iter()).for_each(|(d, &v)| *d = v),
-            }
-            pad.fill(row.last().copied().unwrap_or(0.0));
-        }
-    }
 }

@@ -1,6 +1,6 @@
 //! Reconstruction of luminance from spike representations, for neuspike's `infer` node.
 //!
-//! Pure functions, no dora. For now the classical reconstructions of REFERENCE.md:
+//! Pure functions, no dora. The spike reconstructions:
 //!
 //! | [`Method`] | input (from `neuspike-represent`) | luminance |
 //! |---|---|---|
@@ -20,7 +20,8 @@
 //! `phi` is the spike camera's firing threshold and `light_scale` the charge a pixel of luminance 1
 //! collects per tick: a pixel of luminance `I` collects `light_scale * I` per tick and fires every
 //! `phi / (light_scale * I)` ticks, i.e. at rate `light_scale * I / phi`. Outputs are luminance in
-//! `[0, 1]`, clamped, finite everywhere. The learned NeuSpike-Net network is not here yet.
+//! `[0, 1]`, clamped, finite everywhere. The learned NeuSpike-Net is [`learned`]: an ONNX file
+//! run by tract, its convolutions by neuspike's operators (`neuspike-tract-ops`).
 //!
 //! [`Online`] runs any [`Method`] window by window, as the `infer` node does; each method
 //! declares what it reads ([`Method::inputs`]).
@@ -31,15 +32,12 @@ use std::str::FromStr;
 
 use ndarray::{ArrayView2, ArrayViewMut2, Zip};
 
-pub mod attention;
-mod bands;
-pub mod conv3x3;
-pub mod deconv2x2;
 mod fastmath;
 mod filter;
 mod fusion;
 pub mod learned;
 mod online;
+mod reconstructor;
 #[cfg(test)]
 mod testing;
 
@@ -52,10 +50,13 @@ pub use filter::{
     ComplementaryFilter, Contrast, EVENT_BLOCK, HighPassFilter, LUMINANCE_FLOOR, MAX_CONTRAST,
     REST_LUMINANCE,
 };
-pub use fusion::{FusionFrameStats, FusionParams, IsiUpdateStats, PhysicsFusion, ThetaMode};
+pub use fusion::{
+    FusionFrameStats, FusionParams, IsiUpdateStats, PhysicsFusion, ThetaMode, UnknownThetaMode,
+};
 /// The events the filters and the fusion take, as `neuspike-represent` defines them.
 pub use neuspike_represent::EventSlice;
 pub use online::{MethodInputs, Online, OnlineParams, OnlineStats, SpikeInput, Window};
+pub use reconstructor::{EVENTS, InferConfig, REPRESENTATION, Reconstructor};
 
 /// Pixels below which the kernels stay on the calling thread. These maps are memory-bound (tens
 /// of microseconds for a 400x250 frame on one core); in a graph every node shares the cores, and
@@ -117,6 +118,22 @@ pub enum InferError {
         /// The accepted names, comma-separated.
         accepted: &'static str,
     },
+    /// The graph does not connect what the method reads, or gives settings it cannot use.
+    #[error("{0}")]
+    Wiring(String),
+    /// A window that cannot be reconstructed, and why.
+    #[error("window {seq}: {what}")]
+    Window {
+        /// The window's sequence number.
+        seq: u64,
+        /// What is wrong with it.
+        what: String,
+    },
+    /// The learned method was asked to run without its network.
+    #[error(
+        "method `learned` runs a network: give it `--model FILE` (an ONNX file, e.g. models/neuspike-fused-8.onnx)"
+    )]
+    NeedsModel,
     /// A learned model that cannot be used: missing, corrupt, or not matching its inputs.
     #[error("model {}: {reason}", path.display())]
     Model {
@@ -132,7 +149,7 @@ pub enum InferError {
 // ---------------------------------------------------------------------------------------------
 
 /// A reconstruction method, named as in the graph YAML (`tfp`, `tfi`, `tfstp`, `hf`, `cf`,
-/// `fusion`).
+/// `fusion`, `learned`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
     /// Texture from playback: luminance from the firing rate over a window.
@@ -149,21 +166,25 @@ pub enum Method {
     Cf,
     /// Events with ISI maps: NeuSpike-Net's physics fusion, Eq. 5-7 ([`PhysicsFusion`]).
     Fusion,
+    /// A NeuSpike-Net exported to ONNX ([`learned::LearnedModel`]), reading the representations
+    /// its model names.
+    Learned,
 }
 
 impl Method {
     /// Every method, in the order their names are listed in errors.
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Tfp,
         Method::Tfi,
         Method::Tfstp,
         Method::Hf,
         Method::Cf,
         Method::Fusion,
+        Method::Learned,
     ];
 
     /// The accepted names, as listed in errors.
-    const ACCEPTED: &'static str = "tfp, tfi, tfstp, hf, cf, fusion";
+    const ACCEPTED: &'static str = "tfp, tfi, tfstp, hf, cf, fusion, learned";
 
     /// The method's name in graph YAML.
     pub fn as_str(&self) -> &'static str {
@@ -174,6 +195,7 @@ impl Method {
             Method::Hf => "hf",
             Method::Cf => "cf",
             Method::Fusion => "fusion",
+            Method::Learned => "learned",
         }
     }
 }
@@ -187,7 +209,7 @@ impl fmt::Display for Method {
 impl FromStr for Method {
     type Err = InferError;
 
-    /// Parses the exact lowercase name (`tfp`, `tfi`, `tfstp`, `hf`, `cf`, `fusion`); anything
+    /// Parses the exact lowercase name (`tfp`, `tfi`, `tfstp`, `hf`, `cf`, `fusion`, `learned`); anything
     /// else, other case included, is an [`InferError::UnknownMethod`] naming the value and the
     /// accepted names.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
@@ -491,14 +513,15 @@ mod tests {
         }
         assert_eq!("tfp".parse::<Method>().expect("tfp"), Method::Tfp);
         assert_eq!("tfi".parse::<Method>().expect("tfi"), Method::Tfi);
-        assert_eq!(Method::Tfp.inputs().representations, ["tfp"]);
-        assert_eq!(Method::Tfi.inputs().representations, ["isi"]);
-        assert_eq!(Method::Tfstp.inputs().representations, ["stp"]);
+        use neuspike_schemas::RepresentationKind::{Isi, Stp, Tfp};
+        assert_eq!(Method::Tfp.inputs().representations, [Tfp]);
+        assert_eq!(Method::Tfi.inputs().representations, [Isi]);
+        assert_eq!(Method::Tfstp.inputs().representations, [Stp]);
         assert!(Method::Hf.inputs().events && Method::Hf.inputs().representations.is_empty());
         let e = "TFP".parse::<Method>().expect_err("case");
         assert_eq!(
             e.to_string(),
-            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi, tfstp, hf, cf, fusion"
+            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi, tfstp, hf, cf, fusion, learned"
         );
         assert!("".parse::<Method>().is_err());
     }

@@ -13,6 +13,7 @@
 //! | `fusion` | ISI | yes | [`PhysicsFusion`] (Eq. 5-7) |
 
 use ndarray::{Array2, ArrayView2, ArrayViewMut2};
+use neuspike_schemas::RepresentationKind;
 
 use crate::{
     ComplementaryFilter, Contrast, EventSlice, FusionFrameStats, FusionParams, HighPassFilter,
@@ -23,9 +24,9 @@ use crate::{
 /// What a method reads from each window.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MethodInputs {
-    /// The representation kinds it accepts (as the `represent` node names them); empty when it
-    /// needs none.
-    pub representations: &'static [&'static str],
+    /// The representation kinds it accepts; empty when it needs none (or, for
+    /// [`Method::Learned`], when its model says).
+    pub representations: &'static [RepresentationKind],
     /// Whether it needs the event stream.
     pub events: bool,
 }
@@ -79,11 +80,11 @@ pub enum SpikeInput<'a> {
 }
 
 impl SpikeInput<'_> {
-    fn kind(&self) -> &'static str {
+    fn kind(&self) -> RepresentationKind {
         match self {
-            SpikeInput::Rate(_) => "tfp",
-            SpikeInput::StpRate(_) => "stp",
-            SpikeInput::Isi { .. } => "isi",
+            SpikeInput::Rate(_) => RepresentationKind::Tfp,
+            SpikeInput::StpRate(_) => RepresentationKind::Stp,
+            SpikeInput::Isi { .. } => RepresentationKind::Isi,
         }
     }
 
@@ -153,17 +154,33 @@ pub struct Online {
 impl Method {
     /// What the method reads from each window.
     pub fn inputs(&self) -> MethodInputs {
-        let (representations, events): (&'static [&'static str], bool) = match self {
-            Method::Tfp => (&["tfp"], false),
-            Method::Tfi => (&["isi"], false),
-            Method::Tfstp => (&["stp"], false),
+        use RepresentationKind::{Isi, Stp, Tfp};
+        let (representations, events): (&'static [RepresentationKind], bool) = match self {
+            Method::Tfp => (&[Tfp], false),
+            Method::Tfi => (&[Isi], false),
+            Method::Tfstp => (&[Stp], false),
             Method::Hf => (&[], true),
-            Method::Cf => (&["tfp", "isi"], true),
-            Method::Fusion => (&["isi"], true),
+            Method::Cf => (&[Tfp, Isi], true),
+            Method::Fusion => (&[Isi], true),
+            Method::Learned => (&[], false),
         };
         MethodInputs {
             representations,
             events,
+        }
+    }
+}
+
+impl Method {
+    /// The representation a graph gives the method on its `representation` input (the TFI
+    /// frames for `cf`, which takes TFP too), if it reads one; the learned method reads what its
+    /// model names.
+    pub fn graph_representation(self) -> Option<RepresentationKind> {
+        match self {
+            Method::Tfp => Some(RepresentationKind::Tfp),
+            Method::Tfstp => Some(RepresentationKind::Stp),
+            Method::Tfi | Method::Cf | Method::Fusion => Some(RepresentationKind::Isi),
+            Method::Hf | Method::Learned => None,
         }
     }
 }
@@ -191,6 +208,9 @@ impl Online {
                     return bad(name, v, "must be finite and >= 0");
                 }
             }
+        }
+        if method == Method::Learned {
+            return Err(InferError::NeedsModel);
         }
         if params.anchor_every == 0 {
             return bad("anchor-every", 0.0, "must be >= 1");
@@ -235,7 +255,12 @@ impl Online {
                     method: self.method.as_str(),
                     what: format!(
                         "the `{}` representation, got {}",
-                        needs.representations.join("` or `"),
+                        needs
+                            .representations
+                            .iter()
+                            .map(|k| k.name())
+                            .collect::<Vec<_>>()
+                            .join("` or `"),
                         other.map_or("none".to_string(), |s| format!("`{}`", s.kind()))
                     ),
                 });
@@ -337,6 +362,7 @@ impl Online {
         let p = self.params;
         self.state = Some(match self.method {
             Method::Tfp | Method::Tfi | Method::Tfstp => State::Direct,
+            Method::Learned => return Err(InferError::NeedsModel),
             Method::Hf => State::Hf(HighPassFilter::new(h, w, p.hf_cutoff_rad_s, t0)?),
             Method::Cf => State::Cf(
                 ComplementaryFilter::new(h, w, p.cf_gain_rad_s, t0)?,

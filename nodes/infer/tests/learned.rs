@@ -240,7 +240,8 @@ fn representations_of_the_wrong_shape_are_refused_before_running() {
     // The inputs name the representations the represent node makes.
     for i in model.inputs() {
         assert!(matches!(i, LearnedInput::Spike | LearnedInput::Events));
-        assert!(["spike-repr", "event-integration"].contains(&i.representation()));
+        assert_eq!(i.input_id(), i.representation().name());
+        assert!(["spike_repr", "event_integration"].contains(&i.input_id()));
     }
 }
 

@@ -261,7 +261,7 @@ impl Decay {
 /// `dst[k, y, x] = V_on - V_off` with
 /// `V_on = sum over ON events at the pixel with t0_ns <= t_i <= ts_ns[k] of (1 + exp(-(ts_ns[k] - t_i) / tau_ns))`
 /// and `V_off` the same sum over OFF events: the plain signed count plus the exponentially decayed
-/// count, ON and OFF accumulated separately in `f64` and summed at the end (REFERENCE.md).
+/// count, ON and OFF accumulated separately in `f64` and summed at the end (docs/definitions.md).
 /// Both window ends are inclusive. `K = ts_ns.len()`, `dst` is `[K, H, W]` and `[H, W]` is the
 /// sensor. The output is finite, with `|dst| <= 2 * (events at the pixel)`.
 ///

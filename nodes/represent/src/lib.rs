@@ -1,7 +1,8 @@
 //! Representations of spike planes and events for neuspike's reconstruction nodes.
 //!
-//! Pure kernels, no dora: the `neuspike-represent` node decodes its Arrow inputs, calls these and
-//! sends the result. Definitions follow `REFERENCE.md` (after NeuSpike-Net, ICCV 2021):
+//! Pure kernels, no dora: the `neuspike-represent` node decodes its Arrow inputs, hands each
+//! window to a [`Representer`] (every kind from one window, the dispatch `neuspike dataset` uses
+//! too) and sends the result. Definitions follow `docs/definitions.md` (after NeuSpike-Net, ICCV 2021):
 //!
 //! | kernel | produces |
 //! |---|---|
@@ -30,6 +31,7 @@ mod surface;
 #[cfg(test)]
 mod testing;
 mod voxel;
+mod window;
 
 #[cfg(test)]
 mod extremes;
@@ -50,3 +52,4 @@ pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_referen
 pub use voxel::{
     VoxelNorm, event_stack_into, event_stack_reference, voxel_grid_into, voxel_grid_reference,
 };
+pub use window::{RepresentConfig, Representer};

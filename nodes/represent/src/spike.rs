@@ -103,7 +103,7 @@ fn rate(count: u32, n: usize) -> f32 {
 ///
 /// `dst[y, x] = (number of planes k with spikes[k, y, x] != 0) / N`, the firing rate per tick, in
 /// `[0, 1]` (1 for a pixel that fires every tick). The caller slices the window it wants (an odd
-/// window centred on the reference plane, per REFERENCE.md); this kernel averages everything given.
+/// window centred on the reference plane, per docs/definitions.md); this kernel averages everything given.
 ///
 /// # Errors
 /// - [`RepresentError::Param`] when `N == 0` (no rate is defined) or `N > MAX_PLANES`.
@@ -437,7 +437,7 @@ fn fill_first_spike(slots: &mut [u32], row: ArrayView1<u8>, mark: u32, unset: u3
 
 /// Inter-spike interval (ISI) at reference plane `c`, in ticks, with a validity mask.
 ///
-/// Per REFERENCE.md: `prev` = the last spike at or before `c`, `next` = the first spike after `c`,
+/// Per docs/definitions.md: `prev` = the last spike at or before `c`, `next` = the first spike after `c`,
 /// `ISI = next - prev`. The search is limited to the `N` planes given.
 ///
 /// Where both exist, `isi[y, x] = next - prev` (`>= 1`) and `valid[y, x] = true`.
@@ -671,7 +671,7 @@ pub fn isi_reference(
     Ok(())
 }
 
-/// The reference search for one pixel, written in signed positions as REFERENCE.md states it.
+/// The reference search for one pixel, written in signed positions as docs/definitions.md states it.
 fn isi_one_pixel(spikes: &ArrayView3<u8>, c: usize, y: usize, x: usize, n: usize) -> (u32, bool) {
     let prev = (0..=c).rev().find(|&k| spikes[[k, y, x]] != 0);
     let next = (c + 1..n).find(|&k| spikes[[k, y, x]] != 0);

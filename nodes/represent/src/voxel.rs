@@ -75,7 +75,7 @@ fn span_ns(t_ns: &[i64]) -> (i64, u64) {
 /// `p_i * max(0, 1 - |b - t*_i|)` to voxel `[b, y_i, x_i]` for every bin `b`: only bins
 /// `floor(t*_i)` and `floor(t*_i) + 1` receive a non-zero weight, and the two weights sum to 1.
 /// Polarity counts `+1` for ON and **`-1` for OFF** (tonic, given boolean polarities, adds OFF
-/// events as `+1` and divides by `B` instead of `B - 1`; we follow E2VID and REFERENCE.md).
+/// events as `+1` and divides by `B` instead of `B - 1`; we follow E2VID and docs/definitions.md).
 ///
 /// Arithmetic, fixed so that the result is reproducible: `t_i - t_0` and `dt` are exact integers
 /// converted to `f64`, `t*_i = min(B - 1, ((B - 1) * (t_i - t_0)) / dt)` in `f64` (the order of

@@ -1,9 +1,9 @@
 //! The pure library behind neuspike's sink node: image-quality metrics, PNG frame output and the
-//! run report. Nothing here knows about dora; the node binary (`main.rs`) decodes its inputs,
-//! calls these functions and writes where it is told.
+//! run report. Nothing here knows about dora; the node binary (`main.rs`) decodes its inputs and
+//! hands the frames to a [`Sink`], which writes, scores and summarises them.
 //!
 //! - [`metrics`]: PSNR, PSNR after a least-squares gain, SSIM and 2D entropy, exactly as defined
-//!   in the project's `REFERENCE.md` (f64 accumulation throughout).
+//!   in `docs/definitions.md` (f64 accumulation throughout).
 //! - [`png_out`]: grey 8- or 16-bit PNG frames, written atomically, and read back.
 //! - [`report`]: `metrics.csv` (one row a frame, flushed each row) and the per-method summary.
 //!
@@ -25,10 +25,12 @@ use std::path::PathBuf;
 pub mod metrics;
 pub mod png_out;
 pub mod report;
+mod writer;
 
 pub use metrics::MetricsError;
 pub use png_out::BitDepth;
 pub use report::{FrameMetrics, MetricsCsv, Summary};
+pub use writer::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
 
 /// What can go wrong while the sink writes or reads its files. Every message names the file.
 #[derive(Debug, thiserror::Error)]

@@ -1,4 +1,4 @@
-//! Image-quality metrics, following `REFERENCE.md` ("Metrics").
+//! Image-quality metrics, following `docs/definitions.md` ("Metrics").
 //!
 //! Images are `f32` luminance, nominally in `[0, 1]`; every sum is accumulated in `f64`.
 //!
@@ -283,7 +283,7 @@ fn grey_level(v: f32) -> u8 {
     (f64::from(v).clamp(0.0, 1.0) * (GREY_LEVELS - 1) as f64 + 0.5) as u8
 }
 
-/// 2D entropy in bits (the paper's no-reference metric, `REFERENCE.md`), between 0 and 16.
+/// 2D entropy in bits (the paper's no-reference metric, `docs/definitions.md`), between 0 and 16.
 ///
 /// Each pixel is quantised to 8 bits, `i = round(clamp(v, 0, 1) * 255)` (half away from zero;
 /// NaN counts as 0); `j` is the rounded mean of the grey levels of its 3x3 neighbourhood with the

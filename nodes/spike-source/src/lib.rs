@@ -574,6 +574,7 @@ fn ticks_blocked<const SUBTRACT: bool>(
 
 pub use neuspike_simd::Isa;
 
+pub mod playback;
 pub mod truth;
 
 /// [`integrate_ticks`] compiled for a chosen instruction set (for tests and benchmarks); the

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use rayon::prelude::*;
 
 /// The pool of tract's current executor (`None` when it runs on the calling thread).
-pub(crate) fn tract_pool() -> Option<Arc<rayon::ThreadPool>> {
+pub fn tract_pool() -> Option<Arc<rayon::ThreadPool>> {
     match tract_linalg::multithread::current_tract_executor() {
         tract_linalg::multithread::Executor::MultiThread(pool) => Some(pool),
         _ => None,

@@ -4,8 +4,6 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use arrow::array::RecordBatch;
-use arrow::datatypes::{Field, Schema};
 /// One output message as the testing harness records it (JSON: `id`, `data`, metadata).
 pub use dora_node_api::integration_testing::OutputJson;
 use dora_node_api::integration_testing::integration_testing_format::{
@@ -16,9 +14,13 @@ use dora_node_api::integration_testing::{
 };
 use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;
+use neuspike_schemas::arrow;
+use neuspike_schemas::arrow::array::{ArrayRef, RecordBatch};
+use neuspike_schemas::arrow::datatypes::{Field, Schema};
 
-use crate::Message;
-use crate::stream::end_of_stream;
+use neuspike_schemas::{Message, Meta, end_of_stream};
+
+use crate::metadata::meta_to_dora;
 
 /// A scripted sequence of input events; payloads are written as Arrow IPC files under `dir`.
 pub struct CannedInputs {
@@ -39,12 +41,7 @@ impl CannedInputs {
         self.events.len() as f64 * 1e-3
     }
 
-    fn push_payload(
-        &mut self,
-        input: &str,
-        meta: crate::Meta,
-        data: arrow::array::ArrayRef,
-    ) -> eyre::Result<()> {
+    fn push_payload(&mut self, input: &str, meta: Meta, data: ArrayRef) -> eyre::Result<()> {
         let path = self.dir.join(format!("input-{}.arrow", self.events.len()));
         let schema = Arc::new(Schema::new(vec![Field::new(
             "data",
@@ -62,7 +59,7 @@ impl CannedInputs {
             time_offset_secs,
             event: IncomingEvent::Input {
                 id: input.to_string().into(),
-                metadata: Some(meta),
+                metadata: Some(meta_to_dora(&meta)),
                 data: Some(Box::new(InputData::ArrowFile {
                     path,
                     batch_index: 0,
@@ -80,12 +77,7 @@ impl CannedInputs {
     }
 
     /// A raw payload with hand-made metadata (to test bad input).
-    pub fn raw(
-        &mut self,
-        input: &str,
-        meta: crate::Meta,
-        data: arrow::array::ArrayRef,
-    ) -> eyre::Result<()> {
+    pub fn raw(&mut self, input: &str, meta: Meta, data: ArrayRef) -> eyre::Result<()> {
         self.push_payload(input, meta, data)
     }
 

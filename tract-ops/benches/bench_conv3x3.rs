@@ -10,11 +10,11 @@
 //! im2col and a matrix product (`TRACT_DISABLE_DIRECT_SPATIAL`), both planned as the infer node
 //! plans them; everything runs on one thread but `neuspike-2-threads`, ours on two.
 //!
-//! `cargo bench -p neuspike-infer --bench bench_conv3x3 -- --warm-up-time 1 --measurement-time 3`
+//! `cargo bench -p neuspike-tract-ops --bench bench_conv3x3 -- --warm-up-time 1 --measurement-time 3`
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array1, Array4};
-use neuspike_infer::conv3x3::Conv3x3;
+use neuspike_tract_ops::conv3x3::Conv3x3;
 use std::hint::black_box;
 use tract_onnx::prelude::*;
 

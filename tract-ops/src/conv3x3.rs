@@ -334,7 +334,7 @@ impl Conv3x3 {
     }
 
     /// The convolution of `input` (`[C, H, W]`, each row contiguous in memory) padded to
-    /// `(hp, wp)` by repeating its last row and column ([`crate::learned::pad_edge`]), without
+    /// `(hp, wp)` by repeating its last row and column ([`crate::pad_edge`]), without
     /// making the padded copy: each row is read where it lies. The output is `[O, H', W']` of
     /// the padded size.
     ///
@@ -1100,7 +1100,7 @@ mod tests {
             let conv = conv(c, o, stride, i as u32);
             let input = pattern(c * h * w, i as u32 + 7);
             let view = ArrayView3::from_shape((c, h, w), &input).unwrap();
-            let padded = crate::learned::pad_edge(view, hp, wp);
+            let padded = crate::pad_edge(view, hp, wp);
             let padded = ArrayView3::from_shape((c, hp, wp), &padded).unwrap();
             let want = conv.reference(padded).unwrap();
             for pool in [None, Some(&pool)] {

@@ -1,14 +1,35 @@
-//! What every neuspike node does the same way: logging, sending messages, ending streams,
-//! reading its configuration from the graph.
+//! What every neuspike dora node does the same way, so that a node's `run` holds only its own
+//! logic:
+//!
+//! - [`receive`]: the receive loop. It moves each message's header out of dora's metadata,
+//!   follows every input's sequence numbers (gaps and stale messages are logged and counted),
+//!   takes the end-of-stream markers, and ends when every input the node reads has ended, never
+//!   on dora's `InputClosed`/`Stop` (dora's scheduler may deliver those before an input's last
+//!   messages).
+//! - [`Outputs`]: the node's outputs, declared with their message type; sending follows each
+//!   output's sequence numbers, and [`Outputs::end_all`] sends every end-of-stream marker with
+//!   its count.
+//! - [`produce`]: a source's loop: it steps until the source is done or a stop is requested, and
+//!   ends every output whatever happened, so the messages already sent stay a whole stream.
+//! - logging ([`init_logging`]), configuration ([`parse_config`]), the rayon worker a node's loop
+//!   runs on ([`run_on_rayon`]), a source's pace ([`Pacer`]) and, in [`testing`], canned inputs
+//!   that drive a node's `run` without a daemon.
+#![deny(missing_docs)]
 
+mod inputs;
+mod metadata;
+mod outputs;
+pub mod testing;
+
+pub use inputs::{Flow, InputState, Inputs, Received, receive};
+pub use metadata::{meta_from_dora, meta_to_dora};
+pub use outputs::{Outputs, produce};
+
+use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
-use dora_node_api::dora_core::config::DataId;
-use dora_node_api::{DoraArray, DoraNode, Event, EventStream, StopCause};
+use dora_node_api::{DoraNode, Event, EventStream, StopCause};
 use eyre::WrapErr;
-
-use crate::Message;
-use crate::stream::end_of_stream;
 
 /// The log filter when `RUST_LOG` is unset: our nodes at `info`, dora's node API at `error` (its
 /// per-message transport diagnostics are warnings).
@@ -37,20 +58,6 @@ pub fn parse_config<C: clap::Parser>(node: &str) -> eyre::Result<C> {
     C::try_parse().map_err(|e| eyre::eyre!("{node}: bad configuration in the graph's `args:`: {e}"))
 }
 
-/// Sends one message on an output.
-pub fn send<M: Message>(node: &mut DoraNode, output: &DataId, msg: &M) -> eyre::Result<()> {
-    let (meta, data) = msg.to_arrow();
-    node.send_output(output.clone(), meta, DoraArray::from(data))
-        .wrap_err_with(|| format!("failed to send on output `{output}`"))
-}
-
-/// Ends an output that sent `count` messages.
-pub fn send_end<M: Message>(node: &mut DoraNode, output: &DataId, count: u64) -> eyre::Result<()> {
-    let (meta, data) = end_of_stream::<M>(count);
-    node.send_output(output.clone(), meta, DoraArray::from(data))
-        .wrap_err_with(|| format!("failed to end output `{output}`"))
-}
-
 /// Runs a node's loop `f` on a worker of a new rayon pool (one thread per core), so that the
 /// parallel part of every kernel the loop calls (the scene renderer, the event kernels, the
 /// filters) starts on the calling thread. Called from outside a pool, each parallel call waits
@@ -70,9 +77,22 @@ pub fn run_on_rayon<R: Send>(
         .install(f)
 }
 
-/// An output id from a static name.
-pub fn output(name: &str) -> DataId {
-    DataId::from(name.to_string())
+/// The ids of the inputs the graph gives `node` (none under the test harness).
+pub fn graph_inputs(node: &DoraNode) -> BTreeSet<String> {
+    node.node_config()
+        .inputs
+        .keys()
+        .map(|k| k.to_string())
+        .collect()
+}
+
+/// The ids of the outputs the graph declares for `node` (none under the test harness).
+pub fn graph_outputs(node: &DoraNode) -> BTreeSet<String> {
+    node.node_config()
+        .outputs
+        .iter()
+        .map(|k| k.to_string())
+        .collect()
 }
 
 /// How fast a source sends its messages.

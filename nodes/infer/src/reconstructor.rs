@@ -1,0 +1,495 @@
+//! The infer node's stage: the settings, the check of what the graph connects, the join of a
+//! window's inputs by sequence number, and the frame of each complete window, by a classical
+//! method ([`Online`]) or the learned network ([`LearnedModel`]).
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use ndarray::{Array2, Array3, Axis};
+use neuspike_schemas::{EventBatch, Frame, FrameKind, Representation, RepresentationKind};
+
+use crate::learned::{ConvPath, LearnedModel, LearnedOutput};
+use crate::{
+    EventSlice, InferError, Method, Online, OnlineParams, SpikeInput, ThetaMode, Window,
+    luminance_from_rate_into,
+};
+
+/// The infer stage's settings (the node's `args:`).
+#[derive(Clone, Debug, clap::Args)]
+pub struct InferConfig {
+    /// Reconstruction method: tfp, tfi, tfstp, hf, cf, fusion, or learned (with `--model`).
+    #[arg(long, default_value = "tfp")]
+    pub method: Method,
+    /// learned: the ONNX network (`models/*.onnx`).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// learned: how tract runs the convolutions: auto (time each path on the first frame of each
+    /// size, keep the fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
+    #[arg(long, default_value = "auto")]
+    pub conv: ConvPath,
+    /// Luminance per unit firing rate (overrides the calibration the spike source sends).
+    #[arg(long)]
+    pub lum_per_rate: Option<f64>,
+    /// hf, cf: the DVS contrast threshold (log luminance per event).
+    #[arg(long, default_value_t = 0.2)]
+    pub contrast: f64,
+    /// hf: cutoff of the high-pass filter, rad/s.
+    #[arg(long, default_value_t = 5.0)]
+    pub hf_cutoff_rad_s: f64,
+    /// cf: gain of the complementary filter, rad/s.
+    #[arg(long, default_value_t = 5.0)]
+    pub cf_gain_rad_s: f64,
+    /// fusion: where theta comes from: fixed, global or per-pixel.
+    #[arg(long, default_value = "global")]
+    pub theta_mode: ThetaMode,
+    /// fusion: theta before any estimate.
+    #[arg(long, default_value_t = 0.2)]
+    pub theta_init: f64,
+    /// cf, fusion: use the spike input of one window in this many; events carry the estimate in
+    /// between.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub anchor_every: u32,
+}
+
+impl Default for InferConfig {
+    fn default() -> Self {
+        let p = OnlineParams::default();
+        InferConfig {
+            method: Method::Tfp,
+            model: None,
+            conv: ConvPath::default(),
+            lum_per_rate: None,
+            contrast: p.contrast,
+            hf_cutoff_rad_s: p.hf_cutoff_rad_s,
+            cf_gain_rad_s: p.cf_gain_rad_s,
+            theta_mode: p.theta_mode,
+            theta_init: p.theta_init,
+            anchor_every: p.anchor_every,
+        }
+    }
+}
+
+/// The input that carries a classical method's representation.
+pub const REPRESENTATION: &str = "representation";
+/// The input that carries align's event stream.
+pub const EVENTS: &str = "events";
+
+impl InferConfig {
+    /// The settings of the classical methods.
+    pub fn online(&self) -> OnlineParams {
+        OnlineParams {
+            contrast: self.contrast,
+            hf_cutoff_rad_s: self.hf_cutoff_rad_s,
+            cf_gain_rad_s: self.cf_gain_rad_s,
+            theta_mode: self.theta_mode,
+            theta_init: self.theta_init,
+            anchor_every: self.anchor_every,
+        }
+    }
+
+    /// Checks the settings and that the graph's `inputs` carry what the method reads; for the
+    /// learned method, loads the model, checks the graph feeds every input it reads, and runs it
+    /// once on a small frame so that a network tract cannot run fails now, not at the first
+    /// window. Returns the stage, ready for the first window.
+    pub fn reconstructor(&self, inputs: &[String]) -> Result<Reconstructor, InferError> {
+        if let Some(g) = self.lum_per_rate
+            && !(g.is_finite() && g > 0.0)
+        {
+            return Err(InferError::Param {
+                name: "lum-per-rate",
+                value: g,
+                reason: "must be finite and > 0",
+            });
+        }
+        let has = |id: &str| inputs.iter().any(|i| i == id);
+        if self.method == Method::Learned {
+            let model = self.load_model(&has)?;
+            let rep_ids = model.inputs().iter().map(|i| i.input_id()).collect();
+            return Ok(Reconstructor::new(
+                Engine::Learned(Box::new(model)),
+                self,
+                rep_ids,
+                false,
+            ));
+        }
+        let method = self.method;
+        if self.model.is_some() {
+            return Err(InferError::Wiring(format!(
+                "`--model` is for `--method learned`, not `{method}`"
+            )));
+        }
+        let online = Online::new(method, self.online())?;
+        let needs = method.inputs();
+        if !needs.representations.is_empty() && !has(REPRESENTATION) {
+            let kinds: Vec<&str> = needs.representations.iter().map(|k| k.name()).collect();
+            return Err(InferError::Wiring(format!(
+                "method `{method}` needs an input `{REPRESENTATION}` ({} from the represent node)",
+                kinds.join(" or ")
+            )));
+        }
+        if needs.events && !has(EVENTS) {
+            return Err(InferError::Wiring(format!(
+                "method `{method}` needs an input `{EVENTS}` (the align node's `events` output)"
+            )));
+        }
+        let rep_ids = if needs.representations.is_empty() {
+            vec![]
+        } else {
+            vec![REPRESENTATION]
+        };
+        Ok(Reconstructor::new(
+            Engine::Online(online),
+            self,
+            rep_ids,
+            needs.events,
+        ))
+    }
+
+    fn load_model(&self, has: &dyn Fn(&str) -> bool) -> Result<LearnedModel, InferError> {
+        let Some(path) = &self.model else {
+            return Err(InferError::NeedsModel);
+        };
+        let mut model = LearnedModel::load(path)?;
+        model.set_conv_path(self.conv);
+        for i in model.inputs() {
+            if !has(i.input_id()) {
+                return Err(InferError::Wiring(format!(
+                    "model {} reads `{}`: connect an input `{}` (represent's `{}` output)",
+                    path.display(),
+                    i.onnx_name(),
+                    i.input_id(),
+                    i.input_id()
+                )));
+            }
+        }
+        let probes: Vec<Array3<f32>> = model
+            .channels()
+            .iter()
+            .map(|&c| Array3::zeros((c, 8, 8)))
+            .collect();
+        let views: Vec<_> = probes.iter().map(|a| a.view()).collect();
+        model.run(&views)?;
+        Ok(model)
+    }
+}
+
+/// The inputs of one window gathered so far: the representations by slot and the event batch.
+#[derive(Default)]
+struct Pending {
+    reps: BTreeMap<usize, Representation>,
+    events: Option<EventBatch>,
+}
+
+/// What makes the frames. A node holds one, so the variants' sizes do not matter.
+#[allow(clippy::large_enum_variant)]
+enum Engine {
+    Online(Online),
+    Learned(Box<LearnedModel>),
+}
+
+impl std::fmt::Debug for Reconstructor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reconstructor")
+            .field("method", &self.method)
+            .field("inputs", &self.input_ids())
+            .field("pending", &self.pending.len())
+            .finish()
+    }
+}
+
+/// Joins each window's inputs by sequence number and reconstructs every complete window, in
+/// order. A window still incomplete when a later one is complete lost a message (each input
+/// arrives in order): it is dropped and counted.
+pub struct Reconstructor {
+    engine: Engine,
+    method: Method,
+    lum_per_rate: Option<f64>,
+    /// The input ids that carry representations, one slot each.
+    rep_ids: Vec<&'static str>,
+    wants_events: bool,
+    pending: BTreeMap<u64, Pending>,
+    frames: u64,
+    incomplete: u64,
+}
+
+impl Reconstructor {
+    fn new(
+        engine: Engine,
+        cfg: &InferConfig,
+        rep_ids: Vec<&'static str>,
+        wants_events: bool,
+    ) -> Self {
+        Reconstructor {
+            engine,
+            method: cfg.method,
+            lum_per_rate: cfg.lum_per_rate,
+            rep_ids,
+            wants_events,
+            pending: BTreeMap::new(),
+            frames: 0,
+            incomplete: 0,
+        }
+    }
+
+    /// The ids of the inputs the method reads.
+    pub fn input_ids(&self) -> Vec<&'static str> {
+        let mut ids = self.rep_ids.clone();
+        if self.wants_events {
+            ids.push(EVENTS);
+        }
+        ids
+    }
+
+    /// Takes a representation that came on `input`.
+    pub fn push_representation(&mut self, input: &str, rep: Representation) {
+        if let Some(slot) = self.rep_ids.iter().position(|&i| i == input) {
+            self.pending
+                .entry(rep.seq)
+                .or_default()
+                .reps
+                .insert(slot, rep);
+        }
+    }
+
+    /// Takes an event batch (align's stream, cut at the window's instant).
+    pub fn push_events(&mut self, batch: EventBatch) {
+        let seq = batch.seq;
+        self.pending.entry(seq).or_default().events = Some(batch);
+    }
+
+    fn complete(&self, p: &Pending) -> bool {
+        p.reps.len() == self.rep_ids.len() && (!self.wants_events || p.events.is_some())
+    }
+
+    /// The frames of every window whose inputs are all in, in order; with `flush` (no more input
+    /// will come), the incomplete windows are dropped and counted too.
+    pub fn ready(&mut self, flush: bool) -> Result<Vec<Frame>, InferError> {
+        let last_done = self
+            .pending
+            .iter()
+            .filter(|(_, p)| self.complete(p))
+            .map(|(&k, _)| k)
+            .next_back();
+        let limit = match (last_done, flush) {
+            (_, true) => u64::MAX,
+            (Some(k), false) => k,
+            (None, false) => return Ok(Vec::new()),
+        };
+        let mut frames = Vec::new();
+        while let Some(entry) = self.pending.first_entry() {
+            if *entry.key() > limit {
+                break;
+            }
+            let (seq, p) = entry.remove_entry();
+            if !self.complete(&p) {
+                tracing::error!(seq, "window incomplete (a message was lost): no frame");
+                self.incomplete += 1;
+                continue;
+            }
+            frames.push(self.reconstruct(seq, &p)?);
+        }
+        Ok(frames)
+    }
+
+    fn reconstruct(&mut self, seq: u64, p: &Pending) -> Result<Frame, InferError> {
+        let start = Instant::now();
+        let (t_ref_ns, data) = match &mut self.engine {
+            Engine::Online(online) => classical(online, self.method, self.lum_per_rate, seq, p)?,
+            Engine::Learned(model) => learned(model, self.lum_per_rate, seq, p)?,
+        };
+        self.frames = seq + 1;
+        Ok(Frame {
+            kind: FrameKind::Reconstruction,
+            method: self.method.to_string(),
+            t_ref_ns,
+            compute_ns: i64::try_from(start.elapsed().as_nanos()).unwrap_or(i64::MAX),
+            seq,
+            data,
+        })
+    }
+
+    /// The learned method's network.
+    pub fn model(&self) -> Option<&LearnedModel> {
+        match &self.engine {
+            Engine::Learned(m) => Some(m),
+            Engine::Online(_) => None,
+        }
+    }
+
+    /// Windows dropped because an input of theirs was lost.
+    pub fn incomplete(&self) -> u64 {
+        self.incomplete
+    }
+
+    /// Logs what was made.
+    pub fn log_end(&self, announced: u64, lost: u64) {
+        match &self.engine {
+            Engine::Online(online) => {
+                let s = online.stats();
+                tracing::info!(
+                    frames = s.frames,
+                    announced,
+                    incomplete = self.incomplete,
+                    lost,
+                    events = s.events,
+                    method = %self.method,
+                    clamped = s.frame.clamped,
+                    exp_overflow = s.frame.exp_overflow,
+                    "infer finished"
+                );
+            }
+            Engine::Learned(model) => tracing::info!(
+                frames = self.frames,
+                announced,
+                incomplete = self.incomplete,
+                lost,
+                model = %model.path().display(),
+                conv = %model.conv_path_in_use().unwrap_or_default(),
+                "infer finished"
+            ),
+        }
+    }
+}
+
+fn window_error(seq: u64, what: impl std::fmt::Display) -> InferError {
+    InferError::Window {
+        seq,
+        what: what.to_string(),
+    }
+}
+
+/// One window of a classical method.
+fn classical(
+    online: &mut Online,
+    method: Method,
+    lum_per_rate: Option<f64>,
+    seq: u64,
+    p: &Pending,
+) -> Result<(i64, Array2<f32>), InferError> {
+    let rep = p.reps.get(&0);
+    let spikes = rep
+        .map(|r| -> Result<SpikeInput<'_>, InferError> {
+            Ok(match r.kind {
+                RepresentationKind::Tfp => SpikeInput::Rate(r.data.index_axis(Axis(0), 0)),
+                RepresentationKind::Stp => SpikeInput::StpRate(r.data.index_axis(Axis(0), 0)),
+                RepresentationKind::Isi if r.data.dim().0 >= 2 => SpikeInput::Isi {
+                    isi: r.data.index_axis(Axis(0), 0),
+                    valid: r.data.index_axis(Axis(0), 1),
+                },
+                other => {
+                    let kinds: Vec<&str> =
+                        method.inputs().representations.iter().map(|k| k.name()).collect();
+                    return Err(window_error(
+                        seq,
+                        format!(
+                            "method `{method}` cannot use the `{other}` representation; it takes {}",
+                            kinds.join(" or ")
+                        ),
+                    ));
+                }
+            })
+        })
+        .transpose()?;
+    let lum_per_rate =
+        lum_per_rate.or_else(|| rep.and_then(|r| r.params.get("lum_per_rate").copied()));
+    let events = p.events.as_ref().map(|b| {
+        (
+            EventSlice {
+                t_ns: &b.t_ns,
+                x: &b.x,
+                y: &b.y,
+                polarity: &b.polarity,
+            },
+            (b.height, b.width),
+        )
+    });
+    let t_ref_ns = match (rep, &p.events) {
+        (Some(r), _) => r.t_ref_ns,
+        (None, Some(b)) => b.t_end_ns,
+        (None, None) => return Err(window_error(seq, "no input")),
+    };
+    if let (Some(r), Some(b)) = (rep, &p.events)
+        && b.t_end_ns != r.t_ref_ns
+    {
+        return Err(window_error(
+            seq,
+            format!(
+                "the event batch ends at {} ns but the representation is at t_ref {} ns (connect align's `events` output, which cuts the stream at each t_ref)",
+                b.t_end_ns, r.t_ref_ns
+            ),
+        ));
+    }
+    let window = Window {
+        t_ref_ns,
+        spikes,
+        lum_per_rate,
+        events,
+    };
+    let data = online.frame(&window).map_err(|e| {
+        let hint = if lum_per_rate.is_none() && spikes.is_some() {
+            " (the representation carries no `lum_per_rate` and the graph sets no `--lum-per-rate`)"
+        } else {
+            ""
+        };
+        window_error(seq, format!("at {t_ref_ns} ns: {e}{hint}"))
+    })?;
+    Ok((t_ref_ns, data))
+}
+
+/// One window of the learned method: the network's rate, calibrated to luminance as TFP's (or
+/// the event-only network's luminance, clipped to [0, 1] the same way).
+fn learned(
+    model: &mut LearnedModel,
+    lum_per_rate: Option<f64>,
+    seq: u64,
+    p: &Pending,
+) -> Result<(i64, Array2<f32>), InferError> {
+    let reps: Vec<&Representation> = p.reps.values().collect();
+    for (r, i) in reps.iter().zip(model.inputs()) {
+        if r.kind != i.representation() {
+            return Err(window_error(
+                seq,
+                format!(
+                    "input `{}` carries the `{}` representation; model {} reads `{}` there",
+                    i.input_id(),
+                    r.kind,
+                    model.path().display(),
+                    i.representation()
+                ),
+            ));
+        }
+    }
+    let Some(first) = reps.first() else {
+        return Err(window_error(seq, "no input"));
+    };
+    let t_ref_ns = first.t_ref_ns;
+    if let Some(r) = reps.iter().find(|r| r.t_ref_ns != t_ref_ns) {
+        return Err(window_error(
+            seq,
+            format!(
+                "representations at t_ref {t_ref_ns} ns and {} ns",
+                r.t_ref_ns
+            ),
+        ));
+    }
+    let views: Vec<_> = reps.iter().map(|r| r.data.view()).collect();
+    let image = model
+        .run(&views)
+        .map_err(|e| window_error(seq, format!("at {t_ref_ns} ns: {e}")))?;
+    let gain = match model.output() {
+        LearnedOutput::Luminance => 1.0,
+        LearnedOutput::Rate => lum_per_rate
+            .or_else(|| reps.iter().find_map(|r| r.params.get("lum_per_rate").copied()))
+            .ok_or_else(|| {
+                window_error(
+                    seq,
+                    "no calibration (the representations carry no `lum_per_rate` and the graph sets no `--lum-per-rate`)",
+                )
+            })?,
+    };
+    let mut data = Array2::<f32>::zeros(image.dim());
+    luminance_from_rate_into(image.view(), gain, 1.0, data.view_mut())
+        .map_err(|e| window_error(seq, e))?;
+    Ok((t_ref_ns, data))
+}

@@ -1,0 +1,181 @@
+//! The represent node's stage: every representation kind computed from an aligned window, the
+//! dispatch the node and `neuspike dataset` share.
+
+use std::collections::BTreeMap;
+
+use ndarray::{Array2, Array3, Axis};
+use neuspike_schemas::{AlignedWindow, Representation, RepresentationKind};
+
+use crate::{
+    EventSlice, RepresentError, StpFilter, StpParams, event_integration_into, integration_instants,
+    isi_packed_into, spike_representation_packed_into, tfp_packed_into,
+};
+
+/// The represent stage's settings (the node's `args:`).
+#[derive(Clone, Debug, PartialEq, clap::Args)]
+pub struct RepresentConfig {
+    /// TFP window in planes, centred on the reference plane (default: the whole aligned window).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub tfp_planes: Option<u32>,
+    /// Channels of the NeuSpike-Net spike representation (1 ISI + N-1 planes).
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(2..))]
+    pub repr_channels: u32,
+    /// Channels of the event integration (instants evenly spaced over the window).
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..))]
+    pub ei_channels: u32,
+    /// Decay constant tau of the event integration (paper Eq. 8), nanoseconds.
+    #[arg(long, default_value_t = 500_000.0)]
+    pub tau_ns: f64,
+    /// TFSTP (`stp`): the synapse's release probability at rest, U, in (0, 1).
+    #[arg(long, default_value_t = StpParams::default().u0)]
+    pub stp_u0: f64,
+    /// TFSTP (`stp`): the facilitation increment per spike, f, in (0, 1].
+    #[arg(long, default_value_t = StpParams::default().f)]
+    pub stp_f: f64,
+    /// TFSTP (`stp`): the resources' recovery time constant D, in planes (ticks).
+    #[arg(long, default_value_t = StpParams::default().tau_d_ticks)]
+    pub stp_tau_d_ticks: f64,
+    /// TFSTP (`stp`): the facilitation's time constant F, in planes (ticks).
+    #[arg(long, default_value_t = StpParams::default().tau_f_ticks)]
+    pub stp_tau_f_ticks: f64,
+}
+
+impl Default for RepresentConfig {
+    fn default() -> Self {
+        let stp = StpParams::default();
+        RepresentConfig {
+            tfp_planes: None,
+            repr_channels: 32,
+            ei_channels: 32,
+            tau_ns: 500_000.0,
+            stp_u0: stp.u0,
+            stp_f: stp.f,
+            stp_tau_d_ticks: stp.tau_d_ticks,
+            stp_tau_f_ticks: stp.tau_f_ticks,
+        }
+    }
+}
+
+impl RepresentConfig {
+    /// TFSTP's synapse parameters.
+    pub fn stp_params(&self) -> StpParams {
+        StpParams {
+            u0: self.stp_u0,
+            f: self.stp_f,
+            tau_d_ticks: self.stp_tau_d_ticks,
+            tau_f_ticks: self.stp_tau_f_ticks,
+        }
+    }
+
+    /// Checks the settings: `tau_ns` must be `>= 0` (infinity allowed: no decay), the synapse's
+    /// parameters as [`StpParams::check`] says.
+    pub fn check(&self) -> Result<(), RepresentError> {
+        if self.tau_ns.is_nan() || self.tau_ns < 0.0 {
+            return Err(RepresentError::Param {
+                name: "tau-ns",
+                value: self.tau_ns.to_string(),
+                reason: "must be >= 0 (inf allowed)",
+            });
+        }
+        self.stp_params().check()
+    }
+}
+
+/// Computes representations of aligned windows. Holds TFSTP's synapses from window to window
+/// (made at the first window that asks for `stp`, and again when the sensor size changes).
+#[derive(Debug)]
+pub struct Representer {
+    cfg: RepresentConfig,
+    stp: Option<StpFilter>,
+}
+
+impl Representer {
+    /// A representer with checked settings.
+    pub fn new(cfg: RepresentConfig) -> Result<Self, RepresentError> {
+        cfg.check()?;
+        Ok(Representer { cfg, stp: None })
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &RepresentConfig {
+        &self.cfg
+    }
+
+    /// The representation `kind` of window `w`, stamped with the window's instant and sequence
+    /// number. Only `stp` changes the representer's state: its synapses are fed the window's
+    /// planes up to the reference plane, each plane once across windows.
+    pub fn represent(
+        &mut self,
+        kind: RepresentationKind,
+        w: &AlignedWindow,
+    ) -> Result<Representation, RepresentError> {
+        let (n, h, wd) = (w.spikes.n_planes, w.spikes.height, w.spikes.width);
+        let c = w.ref_index();
+        let mut params = BTreeMap::new();
+        if let Some(g) = w.spikes.lum_per_rate {
+            params.insert("lum_per_rate".to_string(), g);
+        }
+        let data = match kind {
+            RepresentationKind::Tfp => {
+                let len = self.cfg.tfp_planes.map_or(n, |p| (p as usize).min(n));
+                let start = c.saturating_sub(len / 2).min(n - len);
+                params.insert("window".into(), len as f64);
+                let mut dst = Array2::<f32>::zeros((h, wd));
+                // Straight from the packed planes: no unpacking.
+                tfp_packed_into(&w.spikes.bits, start..start + len, dst.view_mut())?;
+                dst.insert_axis(Axis(0))
+            }
+            RepresentationKind::Isi => {
+                let mut isi = Array2::<f32>::zeros((h, wd));
+                let mut valid = Array2::<bool>::from_elem((h, wd), false);
+                isi_packed_into(&w.spikes.bits, n, c, isi.view_mut(), valid.view_mut())?;
+                let mut out = Array3::<f32>::zeros((2, h, wd));
+                out.index_axis_mut(Axis(0), 0).assign(&isi);
+                out.index_axis_mut(Axis(0), 1)
+                    .assign(&valid.mapv(|v| f32::from(u8::from(v))));
+                out
+            }
+            RepresentationKind::SpikeRepr => {
+                let ch = self.cfg.repr_channels as usize;
+                params.insert("channels".into(), ch as f64);
+                let mut out = Array3::<f32>::zeros((ch, h, wd));
+                spike_representation_packed_into(&w.spikes.bits, n, c, out.view_mut())?;
+                out
+            }
+            RepresentationKind::EventIntegration => {
+                let k = self.cfg.ei_channels as usize;
+                let ev = &w.events;
+                let (eh, ew) = (ev.height.max(1), ev.width.max(1));
+                let ts = integration_instants(ev.t_start_ns, ev.t_end_ns, k);
+                params.insert("tau_ns".into(), self.cfg.tau_ns);
+                let slice = EventSlice {
+                    t_ns: &ev.t_ns,
+                    x: &ev.x,
+                    y: &ev.y,
+                    polarity: &ev.polarity,
+                };
+                let mut out = Array3::<f32>::zeros((k, eh, ew));
+                event_integration_into(slice, ev.t_start_ns, &ts, self.cfg.tau_ns, out.view_mut())?;
+                out
+            }
+            RepresentationKind::Stp => {
+                let f = match &mut self.stp {
+                    Some(f) if f.dim() == (h, wd) => f,
+                    slot => slot.insert(StpFilter::new(h, wd, self.cfg.stp_params())?),
+                };
+                f.advance_packed(&w.spikes.bits, w.spikes.first_plane, n, w.ref_plane)?;
+                params.insert("gaps".into(), f.gaps() as f64);
+                let mut dst = Array2::<f32>::zeros((h, wd));
+                f.rate_into(dst.view_mut())?;
+                dst.insert_axis(Axis(0))
+            }
+        };
+        Ok(Representation {
+            kind,
+            t_ref_ns: w.t_ref_ns,
+            seq: w.seq(),
+            params,
+            data,
+        })
+    }
+}

@@ -1,0 +1,241 @@
+//! The sink's stage: frames written as PNG as they come, each scored against the ground truth
+//! nearest its instant, one metrics row a frame, and the run's summary at the end.
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::path::{Path, PathBuf};
+
+use neuspike_schemas::Frame;
+
+use crate::SinkError;
+use crate::metrics::{check_same_shape, entropy_2d, psnr, psnr_after_gain, ssim};
+use crate::png_out::{BitDepth, write_frame_png};
+use crate::report::{FrameMetrics, MetricsCsv, Summary};
+
+/// The sink's settings (the node's `args:`).
+#[derive(Clone, Debug, clap::Args)]
+pub struct SinkConfig {
+    /// Output folder (relative paths are relative to the graph's folder).
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// PNG bit depth: 8 or 16.
+    #[arg(long, default_value = "16")]
+    pub bit_depth: BitDepth,
+    /// Also write the ground-truth frames as PNG.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub write_ground_truth: bool,
+    /// Score a frame against the nearest ground truth within this many nanoseconds of its
+    /// `t_ref_ns` (the earlier one on a tie); 0 asks for the same instant. Truth that is not taken
+    /// on the reconstruction's grid, such as a DAVIS's APS frames, needs about half the time
+    /// between two frames.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(i64).range(0..))]
+    pub truth_within_ns: i64,
+}
+
+/// How long ground truth is kept for frames that come late, nanoseconds.
+const TRUTH_HISTORY_NS: i64 = 1_000_000_000;
+
+/// One input's tally as the receive loop kept it, for the summary.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct InputTally {
+    /// The count its end-of-stream marker announced, if it came.
+    pub announced: Option<u64>,
+    /// Messages received.
+    pub received: u64,
+    /// Messages known to be missing.
+    pub missing: u64,
+    /// Whether its end-of-stream marker came.
+    pub ended: bool,
+}
+
+/// Writes and scores frames. Frames wait for the ground truth of their instant (or for the truth
+/// stream to move past it, or to end); truth is kept until no frame still to come can use it.
+pub struct Sink {
+    out: PathBuf,
+    depth: BitDepth,
+    write_gt: bool,
+    has_gt: bool,
+    truth_within_ns: i64,
+    csv: MetricsCsv,
+    summary: Summary,
+    /// Frames written, by input.
+    written: BTreeMap<String, u64>,
+    /// Ground truth by time, kept until every frame input has passed it.
+    truth: BTreeMap<i64, Frame>,
+    truth_until_ns: i64,
+    truth_closed: bool,
+    /// Frames waiting for their ground truth, with their input.
+    pending: VecDeque<(String, Frame)>,
+    /// Per-method folders already created.
+    made_dirs: BTreeSet<String>,
+}
+
+/// The name of the input that carries ground truth.
+pub const GROUND_TRUTH: &str = "ground_truth";
+
+impl Sink {
+    /// A sink writing under `cfg.out` (created); `has_gt` says whether ground truth will come.
+    pub fn new(cfg: &SinkConfig, has_gt: bool) -> Result<Self, SinkError> {
+        create_dir(&cfg.out)?;
+        let csv = MetricsCsv::create(&cfg.out.join("metrics.csv"))?;
+        Ok(Sink {
+            out: cfg.out.clone(),
+            depth: cfg.bit_depth,
+            write_gt: cfg.write_ground_truth,
+            has_gt,
+            truth_within_ns: cfg.truth_within_ns,
+            csv,
+            summary: Summary::default(),
+            written: BTreeMap::new(),
+            truth: BTreeMap::new(),
+            truth_until_ns: i64::MIN,
+            truth_closed: !has_gt,
+            pending: VecDeque::new(),
+            made_dirs: BTreeSet::new(),
+        })
+    }
+
+    fn frame_path(&mut self, method: &str, seq: u64) -> Result<(PathBuf, String), SinkError> {
+        if !self.made_dirs.contains(method) {
+            create_dir(&self.out.join(method))?;
+            self.made_dirs.insert(method.to_string());
+        }
+        let name = format!("{method}/{seq:06}.png");
+        Ok((self.out.join(&name), name))
+    }
+
+    /// Takes a ground-truth frame; writes the frames that waited for it.
+    pub fn on_truth(&mut self, f: Frame) -> Result<(), SinkError> {
+        if self.write_gt {
+            let (path, _) = self.frame_path("ground-truth", f.seq)?;
+            write_frame_png(&path, f.data.view(), self.depth)?;
+        }
+        *self.written.entry(GROUND_TRUTH.to_string()).or_default() += 1;
+        self.truth_until_ns = self.truth_until_ns.max(f.t_ref_ns);
+        self.truth.insert(f.t_ref_ns, f);
+        self.drain_pending()
+    }
+
+    /// No more ground truth will come: the frames waiting for it are written.
+    pub fn truth_ended(&mut self) -> Result<(), SinkError> {
+        self.truth_closed = true;
+        self.drain_pending()
+    }
+
+    /// Takes a reconstructed frame from `input`.
+    pub fn on_frame(&mut self, input: &str, f: Frame) -> Result<(), SinkError> {
+        self.pending.push_back((input.to_string(), f));
+        self.drain_pending()
+    }
+
+    /// Writes every pending frame whose ground truth has arrived or can no longer arrive.
+    fn drain_pending(&mut self) -> Result<(), SinkError> {
+        while let Some((_, f)) = self.pending.front() {
+            if !self.truth_closed
+                && f.t_ref_ns.saturating_add(self.truth_within_ns) > self.truth_until_ns
+            {
+                break;
+            }
+            if let Some((input, f)) = self.pending.pop_front() {
+                self.write(&input, f)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, input: &str, f: Frame) -> Result<(), SinkError> {
+        let (path, name) = self.frame_path(&f.method, f.seq)?;
+        write_frame_png(&path, f.data.view(), self.depth)?;
+        let gt = self.nearest_truth(f.t_ref_ns);
+        let (p, pg, ss) = match gt {
+            Some(g) => {
+                check_same_shape(f.data.view(), g.data.view())?;
+                (
+                    Some(psnr(f.data.view(), g.data.view())),
+                    Some(psnr_after_gain(f.data.view(), g.data.view())),
+                    Some(ssim(f.data.view(), g.data.view())),
+                )
+            }
+            None => {
+                if self.has_gt {
+                    tracing::warn!(t_ref_ns = f.t_ref_ns, method = %f.method, "no ground truth at this instant");
+                }
+                (None, None, None)
+            }
+        };
+        let row = FrameMetrics {
+            seq: f.seq,
+            t_ref_ns: f.t_ref_ns,
+            method: f.method.clone(),
+            compute_ns: f.compute_ns,
+            psnr_db: p,
+            psnr_gain_db: pg,
+            ssim: ss,
+            entropy_2d: entropy_2d(f.data.view()),
+            file: name,
+        };
+        self.csv.append(&row)?;
+        self.summary.add(&row);
+        *self.written.entry(input.to_string()).or_default() += 1;
+        self.evict_truth();
+        Ok(())
+    }
+
+    /// The ground truth nearest `t_ns` within `truth_within_ns` (the earlier one on a tie).
+    fn nearest_truth(&self, t_ns: i64) -> Option<&Frame> {
+        let tol = self.truth_within_ns;
+        let before = self.truth.range(..=t_ns).next_back();
+        let after = self.truth.range(t_ns.saturating_add(1)..).next();
+        let dist = |t: i64| t.abs_diff(t_ns);
+        let best = match (before, after) {
+            (Some(b), Some(a)) if dist(*a.0) < dist(*b.0) => a,
+            (Some(b), _) => b,
+            (None, Some(a)) => a,
+            (None, None) => return None,
+        };
+        (dist(*best.0) <= tol.unsigned_abs()).then_some(best.1)
+    }
+
+    /// Forgets ground truth older than every frame still to come.
+    fn evict_truth(&mut self) {
+        let oldest_pending = self
+            .pending
+            .iter()
+            .map(|(_, f)| f.t_ref_ns)
+            .min()
+            .unwrap_or(i64::MAX);
+        let keep_from = oldest_pending
+            .saturating_sub(self.truth_within_ns)
+            .min(self.truth_until_ns.saturating_sub(TRUTH_HISTORY_NS));
+        self.truth = self.truth.split_off(&keep_from);
+    }
+
+    /// Writes the frames still waiting, then `summary.md` with the mean metrics per method and,
+    /// for each input of `tallies`, the frames expected, written and missing; returns its path.
+    pub fn finish<'a>(
+        mut self,
+        tallies: impl IntoIterator<Item = (&'a str, InputTally)>,
+    ) -> Result<PathBuf, SinkError> {
+        self.truth_closed = true;
+        self.drain_pending()?;
+        for (name, t) in tallies {
+            let written = self.written.get(name).copied().unwrap_or(0);
+            self.summary.set_counts(
+                name,
+                t.announced.unwrap_or(t.received + t.missing),
+                written,
+                t.missing,
+                t.ended,
+            );
+        }
+        let path = self.out.join("summary.md");
+        self.summary.write(&path)?;
+        Ok(path)
+    }
+}
+
+fn create_dir(dir: &Path) -> Result<(), SinkError> {
+    std::fs::create_dir_all(dir).map_err(|source| SinkError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })
+}
