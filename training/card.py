@@ -129,7 +129,7 @@ def main() -> None:
         f"`neuspike dataset --split test`: {n_all} samples of 96x96 ({me['normal']['n']} normal, "
         f"{me['complex']['n']} complex: light <= 0.1 or speed >= 3,000 px/s), textures never seen in "
         "training (other procedural seeds; photos chelsea, coins, gravel, rocket). PSNR (dB) and "
-        "SSIM as REFERENCE.md defines them, luminance clipped to [0, 1].",
+        "SSIM as docs/definitions.md defines them, luminance clipped to [0, 1].",
         "",
         "| method | PSNR normal | PSNR complex | SSIM normal | SSIM complex |",
         "|---|---|---|---|---|",

@@ -60,13 +60,13 @@ def load(folder: pathlib.Path) -> Split:
 
 
 def psnr(x: np.ndarray, y: np.ndarray) -> float:
-    """REFERENCE.md: data range 1, MSE over the frame; identical frames give +inf."""
+    """docs/definitions.md: data range 1, MSE over the frame; identical frames give +inf."""
     mse = float(np.mean((x.astype(np.float64) - y.astype(np.float64)) ** 2))
     return float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)
 
 
 def ssim(x: np.ndarray, y: np.ndarray) -> float:
-    """REFERENCE.md: Gaussian 11x11 window, sigma 1.5, population covariance, data range 1 (the
+    """docs/definitions.md: Gaussian 11x11 window, sigma 1.5, population covariance, data range 1 (the
     sink's definition; scikit-image computes it with these settings)."""
     from skimage.metrics import structural_similarity
 
