@@ -14,6 +14,102 @@ use dora_message::descriptor::Descriptor;
 use eyre::{WrapErr, bail, eyre};
 use serde_yaml::Value;
 
+/// The message types of `schemas/types`, built in: written beside every graph the program writes
+/// (dora reads user types from a `types/` folder beside the graph).
+const MESSAGE_TYPES: &str = include_str!("../schemas/types/neuspike/messages/v1.yml");
+
+/// Writes the message types into `dir/types/` (beside a graph written there).
+pub fn write_types(dir: &Path) -> eyre::Result<()> {
+    let types = dir.join("types/neuspike/messages");
+    let file = types.join("v1.yml");
+    std::fs::create_dir_all(&types)
+        .and_then(|()| std::fs::write(&file, MESSAGE_TYPES))
+        .wrap_err_with(|| format!("cannot write the message types to {}", file.display()))
+}
+
+/// The folder of the node binaries: the running program's own (the folder above it when it is a
+/// test harness in cargo's `deps/`).
+pub fn node_dir() -> eyre::Result<PathBuf> {
+    let exe = std::env::current_exe().wrap_err("cannot tell where this program lives")?;
+    let dir = exe.parent().unwrap_or(Path::new(".")).to_path_buf();
+    Ok(match (dir.file_name(), dir.parent()) {
+        (Some(n), Some(up)) if n == "deps" => up.to_path_buf(),
+        _ => dir,
+    })
+}
+
+/// The source checkout this program was built from, when it runs from that checkout's
+/// `target/` (`cargo run`, the tests): node binaries are built there. `None` for an installed or
+/// copied program, and when the checkout has moved.
+pub fn source_checkout() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).canonicalize().ok()?;
+    let nodes = node_dir().ok()?.canonicalize().ok()?;
+    (dir.join("Cargo.toml").is_file() && nodes.starts_with(dir.join("target"))).then_some(dir)
+}
+
+/// The command that builds the node binaries in the source checkout, if there is one.
+pub fn build_command() -> Option<String> {
+    source_checkout().map(|dir| {
+        format!(
+            "cargo build --release --manifest-path {} --workspace --bins",
+            dir.join("Cargo.toml").display()
+        )
+    })
+}
+
+/// Builds the node binaries when the program runs from its source checkout; does nothing for an
+/// installed program.
+pub fn build_nodes() -> eyre::Result<()> {
+    match build_command() {
+        Some(cmd) => run_build(&cmd, Path::new(".")),
+        None => Ok(()),
+    }
+}
+
+/// The binary of node `name` (`neuspike-align`, ...) beside this program; a missing one is an
+/// error saying how to build it.
+pub fn node_binary(name: &str) -> eyre::Result<PathBuf> {
+    let dir = node_dir()?;
+    let bin = dir.join(name);
+    if bin.is_file() {
+        return Ok(bin);
+    }
+    bail!(
+        "node binary {name} is not beside this program in {}: build the nodes with `cargo build --release --workspace --bins` in the neuspike sources and keep target/release/neuspike-* together",
+        dir.display()
+    )
+}
+
+/// Points every node whose `path:` names a neuspike node binary (`neuspike-*`) at that binary
+/// beside this program, or else at the graph's own path when it exists.
+fn resolve_node_binaries(graph: &mut Value, graph_dir: &Path) -> eyre::Result<()> {
+    let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);
+    for node in list.into_iter().flatten() {
+        let Some(path) = node.get("path").and_then(Value::as_str).map(PathBuf::from) else {
+            continue;
+        };
+        let Some(name) = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .map(str::to_string)
+        else {
+            continue;
+        };
+        if !name.starts_with("neuspike-") {
+            continue;
+        }
+        let bin = match node_binary(&name) {
+            Ok(bin) => bin,
+            Err(e) if !graph_dir.join(&path).is_file() => return Err(e),
+            Err(_) => continue,
+        };
+        if let Some(map) = node.as_mapping_mut() {
+            map.insert(Value::from("path"), Value::from(bin.display().to_string()));
+        }
+    }
+    Ok(())
+}
+
 /// `NODE=ARGS` from the command line.
 pub fn parse_override(s: &str) -> eyre::Result<(String, String)> {
     match s.split_once('=') {
@@ -86,12 +182,6 @@ pub fn sink_out_dirs(graph_path: &Path, graph: &Value) -> Vec<PathBuf> {
         .collect()
 }
 
-/// The first sink's output folder of a graph file.
-pub fn sink_out_dir(graph_path: &Path) -> eyre::Result<Option<PathBuf>> {
-    let g = read_graph(graph_path)?;
-    Ok(sink_out_dirs(graph_path, &g).into_iter().next())
-}
-
 /// Runs each distinct `build:` command of the graph in the graph's folder.
 fn build(graph_path: &Path, graph: &Value) -> eyre::Result<()> {
     let dir = graph_path.parent().unwrap_or(Path::new("."));
@@ -101,16 +191,22 @@ fn build(graph_path: &Path, graph: &Value) -> eyre::Result<()> {
             continue;
         }
         done.push(cmd);
-        tracing::info!("build: {cmd}");
-        let status = Command::new("sh")
-            .arg("-c")
-            .arg(cmd)
-            .current_dir(dir)
-            .status()
-            .wrap_err_with(|| format!("cannot start the build command `{cmd}`"))?;
-        if !status.success() {
-            bail!("the build command `{cmd}` failed ({status})");
-        }
+        run_build(cmd, dir)?;
+    }
+    Ok(())
+}
+
+/// Runs one build command in `dir`.
+fn run_build(cmd: &str, dir: &Path) -> eyre::Result<()> {
+    tracing::info!("build: {cmd}");
+    let status = Command::new("sh")
+        .arg("-c")
+        .arg(cmd)
+        .current_dir(dir)
+        .status()
+        .wrap_err_with(|| format!("cannot start the build command `{cmd}`"))?;
+    if !status.success() {
+        bail!("the build command `{cmd}` failed ({status})");
     }
     Ok(())
 }
@@ -123,6 +219,8 @@ pub struct Report {
     pub out_dirs: Vec<PathBuf>,
     /// Wall time of the dataflow, from its start to the end of its last node (builds excluded).
     pub elapsed: Duration,
+    /// When the dataflow started: files older than this are an earlier run's.
+    pub started_at: std::time::SystemTime,
 }
 
 impl Report {
@@ -141,9 +239,14 @@ impl Report {
             let dir = dir.canonicalize().unwrap_or_else(|_| dir.clone());
             println!("frames:  {}/<method>/*.png", dir.display());
             println!("metrics: {}", dir.join("metrics.csv").display());
-            match std::fs::read_to_string(dir.join("summary.md")) {
-                Ok(s) => println!("summary: {}\n\n{s}", dir.join("summary.md").display()),
-                Err(_) => println!("summary: none written (the sink did not finish)"),
+            // Only a summary this run wrote: an earlier run's is never shown as this one's.
+            let summary = dir.join("summary.md");
+            let fresh = std::fs::metadata(&summary)
+                .and_then(|m| m.modified())
+                .is_ok_and(|t| t >= self.started_at);
+            match std::fs::read_to_string(&summary) {
+                Ok(s) if fresh => println!("summary: {}\n\n{s}", summary.display()),
+                _ => println!("summary: none written by this run (the sink did not finish)"),
             }
         }
     }
@@ -184,7 +287,9 @@ pub fn run(
     if build_first {
         build(&graph_path, &graph)?;
     }
+    resolve_node_binaries(&mut graph, graph_path.parent().unwrap_or(Path::new(".")))?;
     let out_dirs = sink_out_dirs(&graph_path, &graph);
+    let started_at = std::time::SystemTime::now();
     let descriptor: Descriptor = serde_yaml::from_value(graph)
         .wrap_err_with(|| format!("{}: not a valid dora graph", graph_path.display()))?;
 
@@ -233,6 +338,7 @@ pub fn run(
         result,
         out_dirs,
         elapsed,
+        started_at,
     })
 }
 

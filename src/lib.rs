@@ -11,9 +11,4 @@ pub mod graph;
 pub mod reconstruct;
 pub mod record;
 
-use std::path::PathBuf;
-
-/// The default graph, shipped with the sources.
-pub fn demo_graph() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("graphs/demo.yml")
-}
+pub mod demo;

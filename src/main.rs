@@ -3,8 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
-use eyre::WrapErr;
-use neuspike::{demo_graph, graph, record};
+use neuspike::{graph, record};
 
 /// Spike and event cameras to high-speed video, as a dora dataflow.
 #[derive(Debug, Parser)]
@@ -198,14 +197,28 @@ fn settings<P: Parser>(what: &str, args: &str) -> eyre::Result<P> {
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-fn main() -> eyre::Result<()> {
+/// The log filter when `RUST_LOG` is unset: warnings, the program's own progress, and not the
+/// embedded daemon's transport chatter (zenoh's scouting).
+const DEFAULT_LOG_FILTER: &str = "warn,neuspike=info,zenoh=error";
+
+fn main() -> std::process::ExitCode {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,neuspike=info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
+    // A failure is one line: what went wrong and its causes, no source locations or backtrace.
+    match run(Cli::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> eyre::Result<()> {
     match cli.command {
         Command::Run {
             graph,
@@ -381,24 +394,15 @@ fn main() -> eyre::Result<()> {
     }
 }
 
+/// The default graph on `scene`, written into `out/demo` under the current folder and run there.
 fn demo(scene: &str, build: bool) -> eyre::Result<()> {
-    // Built-in names pass through; a path is made absolute, since nodes start in graphs/.
-    let scene_arg = if neuspike_scene::Scene::builtin_names().contains(&scene) {
-        scene.to_string()
-    } else {
-        std::fs::canonicalize(scene)
-            .wrap_err_with(|| format!("scene `{scene}` is neither built in nor a readable file"))?
-            .display()
-            .to_string()
-    };
-    let set = format!("--scene {scene_arg}");
-    let overrides = vec![
-        ("spike-source".to_string(), set.clone()),
-        ("event-source".to_string(), set),
-    ];
-    let graph = demo_graph();
-    let out = graph::sink_out_dir(&graph)?;
-    let report = graph::run(&graph, &overrides, build, None, out.clone())?;
+    if build {
+        graph::build_nodes()?;
+    }
+    let out = std::path::Path::new("out/demo");
+    let graph_path = neuspike::demo::prepare(out, scene)?;
+    let out = graph_path.parent().map(std::path::Path::to_path_buf);
+    let report = graph::run(&graph_path, &[], false, None, out)?;
     report.print();
     report.into_result()
 }

@@ -82,11 +82,6 @@ pub struct ReconstructOptions {
     pub build: bool,
 }
 
-/// The repository the program was built from (node binaries and message types live there).
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
 /// The graph for `opts`, with absolute paths (it lives in the output folder). `events` is the
 /// event file, when the method reads one.
 pub fn graph_yaml(
@@ -97,12 +92,10 @@ pub fn graph_yaml(
     learned: Option<&Learned>,
     out: &Path,
 ) -> String {
-    let repo = repo();
-    let bin = |name: &str| repo.join("target/release").join(format!("neuspike-{name}"));
-    let build = format!(
-        "cargo build --release --manifest-path {} --workspace --bins",
-        repo.join("Cargo.toml").display()
-    );
+    // The node binaries beside this program; built from its sources when it runs from them.
+    let bins = graph::node_dir().unwrap_or_default();
+    let bin = |name: &str| bins.join(format!("neuspike-{name}"));
+    let build = graph::build_command().map_or(String::new(), |cmd| format!("\n    build: {cmd}"));
     let queue = "queue_size: 1000, queue_policy: backpressure";
     let m = opts.method.as_str();
     let mut y = String::new();
@@ -116,7 +109,7 @@ pub fn graph_yaml(
     let mut node = |id: &str, binary: &str, args: &str, rest: &[String]| {
         let _ = writeln!(
             y,
-            "  - id: {id}\n    build: {build}\n    path: {}\n    args: {args}\n    env: {{ DORA_RUNTIME_TYPE_CHECK: error }}",
+            "  - id: {id}{build}\n    path: {}\n    args: {args}\n    env: {{ DORA_RUNTIME_TYPE_CHECK: error }}",
             bin(binary).display()
         );
         for line in rest {
@@ -402,10 +395,7 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     std::fs::create_dir_all(&opts.out)
         .wrap_err_with(|| format!("cannot create {}", opts.out.display()))?;
     let out = std::fs::canonicalize(&opts.out)?;
-    let types = out.join("types");
-    if !types.exists() {
-        link_dir(&repo().join("schemas/types"), &types)?;
-    }
+    graph::write_types(&out)?;
     let graph_path = out.join("graph.yml");
     std::fs::write(
         &graph_path,
@@ -420,21 +410,6 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     )
     .wrap_err_with(|| format!("cannot write {}", graph_path.display()))?;
     graph::run(&graph_path, &[], opts.build, None, Some(out))
-}
-
-#[cfg(unix)]
-fn link_dir(target: &Path, link: &Path) -> eyre::Result<()> {
-    std::os::unix::fs::symlink(target, link)
-        .wrap_err_with(|| format!("cannot link {} to {}", link.display(), target.display()))
-}
-
-#[cfg(not(unix))]
-fn link_dir(target: &Path, link: &Path) -> eyre::Result<()> {
-    eyre::bail!(
-        "cannot link {} to {}: only supported on unix",
-        link.display(),
-        target.display()
-    )
 }
 
 #[cfg(test)]
@@ -674,7 +649,8 @@ mod tests {
         let e = refused(&o);
         assert!(e.contains("/no/such/model.onnx"), "{e}");
         let mut o = opts(Method::Learned);
-        o.model = Some(repo().join("models/neuspike-fused-8.onnx"));
+        o.model =
+            Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("models/neuspike-fused-8.onnx"));
         let e = refused(&o);
         assert!(e.contains("--events") && e.contains("fused-8"), "{e}");
     }

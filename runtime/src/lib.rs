@@ -33,7 +33,7 @@ use eyre::WrapErr;
 
 /// The log filter when `RUST_LOG` is unset: our nodes at `info`, dora's node API at `error` (its
 /// per-message transport diagnostics are warnings).
-pub const DEFAULT_LOG_FILTER: &str = "info,dora_node_api=error,zenoh=warn";
+pub const DEFAULT_LOG_FILTER: &str = "info,dora_node_api=error,zenoh=error";
 
 /// Logs to standard error through `tracing`, at the level `RUST_LOG` gives (default
 /// [`DEFAULT_LOG_FILTER`]); colours only on a terminal (under dora, stderr is a pipe).
@@ -49,6 +49,18 @@ pub fn init_logging() {
         .with_target(false)
         .without_time()
         .try_init();
+}
+
+/// A node's exit: success, or its error logged as one line (what went wrong and its causes, no
+/// source locations or backtrace) and a failure status.
+pub fn exit_code(result: eyre::Result<()>) -> std::process::ExitCode {
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
 }
 
 /// Parses a node's configuration from the graph's `args:` (the node's command-line arguments).

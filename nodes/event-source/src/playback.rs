@@ -62,20 +62,20 @@ pub struct EventSourceConfig {
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
     /// A camera setting is out of its domain.
-    #[error("event-source: {0}")]
+    #[error("event-source: bad camera settings")]
     Config(#[from] ConfigError),
     /// The scene could not be loaded.
-    #[error("event-source: cannot load the scene: {0}")]
+    #[error("event-source: cannot load the scene")]
     Scene(#[from] SceneError),
     /// The recording could not be opened (`--file-width` and `--file-height` give the sensor
     /// size of files that do not state it).
     #[error(
-        "event-source: cannot play the recording (--file-width and --file-height give the sensor size of files that do not state it): {0}"
+        "event-source: cannot play the recording (--file-width and --file-height give the sensor size of files that do not state it)"
     )]
-    Open(FormatError),
+    Open(#[source] FormatError),
     /// The recording failed part-way, after the batches before the fault.
-    #[error("event-source: the recording could not be read to its end: {0}")]
-    Read(FormatError),
+    #[error("event-source: the recording could not be read to its end")]
+    Read(#[source] FormatError),
     /// `end-ns` is not after `start-ns`.
     #[error("event-source: `end-ns` = {end_ns} is invalid: must be after `start-ns` = {start_ns}")]
     Interval {

@@ -33,7 +33,12 @@ struct Args {
     infer: InferConfig,
 }
 
-fn main() -> eyre::Result<()> {
+fn main() -> std::process::ExitCode {
+    neuspike_runtime::exit_code(start())
+}
+
+/// Reads the settings, opens what the node needs, then runs its loop.
+fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("infer")?;
     let (node, events) = DoraNode::init_from_env()?;

@@ -24,7 +24,12 @@ struct Args {
     represent: RepresentConfig,
 }
 
-fn main() -> eyre::Result<()> {
+fn main() -> std::process::ExitCode {
+    neuspike_runtime::exit_code(start())
+}
+
+/// Reads the settings, opens what the node needs, then runs its loop.
+fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("represent")?;
     let representer =

@@ -23,7 +23,12 @@ struct Args {
     sink: SinkConfig,
 }
 
-fn main() -> eyre::Result<()> {
+fn main() -> std::process::ExitCode {
+    neuspike_runtime::exit_code(start())
+}
+
+/// Reads the settings, opens what the node needs, then runs its loop.
+fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("sink")?;
     let (node, events) = DoraNode::init_from_env()?;

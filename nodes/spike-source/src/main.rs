@@ -35,7 +35,12 @@ fn open_source(args: &Args) -> eyre::Result<SpikeSource> {
     Ok(SpikeSource::open(&args.source)?)
 }
 
-fn main() -> eyre::Result<()> {
+fn main() -> std::process::ExitCode {
+    neuspike_runtime::exit_code(start())
+}
+
+/// Reads the settings, opens what the node needs, then runs its loop.
+fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("spike-source")?;
     let source = open_source(&args)?;

@@ -85,13 +85,13 @@ fn parse_head_columns(s: &str) -> Result<usize, String> {
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
     /// A camera setting is out of its domain.
-    #[error("spike-source: {0}")]
+    #[error("spike-source: bad camera settings")]
     Config(#[from] ConfigError),
     /// The scene could not be loaded.
-    #[error("spike-source: cannot load the scene: {0}")]
+    #[error("spike-source: cannot load the scene")]
     Scene(#[from] SceneError),
     /// The recording could not be opened, or failed part-way.
-    #[error("spike-source: {0}")]
+    #[error("spike-source: cannot play the recording")]
     Format(#[from] FormatError),
     /// The ground truth could not be opened or read.
     #[error("spike-source: {0}")]
