@@ -24,6 +24,7 @@ use neuspike_formats::aedat4::{Aedat4Writer, ApsFrame, Compression, FrameFormat}
 use neuspike_formats::evt2::Evt2Writer;
 use neuspike_formats::pku::{PkuGeometry, PkuWriter};
 use neuspike_formats::text::TextWriter;
+use neuspike_formats::truth::TruthListWriter;
 use neuspike_formats::{EventWriter, Resolution, WriteSummary};
 use neuspike_scene::Scene;
 use neuspike_sink::png_out::{BitDepth, grey_levels, write_frame_png};
@@ -113,8 +114,9 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
     }
     // A DAVIS's frames have the sensor's size: the truth goes in only when the sizes agree.
     let truth_as_aps = (opts.dvs.width, opts.dvs.height) == (opts.spike.width, opts.spike.height);
-    let (mut stamps, stamps_path) = create("ground-truth/timestamps.txt")?;
-    writeln!(stamps, "# plane t_ns file").wrap_err("timestamps.txt")?;
+    let (stamps, stamps_path) = create("ground-truth/timestamps.txt")?;
+    let mut stamps = TruthListWriter::new(stamps)
+        .wrap_err_with(|| format!("cannot write {}", stamps_path.display()))?;
 
     let bar = opts.progress.then(|| {
         let bar = indicatif::ProgressBar::new(total);
@@ -180,7 +182,8 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
                     })?;
                     rec.aps_frames += 1;
                 }
-                writeln!(stamps, "{k} {} {name}", spike.plane_time_ns(k))
+                stamps
+                    .entry(k, spike.plane_time_ns(k), &name)
                     .wrap_err_with(|| format!("cannot write {}", stamps_path.display()))?;
                 rec.ground_truth += 1;
                 k += step;
@@ -209,7 +212,9 @@ pub fn simulate(opts: &SimulateOptions) -> eyre::Result<Recording> {
     if let Some(a) = aedat_out {
         flush(a.finish()?)?;
     }
-    stamps.flush().wrap_err("timestamps.txt")?;
+    stamps
+        .finish()
+        .wrap_err_with(|| format!("cannot write {}", stamps_path.display()))?;
     write_manifest(opts, &spike, &rec)?;
     Ok(rec)
 }

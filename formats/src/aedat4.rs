@@ -617,26 +617,16 @@ impl Aedat4Reader<BufReader<File>> {
     /// Opens an AEDAT 4 file and its first event stream.
     pub fn open(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Self> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|source| FormatError::Open {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = crate::open_file(path)?;
         Self::from_reader(BufReader::with_capacity(256 * 1024, file), path, opts)
     }
 }
 
 impl<R: Read> Aedat4Reader<R> {
     /// Reads an AEDAT 4 stream from `r`, named `name` in errors.
-    pub fn from_reader(r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
-        Self::with_bounds(r, name.into(), opts, false)
-    }
-
-    pub(crate) fn with_bounds(
-        mut r: R,
-        path: PathBuf,
-        opts: &ReadOptions,
-        allow_unknown_size: bool,
-    ) -> Result<Self> {
+    pub fn from_reader(mut r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
+        let path: PathBuf = name.into();
+        let allow_unknown_size = opts.allow_unknown_size;
         let header = read_header(&mut r, &path)?;
         let Some(stream) = header.first("EVTS").cloned() else {
             return Err(FormatError::Unsupported {
@@ -926,10 +916,7 @@ impl Aedat4Frames<BufReader<File>> {
     /// Opens an AEDAT 4 file for its frames.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|source| FormatError::Open {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = crate::open_file(path)?;
         Self::from_reader(BufReader::with_capacity(256 * 1024, file), path)
     }
 }

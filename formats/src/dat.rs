@@ -24,8 +24,6 @@ use crate::error::{FormatError, Location, Result};
 use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::evt2::check_event;
 use crate::header::{AfterHeader, PropheseeHeader, read_header, resolve_resolution};
-use crate::info::{EventInfo, event_info};
-use crate::sniff::Format;
 
 /// Bytes per record.
 pub const RECORD_BYTES: usize = 8;
@@ -62,26 +60,16 @@ impl DatReader<File> {
     /// Opens a DAT file.
     pub fn open(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Self> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|source| FormatError::Open {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = crate::open_file(path)?;
         Self::from_reader(file, path, opts)
     }
 }
 
 impl<R: Read> DatReader<R> {
     /// Reads a DAT stream from `r`, named `name` in errors.
-    pub fn from_reader(r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
-        Self::with_bounds(r, name.into(), opts, false)
-    }
-
-    pub(crate) fn with_bounds(
-        mut r: R,
-        path: PathBuf,
-        opts: &ReadOptions,
-        allow_unknown_size: bool,
-    ) -> Result<Self> {
+    pub fn from_reader(mut r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
+        let path: PathBuf = name.into();
+        let allow_unknown_size = opts.allow_unknown_size;
         let (header, rest) = read_header(&mut r, &path)?;
         if header.lines.is_empty() && rest.is_empty() {
             return Err(FormatError::Empty { path });
@@ -331,12 +319,6 @@ fn decode_checked(
         )?;
     }
     Ok(consumed)
-}
-
-/// Summarises a DAT file; one without `Width`/`Height` lines (and no
-/// [`ReadOptions::resolution`]) is summarised without bounds.
-pub fn info(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<EventInfo> {
-    event_info(path, Format::PropheseeDat, opts)
 }
 
 /// Writes events as a Prophesee DAT file of CD events (type `0x0C`, version 2). Times are floored

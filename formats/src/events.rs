@@ -65,6 +65,10 @@ pub struct ReadOptions {
     pub disorder: Disorder,
     /// Undefined word types in binary formats.
     pub unknown_words: UnknownWords,
+    /// Read a file that states no sensor size, with no `resolution` given, without checking
+    /// events against a sensor (what [`crate::info()`] does to summarise any file); by default
+    /// such a file is refused, naming what is missing.
+    pub allow_unknown_size: bool,
 }
 
 impl ReadOptions {

@@ -62,14 +62,8 @@ pub struct Hdf5Reader {
 impl Hdf5Reader {
     /// Opens the file at `path`.
     pub fn open(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Self> {
-        Self::with_bounds(path.as_ref(), opts, false)
-    }
-
-    pub(crate) fn with_bounds(
-        path: &Path,
-        opts: &ReadOptions,
-        allow_unknown_size: bool,
-    ) -> Result<Self> {
+        let path = path.as_ref();
+        let allow_unknown_size = opts.allow_unknown_size;
         if !path.exists() {
             return Err(FormatError::Open {
                 path: path.to_path_buf(),

@@ -1,20 +1,15 @@
 //! Summaries of recordings: size, duration, counts, rates, first and last timestamps.
 
 use std::fmt;
-use std::fs::File;
-use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
 use neuspike_schemas::EventBatch;
 
-use crate::aedat4::Aedat4Reader;
-use crate::dat::DatReader;
-use crate::error::{FormatError, Result};
+use crate::error::Result;
 use crate::events::{EventReader, ReadOptions, ReadStats, Resolution};
+use crate::open::open_event_format;
 use crate::pku::{self, PkuOptions, SpikeInfo};
-use crate::raw::RawReader;
 use crate::sniff::{Format, sniff};
-use crate::text::TextReader;
 
 /// A summary of an event file.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -118,72 +113,14 @@ pub fn summarise(
     })
 }
 
-/// Opens an event file of a known format. With `allow_unknown_size`, a file that states no size
-/// (and no [`ReadOptions::resolution`]) is read without bounds, for summaries.
-pub(crate) fn open_event_format(
-    path: &Path,
-    format: Format,
-    opts: &ReadOptions,
-    allow_unknown_size: bool,
-) -> Result<(Box<dyn EventReader + Send>, Option<Resolution>)> {
-    let open = |path: &Path| {
-        File::open(path).map_err(|source| FormatError::Open {
-            path: path.to_path_buf(),
-            source,
-        })
-    };
-    let p = path.to_path_buf();
-    Ok(match format {
-        Format::EventText => {
-            let file = BufReader::with_capacity(256 * 1024, open(path)?);
-            let r = TextReader::with_bounds(file, p, opts, allow_unknown_size)?;
-            let known = r.known_resolution();
-            (Box::new(r), known)
-        }
-        Format::PropheseeRaw(_) => {
-            let r = RawReader::with_bounds(open(path)?, p, opts, allow_unknown_size)?;
-            let known = r.known_resolution();
-            (Box::new(r), known)
-        }
-        Format::PropheseeDat => {
-            let r = DatReader::with_bounds(open(path)?, p, opts, allow_unknown_size)?;
-            let known = r.known_resolution();
-            (Box::new(r), known)
-        }
-        Format::PkuSpikes => {
-            return Err(FormatError::Unsupported {
-                path: p,
-                what: "spike planes, not events (read them with pku::PkuReader)".into(),
-            });
-        }
-        Format::Aedat4 => {
-            let file = BufReader::with_capacity(256 * 1024, open(path)?);
-            let r = Aedat4Reader::with_bounds(file, p, opts, allow_unknown_size)?;
-            let known = r.known_resolution();
-            (Box::new(r), known)
-        }
-        #[cfg(feature = "hdf5")]
-        Format::Hdf5 => {
-            let r = crate::hdf5::Hdf5Reader::with_bounds(path, opts, allow_unknown_size)?;
-            let known = r.known_resolution();
-            (Box::new(r), known)
-        }
-        #[cfg(not(feature = "hdf5"))]
-        Format::Hdf5 => {
-            return Err(FormatError::Unsupported {
-                path: p,
-                what: "HDF5: this build has no HDF5 support (it needs libhdf5: `apt install \
-                       libhdf5-dev`, then build with `--features hdf5`)"
-                    .into(),
-            });
-        }
-    })
-}
-
 /// A summary of the event file at `path` in `format`; files that state no size are summarised
 /// anyway, with [`EventInfo::resolution`] `None`.
 pub fn event_info(path: impl AsRef<Path>, format: Format, opts: &ReadOptions) -> Result<EventInfo> {
-    let (mut reader, resolution) = open_event_format(path.as_ref(), format, opts, true)?;
+    let opts = ReadOptions {
+        allow_unknown_size: true,
+        ..opts.clone()
+    };
+    let (mut reader, resolution) = open_event_format(path.as_ref(), format, &opts)?;
     summarise(reader.as_mut(), format, resolution)
 }
 

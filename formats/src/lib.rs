@@ -8,6 +8,7 @@
 //! | [`text`] | Event Camera Dataset `t_seconds x y polarity` text | [`text::TextReader`] | [`text::TextWriter`] |
 //! | [`raw`] | Prophesee RAW, EVT 2.0 ([`evt2`]) and EVT 3.0 ([`evt3`]) | [`raw::RawReader`] | [`raw::Evt2Writer`], [`raw::Evt3Writer`] |
 //! | [`dat`] | Prophesee DAT CD events (N-CARS, Gen1) | [`dat::DatReader`] | [`dat::DatWriter`] |
+//! | [`truth`] | ground-truth folders: PNG frames listed by plane in `timestamps.txt` | [`truth::TruthList`] | [`truth::TruthListWriter`] |
 //! | [`aedat4`] | AEDAT 4 (iniVation DV): events and APS frames, uncompressed, LZ4 or Zstd | [`aedat4::Aedat4Reader`], [`aedat4::Aedat4Frames`] | [`aedat4::Aedat4Writer`] (none or LZ4) |
 //!
 //! Every reader streams with bounded memory (a 10 GB file is never loaded whole): spike readers
@@ -46,10 +47,12 @@ pub mod evt3;
 pub mod hdf5;
 pub mod header;
 pub mod info;
+mod open;
 pub mod pku;
 pub mod raw;
 pub mod sniff;
 pub mod text;
+pub mod truth;
 
 use std::path::Path;
 
@@ -60,8 +63,9 @@ pub use events::{
     drain_checked, read_all,
 };
 pub use header::EvtVersion;
-pub use info::{EventInfo, Info, info};
+pub use info::{EventInfo, Info, event_info, info};
 pub use neuspike_schemas::{Event, EventBatch, SpikeChunk, bytes_per_plane};
+pub use open::{open_event_format, open_events};
 pub use sniff::{Format, sniff};
 
 /// What every event writer does: append events in time order (`write_batch` appends a batch
@@ -79,14 +83,10 @@ pub trait EventWriter {
     }
 }
 
-/// Opens any event file: sniffs its format ([`sniff()`]) and returns the matching reader.
-/// Spike files, and HDF5 in a build without the `hdf5` feature, are
-/// [`FormatError::Unsupported`].
-pub fn open_events(
-    path: impl AsRef<Path>,
-    opts: &ReadOptions,
-) -> Result<Box<dyn EventReader + Send>> {
-    let path = path.as_ref();
-    let format = sniff(path)?;
-    Ok(info::open_event_format(path, format, opts, false)?.0)
+/// Opens the file at `path`; the error names it.
+pub(crate) fn open_file(path: &Path) -> Result<std::fs::File> {
+    std::fs::File::open(path).map_err(|source| FormatError::Open {
+        path: path.to_path_buf(),
+        source,
+    })
 }

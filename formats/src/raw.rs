@@ -13,8 +13,6 @@ use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::evt2::{self, Evt2Decoder};
 use crate::evt3::{self, Evt3Decoder};
 use crate::header::{AfterHeader, EvtVersion, PropheseeHeader, read_header, resolve_resolution};
-use crate::info::{EventInfo, summarise};
-use crate::sniff::Format;
 
 pub use crate::evt2::Evt2Writer;
 pub use crate::evt3::Evt3Writer;
@@ -41,26 +39,16 @@ impl RawReader<File> {
     /// Opens a RAW file.
     pub fn open(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Self> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|source| FormatError::Open {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = crate::open_file(path)?;
         Self::from_reader(file, path, opts)
     }
 }
 
 impl<R: Read> RawReader<R> {
     /// Reads a RAW stream from `r`, named `name` in errors.
-    pub fn from_reader(r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
-        Self::with_bounds(r, name.into(), opts, false)
-    }
-
-    pub(crate) fn with_bounds(
-        mut r: R,
-        path: PathBuf,
-        opts: &ReadOptions,
-        allow_unknown_size: bool,
-    ) -> Result<Self> {
+    pub fn from_reader(mut r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
+        let path: PathBuf = name.into();
+        let allow_unknown_size = opts.allow_unknown_size;
         let (header, rest) = read_header(&mut r, &path)?;
         if header.lines.is_empty() && !header.explicit_end {
             if rest.is_empty() {
@@ -156,18 +144,4 @@ impl<R: Read> EventReader for RawReader<R> {
             Ok(())
         })
     }
-}
-
-/// Summarises a RAW file; one whose header states no size (and no [`ReadOptions::resolution`])
-/// is summarised without bounds.
-pub fn info(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<EventInfo> {
-    let path = path.as_ref();
-    let file = File::open(path).map_err(|source| FormatError::Open {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let mut r = RawReader::with_bounds(file, path.to_path_buf(), opts, true)?;
-    let known = r.known_resolution();
-    let format = Format::PropheseeRaw(r.version());
-    summarise(&mut r, format, known)
 }

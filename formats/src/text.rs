@@ -17,8 +17,6 @@ use crate::binary::{Out, WriteSummary};
 use crate::error::{FormatError, Location, Result};
 use crate::events::{Bounds, EventReader, ReadOptions, Resolution, Sink};
 use crate::header::resolve_resolution;
-use crate::info::{EventInfo, event_info};
-use crate::sniff::Format;
 
 const NS_PER_S: i64 = 1_000_000_000;
 /// Longest quote of a bad line in an error message.
@@ -179,10 +177,7 @@ impl TextReader<BufReader<File>> {
     /// Opens a text file.
     pub fn open(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Self> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|source| FormatError::Open {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = crate::open_file(path)?;
         Self::from_reader(BufReader::with_capacity(256 * 1024, file), path, opts)
     }
 }
@@ -190,15 +185,8 @@ impl TextReader<BufReader<File>> {
 impl<R: BufRead> TextReader<R> {
     /// Reads text from `r`, named `name` in errors.
     pub fn from_reader(r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
-        Self::with_bounds(r, name.into(), opts, false)
-    }
-
-    pub(crate) fn with_bounds(
-        r: R,
-        path: PathBuf,
-        opts: &ReadOptions,
-        allow_unknown_size: bool,
-    ) -> Result<Self> {
+        let path: PathBuf = name.into();
+        let allow_unknown_size = opts.allow_unknown_size;
         let mut reader = TextReader {
             r,
             line: Vec::new(),
@@ -333,12 +321,6 @@ impl<R: BufRead> EventReader for TextReader<R> {
             Ok(())
         })
     }
-}
-
-/// Summarises a text file; one without a `width height` line (and no
-/// [`ReadOptions::resolution`]) is summarised without bounds.
-pub fn info(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<EventInfo> {
-    event_info(path, Format::EventText, opts)
 }
 
 /// Writes events as Event Camera Dataset text: optionally a `width height` first line, then

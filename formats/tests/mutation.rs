@@ -218,6 +218,7 @@ fn options(disorder: bool, skip: bool) -> ReadOptions {
         } else {
             UnknownWords::Error
         },
+        allow_unknown_size: false,
     }
 }
 

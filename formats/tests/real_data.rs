@@ -9,8 +9,8 @@ use common::*;
 use neuspike_formats::EventWriter;
 use neuspike_formats::dat::{DatReader, DatWriter};
 use neuspike_formats::pku::{self, PkuGeometry, PkuOptions, PkuReader, PkuWriter};
-use neuspike_formats::raw::{self, Evt2Writer, Evt3Writer, RawReader};
-use neuspike_formats::text::{self, TextReader, TextWriter};
+use neuspike_formats::raw::{Evt2Writer, Evt3Writer, RawReader};
+use neuspike_formats::text::{TextReader, TextWriter};
 use neuspike_formats::{
     Event, EventReader, EvtVersion, Format, FormatError, Info, ReadOptions, Resolution, info, sniff,
 };
@@ -110,7 +110,12 @@ fn davis_text_has_20000_events_with_the_stated_ends_and_extent() {
     assert_eq!((s.clamped_timestamps, s.lines_skipped), (0, 0));
 
     // Without a size, info still summarises, reporting the extent seen.
-    let i = text::info(&path, &ReadOptions::default()).unwrap();
+    let i = neuspike_formats::event_info(
+        &path,
+        neuspike_formats::Format::EventText,
+        &ReadOptions::default(),
+    )
+    .unwrap();
     assert_eq!(i.resolution, None);
     assert_eq!(
         (i.stats.events, i.stats.max_x, i.stats.max_y),
@@ -182,7 +187,12 @@ fn prophesee_evt2_has_521252_events_in_the_stated_time_range() {
         (0, 0, 0)
     );
 
-    let i = raw::info(&path, &ReadOptions::default()).unwrap();
+    let i = neuspike_formats::info::event_info(
+        &path,
+        neuspike_formats::sniff(&path).unwrap(),
+        &ReadOptions::default(),
+    )
+    .unwrap();
     assert_eq!(i.stats.events, 521_252);
     assert_eq!(i.duration_ns(), 95_871_000);
     println!("{i}");

@@ -29,6 +29,7 @@ pub fn options(data: &[u8]) -> (ReadOptions, usize, &[u8]) {
         } else {
             UnknownWords::Error
         },
+        allow_unknown_size: b & 64 != 0,
     };
     let batch = [1, 7, 256, 4096][usize::from(b >> 4) & 3];
     (opts, batch, rest)

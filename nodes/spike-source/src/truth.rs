@@ -15,20 +15,26 @@ use std::path::{Path, PathBuf};
 use ndarray::Array2;
 use neuspike_formats::aedat4::{Aedat4Frames, ApsFrame};
 use neuspike_formats::sniff::{Format, sniff};
+use neuspike_formats::truth::{TruthError, TruthList};
 
 /// Ground truth for a played recording: what `--truth` names.
 pub enum Truth {
     /// PNGs listed by plane.
-    Folder(TruthFolder),
+    Folder(TruthList),
     /// The APS frames of an AEDAT 4 file.
     Aps(Box<ApsTruth>),
 }
 
 impl Truth {
-    /// A folder is read as [`TruthFolder`]; a file must be AEDAT 4 (told by its content).
+    /// A folder is read as a [`TruthList`]; a file must be AEDAT 4 (told by its content).
     pub fn open(path: &Path) -> Result<Self, String> {
         if path.is_dir() {
-            return TruthFolder::open(path).map(Truth::Folder);
+            return TruthList::open(path)
+                .map(Truth::Folder)
+                .map_err(|e| match &e {
+                    TruthError::Read { source, .. } => format!("{e}: {source}"),
+                    TruthError::Line { .. } => e.to_string(),
+                });
         }
         match sniff(path).map_err(|e| e.to_string())? {
             Format::Aedat4 => ApsTruth::open(path).map(|a| Truth::Aps(Box::new(a))),
@@ -153,59 +159,6 @@ impl ApsTruth {
     }
 }
 
-/// A ground-truth folder: the planes that have a frame, in order, and their files.
-#[derive(Clone, Debug)]
-pub struct TruthFolder {
-    /// `timestamps.txt`, as errors name it.
-    pub list: PathBuf,
-    /// `(plane, PNG path)`, planes strictly increasing.
-    pub frames: Vec<(u64, PathBuf)>,
-}
-
-impl TruthFolder {
-    /// Reads `dir/timestamps.txt`. Errors name the file, the line and the value: a line that is
-    /// not `plane t_ns file`, a plane that does not increase, a file name leaving the folder.
-    pub fn open(dir: &Path) -> Result<Self, String> {
-        let list = dir.join("timestamps.txt");
-        let text = std::fs::read_to_string(&list)
-            .map_err(|e| format!("{}: cannot read the ground-truth list: {e}", list.display()))?;
-        let mut frames: Vec<(u64, PathBuf)> = Vec::new();
-        for (i, line) in text.lines().enumerate() {
-            let line = line.trim();
-            if line.is_empty() || line.starts_with('#') {
-                continue;
-            }
-            let bad = |why: &str| format!("{} line {}: `{line}`: {why}", list.display(), i + 1);
-            let fields: Vec<&str> = line.split_whitespace().collect();
-            let [plane, t_ns, file] = fields[..] else {
-                return Err(bad("expected three fields: plane t_ns file"));
-            };
-            let plane: u64 = plane
-                .parse()
-                .map_err(|_| bad("the plane is not a whole number"))?;
-            t_ns.parse::<i64>()
-                .map_err(|_| bad("t_ns is not a whole number of nanoseconds"))?;
-            if file.contains('/') || file.contains('\\') || file == ".." {
-                return Err(bad("the file must be a name inside the folder"));
-            }
-            if let Some(&(last, _)) = frames.last()
-                && plane <= last
-            {
-                return Err(bad("planes must increase down the list"));
-            }
-            frames.push((plane, dir.join(file)));
-        }
-        Ok(TruthFolder { list, frames })
-    }
-
-    /// The frames whose plane lies in `planes`.
-    pub fn in_range(&self, planes: std::ops::Range<u64>) -> &[(u64, PathBuf)] {
-        let a = self.frames.partition_point(|f| f.0 < planes.start);
-        let b = self.frames.partition_point(|f| f.0 < planes.end);
-        &self.frames[a..b]
-    }
-}
-
 /// A ground-truth PNG as luminance in `[0, 1]` (8- or 16-bit grey, or colour taken as its
 /// luma), checked against the sensor size `(height, width)`.
 pub fn read_truth_png(path: &Path, height: usize, width: usize) -> Result<Array2<f32>, String> {
@@ -235,47 +188,6 @@ pub fn read_truth_png(path: &Path, height: usize, width: usize) -> Result<Array2
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn folder(list: &str) -> (tempfile::TempDir, Result<TruthFolder, String>) {
-        let dir = tempfile::tempdir().expect("tempdir");
-        std::fs::write(dir.path().join("timestamps.txt"), list).expect("write");
-        let t = TruthFolder::open(dir.path());
-        (dir, t)
-    }
-
-    #[test]
-    fn reads_the_list_and_picks_frames_by_plane() {
-        let (dir, t) =
-            folder("# plane t_ns file\n0 0 a.png\n\n20 1000000 b.png\n40 2000000 c.png\n");
-        let t = t.expect("valid list");
-        let planes: Vec<u64> = t.in_range(10..41).iter().map(|f| f.0).collect();
-        assert_eq!(planes, [20, 40]);
-        assert_eq!(t.in_range(0..1)[0].1, dir.path().join("a.png"));
-        assert!(t.in_range(41..100).is_empty());
-    }
-
-    #[test]
-    fn bad_lists_name_the_line_and_the_value() {
-        for (list, line, why) in [
-            ("0 0\n", 1, "three fields"),
-            ("x 0 a.png\n", 1, "plane"),
-            ("0 0 a.png\n5 1.5 b.png\n", 2, "t_ns"),
-            ("0 0 ../a.png\n", 1, "inside the folder"),
-            ("20 0 a.png\n20 0 b.png\n", 2, "increase"),
-        ] {
-            let (_dir, t) = folder(list);
-            let e = t.expect_err(list);
-            assert!(
-                e.contains(&format!("line {line}")) && e.contains(why),
-                "{e}"
-            );
-        }
-        let missing = TruthFolder::open(Path::new("/no/such/folder")).expect_err("missing");
-        assert!(
-            missing.contains("/no/such/folder/timestamps.txt"),
-            "{missing}"
-        );
-    }
 
     #[test]
     fn png_levels_and_size_are_checked() {
