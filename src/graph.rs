@@ -196,10 +196,35 @@ fn build(graph_path: &Path, graph: &Value) -> eyre::Result<()> {
     Ok(())
 }
 
-/// Runs one build command in `dir`.
+/// Whether cargo set the environment variable `name` for the program it runs (`cargo run`,
+/// `cargo test`). A build started from such a program must not inherit them: build scripts (ring's,
+/// cc's) watch variables like `CARGO_MANIFEST_DIR` and `CARGO_PKG_NAME`, and cargo compares the
+/// values in its own environment, so an inherited one reruns them and recompiles everything above
+/// them (zenoh and dora: minutes).
+fn set_by_cargo(name: &str) -> bool {
+    const EXACT: [&str; 8] = [
+        "CARGO_MANIFEST_DIR",
+        "CARGO_MANIFEST_PATH",
+        "CARGO_MANIFEST_LINKS",
+        "CARGO_CRATE_NAME",
+        "CARGO_BIN_NAME",
+        "CARGO_PRIMARY_PACKAGE",
+        "CARGO_TARGET_TMPDIR",
+        "OUT_DIR",
+    ];
+    EXACT.contains(&name) || name.starts_with("CARGO_PKG_") || name.starts_with("CARGO_BIN_EXE_")
+}
+
+/// Runs one build command in `dir`, without the variables cargo set for this program.
 fn run_build(cmd: &str, dir: &Path) -> eyre::Result<()> {
     tracing::info!("build: {cmd}");
-    let status = Command::new("sh")
+    let mut command = Command::new("sh");
+    for (name, _) in std::env::vars_os() {
+        if name.to_str().is_some_and(set_by_cargo) {
+            command.env_remove(&name);
+        }
+    }
+    let status = command
         .arg("-c")
         .arg(cmd)
         .current_dir(dir)
@@ -400,6 +425,22 @@ mod tests {
             ("src".into(), "--scene c".into())
         );
         assert!(parse_override("--scene c").is_err());
+    }
+
+    #[test]
+    fn builds_do_not_inherit_what_cargo_set_for_this_program() {
+        for name in [
+            "CARGO_MANIFEST_DIR",
+            "CARGO_PKG_NAME",
+            "CARGO_PKG_VERSION_MAJOR",
+            "CARGO_BIN_EXE_neuspike",
+            "OUT_DIR",
+        ] {
+            assert!(set_by_cargo(name), "{name}");
+        }
+        for name in ["CARGO_HOME", "CARGO_TARGET_DIR", "RUSTFLAGS", "PATH"] {
+            assert!(!set_by_cargo(name), "{name}");
+        }
     }
 
     #[test]

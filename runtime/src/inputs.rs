@@ -177,3 +177,70 @@ pub fn receive(
     }
     Ok(())
 }
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::testing::CannedInputs;
+    use neuspike_schemas::{Frame, FrameKind, Message};
+
+    pub(crate) fn frame(seq: u64) -> Frame {
+        Frame {
+            kind: FrameKind::Reconstruction,
+            method: "tfp".into(),
+            t_ref_ns: seq as i64,
+            compute_ns: 0,
+            seq,
+            data: ndarray::Array2::zeros((1, 2)),
+        }
+    }
+
+    #[test]
+    fn gaps_tails_and_foreign_inputs_are_accounted_and_the_markers_end_the_loop() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut c = CannedInputs::new(dir.path());
+        c.message("a", &frame(0)).expect("a0");
+        c.message("c", &frame(0)).expect("c0"); // not read by the node
+        c.message("a", &frame(2)).expect("a2"); // a1 lost
+        c.closed("b"); // dora may say so before b's last message
+        c.message("b", &frame(0)).expect("b0");
+        c.end::<Frame>("b", 1).expect("b end");
+        c.end::<Frame>("a", 4).expect("a end"); // a3 lost at the tail
+        c.message("a", &frame(9)).expect("after the end"); // never handed over
+        let mut seen = Vec::new();
+        let mut inputs = Inputs::new(["a", "b"]);
+        c.run(|_node, mut events| {
+            receive(&mut events, &mut inputs, |msg| {
+                seen.push(match msg {
+                    Received::Message { input, meta, data } => {
+                        let f = Frame::from_arrow(meta, data)?;
+                        format!("{input}{}", f.seq)
+                    }
+                    Received::End { input, count } => format!("{input} end {count}"),
+                });
+                Ok(Flow::Continue)
+            })
+        })
+        .expect("run");
+        assert_eq!(seen, ["a0", "a2", "b0", "b end 1", "a end 4"]);
+        let a = inputs.get("a").expect("a");
+        assert_eq!((a.seq.received(), a.seq.missing(), a.ended), (2, 2, true));
+        assert_eq!((inputs.missing(), inputs.announced()), (2, 4));
+        assert!(inputs.all_ended() && inputs.get("c").is_none());
+    }
+
+    #[test]
+    fn a_message_without_a_sequence_number_is_an_error_naming_the_input() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut c = CannedInputs::new(dir.path());
+        let (mut meta, data) = frame(0).to_arrow();
+        meta.remove(SEQ);
+        c.raw("a", meta, data).expect("raw");
+        let mut inputs = Inputs::new(["a"]);
+        let e = c
+            .run(|_node, mut events| receive(&mut events, &mut inputs, |_| Ok(Flow::Continue)))
+            .expect_err("refused")
+            .to_string();
+        assert!(e.contains("input `a`") && e.contains("seq"), "{e}");
+    }
+}

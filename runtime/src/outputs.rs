@@ -150,3 +150,63 @@ pub fn produce(
     let ended = outputs.end_all();
     result.and(ended)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::inputs::tests::frame;
+    use crate::testing::{CannedInputs, output_ids, payload_len};
+    use neuspike_schemas::Frame;
+
+    #[test]
+    fn outputs_count_by_sequence_number_and_end_once() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let sent = CannedInputs::new(dir.path())
+            .run(|node, _events| {
+                let mut out = Outputs::new(node);
+                out.declare::<Frame>("f");
+                out.send("f", &frame(0))?;
+                out.send("f", &frame(2))?; // 1 was never made: the count still covers it
+                assert_eq!(out.count("f"), 3);
+                out.at_least("f", 5)?;
+                assert_eq!(out.count("f"), 5);
+                assert!(out.send("g", &frame(0)).is_err(), "undeclared output");
+                out.end_all()?;
+                let e = out
+                    .send("f", &frame(3))
+                    .expect_err("after the end")
+                    .to_string();
+                assert!(e.contains("after its end-of-stream marker"), "{e}");
+                out.end_all() // nothing left to end
+            })
+            .expect("run");
+        assert_eq!(output_ids(&sent), ["f", "f", "f"]);
+        assert_eq!(payload_len(&sent[2]), 0, "the end-of-stream marker");
+    }
+
+    #[test]
+    fn a_source_that_fails_still_ends_its_outputs() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let sent = CannedInputs::new(dir.path())
+            .run(|node, mut events| {
+                let mut out = Outputs::new(node);
+                out.declare::<Frame>("f");
+                let mut n = 0;
+                let r = produce(&mut out, &mut events, |out| {
+                    n += 1;
+                    if n == 3 {
+                        eyre::bail!("the recording broke");
+                    }
+                    out.send("f", &frame(n - 1))?;
+                    Ok(Flow::Continue)
+                });
+                let e = r.expect_err("the step's error").to_string();
+                assert!(e.contains("recording broke"), "{e}");
+                assert_eq!(out.count("f"), 2);
+                Ok(())
+            })
+            .expect("run");
+        assert_eq!(output_ids(&sent), ["f", "f", "f"]);
+        assert_eq!(payload_len(&sent[2]), 0, "ended after the error");
+    }
+}

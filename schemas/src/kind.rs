@@ -18,16 +18,25 @@ pub enum RepresentationKind {
     EventIntegration,
     /// TFSTP's firing rate per tick from short-term plasticity synapses, 1 channel.
     Stp,
+    /// E2VID's voxel grid of the window's events: B bins, linear in time.
+    VoxelGrid,
+    /// Event stacking: the signed event count per pixel in each of B equal time bins.
+    EventStack,
+    /// The time surface at the reference instant: ON and OFF channels, `exp(-age / tau)`.
+    TimeSurface,
 }
 
 impl RepresentationKind {
     /// Every kind, in the order their names are listed in errors.
-    pub const ALL: [RepresentationKind; 5] = [
+    pub const ALL: [RepresentationKind; 8] = [
         RepresentationKind::Tfp,
         RepresentationKind::Isi,
         RepresentationKind::SpikeRepr,
         RepresentationKind::EventIntegration,
         RepresentationKind::Stp,
+        RepresentationKind::VoxelGrid,
+        RepresentationKind::EventStack,
+        RepresentationKind::TimeSurface,
     ];
 
     /// The kind's one name.
@@ -38,6 +47,9 @@ impl RepresentationKind {
             RepresentationKind::SpikeRepr => "spike_repr",
             RepresentationKind::EventIntegration => "event_integration",
             RepresentationKind::Stp => "stp",
+            RepresentationKind::VoxelGrid => "voxel_grid",
+            RepresentationKind::EventStack => "event_stack",
+            RepresentationKind::TimeSurface => "time_surface",
         }
     }
 

@@ -9,7 +9,8 @@
 //! each instruction set's intrinsics, its bounds checked before the loop. This crate holds the
 //! only `unsafe` of the project: calling a function compiled for an instruction set is sound
 //! exactly when the CPU supports it, which is checked right before each call, and the
-//! intrinsics' loads and stores stay within the bounds checked.
+//! intrinsics' loads and stores stay within the bounds checked. [`fastmath`] holds the
+//! project's branch-free elementary functions (`exp`, `ln`), which vectorise inside such loops.
 //!
 //! A kernel run through [`with_isa`] must give the same bits on every instruction set; that holds
 //! for IEEE add, sub, mul, div, sqrt, min, max and compares (Rust never fuses a multiply and an
@@ -19,6 +20,7 @@
 //! C library's exact `fmaf` on [`Isa::Baseline`] (slow, but the same bits).
 #![deny(missing_docs)]
 
+pub mod fastmath;
 pub mod taps;
 
 /// The instruction sets kernels can be compiled for, narrowest first (so `a <= b` says that code

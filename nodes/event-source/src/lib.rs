@@ -147,43 +147,7 @@ impl DvsConfig {
     }
 }
 
-/// Natural logarithm in single precision without branches or divisions, so loops over it
-/// vectorise; within `2e-6 * max(1, |ln x|)` of the exact value (tested). Defined everywhere: the
-/// input is first clamped to `[f32::MIN_POSITIVE, f32::MAX]` (NaN becomes `MIN_POSITIVE`).
-///
-/// `x = m 2^e` with `m` in `[sqrt(1/2), sqrt(2))`; `ln m = f q(f)` with `f = m - 1` and `q` a
-/// degree-8 polynomial fitted (least squares, reweighted towards minimax) to `ln(1 + f) / f` on
-/// that interval: its error there is below `4e-8`.
-#[inline(always)]
-pub fn ln_fast(x: f32) -> f32 {
-    const LN_2: f32 = std::f32::consts::LN_2;
-    const Q: [f32; 9] = [
-        0.999_999_9,
-        -0.499_999_73,
-        0.333_350_1,
-        -0.250_032_87,
-        0.199_388_41,
-        -0.165_329_08,
-        0.150_675_92,
-        -0.145_771_15,
-        0.086_929_22,
-    ];
-    // Not `clamp`: it would keep a NaN, `max` replaces it.
-    #[allow(clippy::manual_clamp)]
-    let x = x.max(f32::MIN_POSITIVE).min(f32::MAX);
-    let bits = x.to_bits();
-    let e = ((bits >> 23) & 0xff) as i32 - 127;
-    let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000); // [1, 2)
-    let big = m > std::f32::consts::SQRT_2;
-    let m = if big { m * 0.5 } else { m };
-    let e = (e + i32::from(big)) as f32;
-    let f = m - 1.0;
-    let mut q = Q[8];
-    for &c in Q[..8].iter().rev() {
-        q = q * f + c;
-    }
-    e * LN_2 + f * q
-}
+pub use neuspike_simd::fastmath::ln_fast;
 
 /// Log intensity of a frame: `dst[i] = ln_fast(max(frame[i] * light_scale, floor))`, on the
 /// widest vector unit the CPU has.
@@ -788,31 +752,6 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("theta-on") && e.contains('0'), "{e}");
-    }
-
-    #[test]
-    fn ln_fast_is_close_everywhere_and_finite_at_the_edges() {
-        let mut worst = 0.0f64;
-        let mut check = |x: f32| {
-            let exact = f64::from(x).ln();
-            let err = (f64::from(ln_fast(x)) - exact).abs() / exact.abs().max(1.0);
-            worst = worst.max(err);
-        };
-        for k in -37_000..38_000 {
-            check(10f32.powf(k as f32 / 1000.0));
-        }
-        let mut rng = ChaCha8Rng::seed_from_u64(5);
-        for _ in 0..200_000 {
-            let bits = rand::Rng::random_range(&mut rng, 0x0080_0000u32..0x7f80_0000);
-            check(f32::from_bits(bits));
-        }
-        assert!(worst <= 2e-6, "worst relative error {worst}");
-        let lo = f64::from(f32::MIN_POSITIVE).ln();
-        for x in [0.0, -1.0, f32::NAN, f32::NEG_INFINITY] {
-            assert!((f64::from(ln_fast(x)) - lo).abs() < 1e-4, "{x}");
-        }
-        assert!((f64::from(ln_fast(f32::INFINITY)) - f64::from(f32::MAX).ln()).abs() < 1e-4);
-        assert_eq!(ln_fast(1.0), 0.0);
     }
 
     proptest::proptest! {

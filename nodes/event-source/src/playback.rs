@@ -416,3 +416,65 @@ impl EventFile {
         Ok(Some(batch))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config() -> EventSourceConfig {
+        EventSourceConfig {
+            scene: "bright-slow".into(),
+            file: None,
+            file_width: None,
+            file_height: None,
+            start_ns: None,
+            batch_ns: 1_000_000,
+            end_ns: Some(3_500_000),
+            camera: DvsConfig {
+                width: 32,
+                height: 24,
+                ..DvsConfig::default()
+            },
+        }
+    }
+
+    #[test]
+    fn a_scene_is_cut_into_consecutive_batches_up_to_its_end() {
+        let mut source = EventSource::open(&config()).expect("scene");
+        let steps: Vec<EventStep> =
+            std::iter::from_fn(|| source.next_step().expect("step")).collect();
+        let spans: Vec<(u64, i64, i64, i64)> = steps
+            .iter()
+            .map(|s| (s.batch.seq, s.batch.t_start_ns, s.batch.t_end_ns, s.due_ns))
+            .collect();
+        assert_eq!(
+            spans,
+            [
+                (0, 0, 1_000_000, 1_000_000),
+                (1, 1_000_000, 2_000_000, 2_000_000),
+                (2, 2_000_000, 3_000_000, 3_000_000),
+                (3, 3_000_000, 3_500_000, 3_500_000)
+            ]
+        );
+        for s in &steps {
+            let b = &s.batch;
+            assert!(
+                b.t_ns
+                    .iter()
+                    .all(|&t| (b.t_start_ns..b.t_end_ns).contains(&t))
+            );
+        }
+    }
+
+    #[test]
+    fn an_interval_that_ends_before_it_starts_is_refused_by_name() {
+        let cfg = EventSourceConfig {
+            file: Some(PathBuf::from("events.txt")),
+            start_ns: Some(5),
+            end_ns: Some(5),
+            ..config()
+        };
+        let e = EventSource::open(&cfg).err().expect("refused").to_string();
+        assert!(e.contains("end-ns") && e.contains("start-ns"), "{e}");
+    }
+}

@@ -39,7 +39,7 @@
 //! The two forms store different (equivalent) states: after a dense push every pixel refers to
 //! `t_ref`, after the reference each pixel to its last event; `L(t)` for `t` at or after the
 //! latest instant is the same, and that is all the public API exposes ([`HighPassFilter::log_into`],
-//! `frame_into`). Exponentials run on the widest vector unit (see `fastmath`). Frame reads go row
+//! `frame_into`). Exponentials run on the widest vector unit (see `neuspike_simd::fastmath`). Frame reads go row
 //! by row through stack buffers (any `dst` layout) and, like frame pushes, use rayon from
 //! [`MIN_PIXELS_FOR_RAYON`] pixels; event passes stay on one thread.
 
@@ -47,8 +47,8 @@ use ndarray::{Array2, ArrayView2, ArrayViewMut1, ArrayViewMut2, Axis, Zip};
 use neuspike_represent::EventSlice;
 use rayon::prelude::*;
 
-use crate::fastmath::{exp_nonpos, exp_nonpos_reference};
 use crate::{InferError, MIN_PIXELS_FOR_RAYON, check_shape};
+use neuspike_simd::fastmath::{exp_nonpos, exp_nonpos_reference};
 
 /// Luminance shown by a pixel with no information: the [`HighPassFilter`]'s output for `L = 0`,
 /// and the [`ComplementaryFilter`]'s level before its first frame.

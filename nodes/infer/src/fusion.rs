@@ -50,9 +50,9 @@
 use ndarray::{Array2, ArrayView2, ArrayViewMut1, ArrayViewMut2, Axis, Zip};
 use neuspike_represent::EventSlice;
 
-use crate::fastmath::{exp_nonpos, exp_nonpos_reference};
 use crate::filter::{check_events, check_time, owned_slice, owned_slice_mut};
 use crate::{InferError, check_shape, gain};
+use neuspike_simd::fastmath::{exp_nonpos, exp_nonpos_reference};
 
 /// Pixels per chunk of the fast frame read (stack buffers).
 const ROW_CHUNK: usize = 512;

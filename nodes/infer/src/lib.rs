@@ -32,7 +32,6 @@ use std::str::FromStr;
 
 use ndarray::{ArrayView2, ArrayViewMut2, Zip};
 
-mod fastmath;
 mod filter;
 mod fusion;
 pub mod learned;

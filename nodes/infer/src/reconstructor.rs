@@ -493,3 +493,99 @@ fn learned(
         .map_err(|e| window_error(seq, e))?;
     Ok((t_ref_ns, data))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array3;
+
+    fn rep(kind: RepresentationKind, seq: u64, value: f32) -> Representation {
+        let channels = if kind == RepresentationKind::Isi {
+            2
+        } else {
+            1
+        };
+        let mut data = Array3::from_elem((channels, 2, 3), value);
+        if kind == RepresentationKind::Isi {
+            data.index_axis_mut(Axis(0), 1).fill(1.0); // every interval measured
+        }
+        Representation {
+            kind,
+            t_ref_ns: 1_000_000 * (seq as i64 + 1),
+            seq,
+            params: [("lum_per_rate".to_string(), 2.0)].into_iter().collect(),
+            data,
+        }
+    }
+
+    fn batch(seq: u64) -> EventBatch {
+        let t0 = 1_000_000 * seq as i64;
+        EventBatch::empty(3, 2, t0, t0 + 1_000_000, seq)
+    }
+
+    fn stage(method: Method) -> Reconstructor {
+        InferConfig {
+            method,
+            ..InferConfig::default()
+        }
+        .reconstructor(&[REPRESENTATION.to_string(), EVENTS.to_string()])
+        .expect("stage")
+    }
+
+    #[test]
+    fn windows_are_joined_by_sequence_whatever_the_arrival_order() {
+        let mut r = stage(Method::Fusion);
+        assert_eq!(r.input_ids(), [REPRESENTATION, EVENTS]);
+        r.push_events(batch(1));
+        r.push_events(batch(0));
+        assert!(r.ready(false).expect("none complete").is_empty());
+        r.push_representation(REPRESENTATION, rep(RepresentationKind::Isi, 1, 8.0));
+        r.push_representation(REPRESENTATION, rep(RepresentationKind::Isi, 0, 8.0));
+        let frames = r.ready(false).expect("frames");
+        let seqs: Vec<u64> = frames.iter().map(|f| f.seq).collect();
+        assert_eq!(seqs, [0, 1]);
+        // TFI of an 8-tick interval at lum_per_rate 2.
+        assert!(frames[0].data.iter().all(|&v| (v - 0.25).abs() < 1e-6));
+        assert_eq!(frames[0].method, "fusion");
+    }
+
+    #[test]
+    fn a_window_that_lost_an_input_is_dropped_and_counted() {
+        let mut r = stage(Method::Fusion);
+        // Window 0 lost its representation; window 1 is whole.
+        r.push_events(batch(0));
+        r.push_events(batch(1));
+        r.push_representation(REPRESENTATION, rep(RepresentationKind::Isi, 1, 8.0));
+        let frames = r.ready(false).expect("frames");
+        assert_eq!(frames.iter().map(|f| f.seq).collect::<Vec<_>>(), [1]);
+        assert_eq!(r.incomplete(), 1);
+        // At the end, a window still waiting is dropped too.
+        r.push_events(batch(2));
+        assert!(r.ready(true).expect("flush").is_empty());
+        assert_eq!(r.incomplete(), 2);
+    }
+
+    #[test]
+    fn the_graph_must_carry_what_the_method_reads() {
+        let cfg = InferConfig {
+            method: Method::Hf,
+            ..InferConfig::default()
+        };
+        let e = cfg.reconstructor(&[]).expect_err("no events").to_string();
+        assert!(e.contains("`events`"), "{e}");
+        let e = InferConfig::default()
+            .reconstructor(&[EVENTS.to_string()])
+            .expect_err("no representation")
+            .to_string();
+        assert!(e.contains("`representation`") && e.contains("tfp"), "{e}");
+        let e = InferConfig {
+            method: Method::Tfp,
+            lum_per_rate: Some(0.0),
+            ..InferConfig::default()
+        }
+        .reconstructor(&[REPRESENTATION.to_string()])
+        .expect_err("bad calibration")
+        .to_string();
+        assert!(e.contains("lum-per-rate"), "{e}");
+    }
+}

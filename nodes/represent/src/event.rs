@@ -9,6 +9,7 @@
 //! splits the sensor into one band of rows per thread (each task picks its band's events itself).
 //! The signed count splits long event runs over rayon threads, one histogram each, and sums them.
 
+use neuspike_simd::fastmath::exp_neg;
 use std::ops::Range;
 
 use ndarray::{ArrayViewMut2, ArrayViewMut3, Axis};
@@ -443,7 +444,7 @@ fn integration_fast(
 /// A channel's events are a contiguous run of `events`, taken in batches of [`BATCH`] so the
 /// batch stays in the first-level cache; their pixels, signs and weights
 /// `p exp(-(t_k - t_i) / tau) exp((t_k - t_base) / tau)` are computed in vectorised passes
-/// ([`exp_neg`]), then added one by one; the output is a vectorised pass over the pixels. No
+/// ([`neuspike_simd::fastmath::exp_neg`]), then added one by one; the output is a vectorised pass over the pixels. No
 /// branch depends on a polarity. For `tau -> 0` only events at `t_k` itself weigh: their `G` is
 /// cleared again once the channels move past `t_k` (it was 0 before; channels repeating `t_k`
 /// weigh them again), for `tau = inf` `G` is the signed count.
@@ -604,55 +605,6 @@ impl ChannelBatch {
             }
         }
     }
-}
-
-/// `exp(x)` for `x <= 0` in double precision without branches, divisions or library calls, so
-/// loops over it vectorise (and give the same bits on every instruction set: IEEE adds and
-/// multiplies only). Within `1e-15` relative of `f64::exp` on `[-708, 0]` (tested); exactly 1 at
-/// `x = ±0`; 0 below -708 (where `exp(x) < 3.3e-308`, a weight no sum can notice), `-inf`
-/// included. `x > 0` is taken as 0 (callers pass `-dt / tau` with `dt >= 0`); NaN gives 0.
-///
-/// `x = n ln 2 + r` with `n` the nearest integer to `x / ln 2` (`|r| <= ln 2 / 2`, `ln 2` split in
-/// two so `n ln 2` is exact), `exp(r)` by its Taylor series to degree 12 (truncation below
-/// `2e-16`), and `2^n` built in the exponent bits (`n` in `[-1022, 0]`, so never subnormal).
-#[inline(always)]
-fn exp_neg(x: f64) -> f64 {
-    const LOG2_E: f64 = std::f64::consts::LOG2_E;
-    // ln 2 = LN2_HI + LN2_LO, LN2_HI with 32 significant bits: `n * LN2_HI` is exact for |n| < 2^21.
-    const LN2_HI: f64 = 0.693_147_180_369_123_8;
-    const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
-    // 2^52 + 2^51: adding it rounds to an integer (nearest, ties to even) held in the low bits.
-    const ROUND: f64 = 6_755_399_441_055_744.0;
-    // 1/k! for k = 12 down to 0.
-    const C: [f64; 13] = [
-        2.08767569878681e-09,
-        2.505210838544172e-08,
-        2.755731922398589e-07,
-        2.7557319223985893e-06,
-        2.48015873015873e-05,
-        0.0001984126984126984,
-        0.001388888888888889,
-        0.008333333333333333,
-        0.041666666666666664,
-        0.16666666666666666,
-        0.5,
-        1.0,
-        1.0,
-    ];
-    let below = x.is_nan() || x < -708.0;
-    // Not `clamp`: NaN must not survive.
-    #[allow(clippy::manual_clamp)]
-    let xc = x.max(-708.0).min(0.0);
-    let t = xc * LOG2_E + ROUND;
-    let n = t - ROUND;
-    let n_int = t.to_bits().wrapping_sub(ROUND.to_bits()) as i64; // n, exactly
-    let r = (xc - n * LN2_HI) - n * LN2_LO;
-    let mut p = C[0];
-    for &c in &C[1..] {
-        p = p * r + c;
-    }
-    let scale = f64::from_bits(((n_int + 1023) as u64) << 52);
-    if below { 0.0 } else { p * scale }
 }
 
 /// Events below which one rayon task of [`event_count_into`] does not go.
@@ -837,40 +789,6 @@ mod tests {
             (350, 2, 1, -1),
             (420, 1, 0, 1),
         ])
-    }
-
-    #[test]
-    fn exp_neg_is_close_to_exp_and_exact_at_the_edges() {
-        let mut worst = 0.0f64;
-        let mut x = 0.0f64;
-        while x >= -708.0 {
-            for x in [x, x - 1e-9, x * 0.999_999_7] {
-                let (got, want) = (exp_neg(x), x.exp());
-                worst = worst.max(((got - want) / want).abs());
-            }
-            x -= 0.013_7;
-        }
-        assert!(worst <= 1e-15, "relative error {worst:e}");
-        for tiny in [-1e-300, -f64::MIN_POSITIVE, -1e-17] {
-            assert_eq!(exp_neg(tiny), 1.0);
-        }
-        assert_eq!(exp_neg(0.0), 1.0);
-        assert_eq!(exp_neg(-0.0), 1.0);
-        assert_eq!(exp_neg(1.0), 1.0);
-        assert_eq!(exp_neg(-708.1), 0.0);
-        assert_eq!(exp_neg(f64::NEG_INFINITY), 0.0);
-        assert_eq!(exp_neg(f64::NAN), 0.0);
-        let isas: Vec<f64> = neuspike_simd::Isa::ALL
-            .iter()
-            .map(|&isa| {
-                neuspike_simd::with_isa(
-                    isa,
-                    #[inline(always)]
-                    || (0..4096).map(|i| exp_neg(-0.17 * i as f64)).sum::<f64>(),
-                )
-            })
-            .collect();
-        assert!(isas.windows(2).all(|p| p[0].to_bits() == p[1].to_bits()));
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! dora node: representations of aligned windows. Input `windows` (AlignedWindow); one output per
 //! representation kind, computed only when the graph declares it: `tfp`, `isi`, `spike_repr`,
-//! `event_integration`, `stp` (all Representation).
+//! `event_integration`, `stp`, `voxel_grid`, `event_stack`, `time_surface` (all Representation).
 //!
 //! `stp` (TFSTP's rate, `StpFilter`) is the one with state across windows: each pixel's synapse
 //! is fed every plane once, up to each window's reference plane (the planes after it wait for

@@ -67,6 +67,20 @@ fn computes_only_declared_outputs() {
     assert_eq!(tfp, vec![1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
 }
 
+#[test]
+fn every_kind_goes_out_on_the_output_of_its_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = CannedInputs::new(dir.path());
+    c.message("windows", &window(0)).unwrap();
+    c.end::<AlignedWindow>("windows", 1).unwrap();
+    let out = c
+        .run(|node, events| run(node, events, representer(), &RepresentationKind::ALL))
+        .unwrap();
+    let names: Vec<&str> = RepresentationKind::ALL.iter().map(|k| k.name()).collect();
+    // One message per kind, then one end-of-stream marker per kind.
+    assert_eq!(output_ids(&out), [names.clone(), names].concat());
+}
+
 /// `stp` keeps its synapses from window to window: windows of 5 planes every 3, each fed up
 /// to its reference plane (its third), see the planes of one stream once each.
 #[test]

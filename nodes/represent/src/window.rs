@@ -7,8 +7,9 @@ use ndarray::{Array2, Array3, Axis};
 use neuspike_schemas::{AlignedWindow, Representation, RepresentationKind};
 
 use crate::{
-    EventSlice, RepresentError, StpFilter, StpParams, event_integration_into, integration_instants,
-    isi_packed_into, spike_representation_packed_into, tfp_packed_into,
+    EventSlice, RepresentError, StpFilter, StpParams, TIME_SURFACE_CHANNELS, VoxelNorm,
+    event_integration_into, event_stack_into, integration_instants, isi_packed_into,
+    spike_representation_packed_into, tfp_packed_into, time_surface_into, voxel_grid_into,
 };
 
 /// The represent stage's settings (the node's `args:`).
@@ -38,6 +39,16 @@ pub struct RepresentConfig {
     /// TFSTP (`stp`): the facilitation's time constant F, in planes (ticks).
     #[arg(long, default_value_t = StpParams::default().tau_f_ticks)]
     pub stp_tau_f_ticks: f64,
+    /// `voxel_grid`: time bins of E2VID's voxel grid (normalised as E2VID: the non-zero voxels
+    /// to mean 0 and standard deviation 1).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    pub voxel_bins: u32,
+    /// `event_stack`: time bins of the event stack.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    pub stack_bins: u32,
+    /// `time_surface`: decay constant of the time surface, nanoseconds (> 0, inf allowed).
+    #[arg(long, default_value_t = 500_000.0)]
+    pub surface_tau_ns: f64,
 }
 
 impl Default for RepresentConfig {
@@ -52,6 +63,9 @@ impl Default for RepresentConfig {
             stp_f: stp.f,
             stp_tau_d_ticks: stp.tau_d_ticks,
             stp_tau_f_ticks: stp.tau_f_ticks,
+            voxel_bins: 5,
+            stack_bins: 5,
+            surface_tau_ns: 500_000.0,
         }
     }
 }
@@ -67,14 +81,21 @@ impl RepresentConfig {
         }
     }
 
-    /// Checks the settings: `tau_ns` must be `>= 0` (infinity allowed: no decay), the synapse's
-    /// parameters as [`StpParams::check`] says.
+    /// Checks the settings: `tau_ns` must be `>= 0` and `surface_tau_ns` `> 0` (infinity allowed
+    /// for both: no decay), the synapse's parameters as [`StpParams::check`] says.
     pub fn check(&self) -> Result<(), RepresentError> {
         if self.tau_ns.is_nan() || self.tau_ns < 0.0 {
             return Err(RepresentError::Param {
                 name: "tau-ns",
                 value: self.tau_ns.to_string(),
                 reason: "must be >= 0 (inf allowed)",
+            });
+        }
+        if self.surface_tau_ns.is_nan() || self.surface_tau_ns <= 0.0 {
+            return Err(RepresentError::Param {
+                name: "surface-tau-ns",
+                value: self.surface_tau_ns.to_string(),
+                reason: "must be > 0 (inf allowed)",
             });
         }
         self.stp_params().check()
@@ -115,6 +136,14 @@ impl Representer {
         if let Some(g) = w.spikes.lum_per_rate {
             params.insert("lum_per_rate".to_string(), g);
         }
+        let ev = &w.events;
+        let events = EventSlice {
+            t_ns: &ev.t_ns,
+            x: &ev.x,
+            y: &ev.y,
+            polarity: &ev.polarity,
+        };
+        let (eh, ew) = (ev.height.max(1), ev.width.max(1));
         let data = match kind {
             RepresentationKind::Tfp => {
                 let len = self.cfg.tfp_planes.map_or(n, |p| (p as usize).min(n));
@@ -144,18 +173,36 @@ impl Representer {
             }
             RepresentationKind::EventIntegration => {
                 let k = self.cfg.ei_channels as usize;
-                let ev = &w.events;
-                let (eh, ew) = (ev.height.max(1), ev.width.max(1));
                 let ts = integration_instants(ev.t_start_ns, ev.t_end_ns, k);
                 params.insert("tau_ns".into(), self.cfg.tau_ns);
-                let slice = EventSlice {
-                    t_ns: &ev.t_ns,
-                    x: &ev.x,
-                    y: &ev.y,
-                    polarity: &ev.polarity,
-                };
                 let mut out = Array3::<f32>::zeros((k, eh, ew));
-                event_integration_into(slice, ev.t_start_ns, &ts, self.cfg.tau_ns, out.view_mut())?;
+                event_integration_into(
+                    events,
+                    ev.t_start_ns,
+                    &ts,
+                    self.cfg.tau_ns,
+                    out.view_mut(),
+                )?;
+                out
+            }
+            RepresentationKind::VoxelGrid => {
+                let b = self.cfg.voxel_bins as usize;
+                params.insert("bins".into(), b as f64);
+                let mut out = Array3::<f32>::zeros((b, eh, ew));
+                voxel_grid_into(events, VoxelNorm::NonZeroStandard, out.view_mut())?;
+                out
+            }
+            RepresentationKind::EventStack => {
+                let b = self.cfg.stack_bins as usize;
+                params.insert("bins".into(), b as f64);
+                let mut out = Array3::<f32>::zeros((b, eh, ew));
+                event_stack_into(events, out.view_mut())?;
+                out
+            }
+            RepresentationKind::TimeSurface => {
+                params.insert("tau_ns".into(), self.cfg.surface_tau_ns);
+                let mut out = Array3::<f32>::zeros((TIME_SURFACE_CHANNELS, eh, ew));
+                time_surface_into(events, w.t_ref_ns, self.cfg.surface_tau_ns, out.view_mut())?;
                 out
             }
             RepresentationKind::Stp => {
@@ -177,5 +224,127 @@ impl Representer {
             params,
             data,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neuspike_schemas::{Event, EventBatch, SpikeChunk, pack_planes};
+
+    /// A 4x3 window of 5 planes (pixel 0 firing at every plane) with events on both sides of its
+    /// reference instant.
+    fn window() -> AlignedWindow {
+        let mut p = Array3::<u8>::zeros((5, 3, 4));
+        p.slice_mut(ndarray::s![.., 0, 0]).fill(1);
+        let spikes = SpikeChunk {
+            width: 4,
+            height: 3,
+            first_plane: 10,
+            n_planes: 5,
+            t_first_ns: 100,
+            plane_period_ns: 10,
+            seq: 7,
+            bits: pack_planes(p.view()),
+            lum_per_rate: Some(1.0),
+        };
+        let mut events = EventBatch::empty(4, 3, 90, 140, 7);
+        for (t_ns, x, y, polarity) in [
+            (95, 1, 0, 1),
+            (110, 2, 1, -1),
+            (121, 1, 0, 1),
+            (135, 3, 2, -1),
+        ] {
+            events.push(Event {
+                t_ns,
+                x,
+                y,
+                polarity,
+            });
+        }
+        AlignedWindow {
+            t_ref_ns: 120,
+            ref_plane: 12,
+            spikes,
+            events,
+        }
+    }
+
+    fn slice(b: &EventBatch) -> EventSlice<'_> {
+        EventSlice {
+            t_ns: &b.t_ns,
+            x: &b.x,
+            y: &b.y,
+            polarity: &b.polarity,
+        }
+    }
+
+    #[test]
+    fn every_kind_is_its_kernel_on_the_window() {
+        let w = window();
+        let mut r = Representer::new(RepresentConfig {
+            repr_channels: 4,
+            voxel_bins: 3,
+            stack_bins: 2,
+            surface_tau_ns: 20.0,
+            ..RepresentConfig::default()
+        })
+        .unwrap();
+        for kind in RepresentationKind::ALL {
+            let rep = r.represent(kind, &w).unwrap();
+            assert_eq!((rep.kind, rep.seq, rep.t_ref_ns), (kind, 7, 120));
+            assert_eq!((rep.data.dim().1, rep.data.dim().2), (3, 4), "{kind}");
+        }
+        let mut voxel = Array3::<f32>::zeros((3, 3, 4));
+        voxel_grid_into(
+            slice(&w.events),
+            VoxelNorm::NonZeroStandard,
+            voxel.view_mut(),
+        )
+        .unwrap();
+        assert_eq!(
+            r.represent(RepresentationKind::VoxelGrid, &w).unwrap().data,
+            voxel
+        );
+        let mut stack = Array3::<f32>::zeros((2, 3, 4));
+        event_stack_into(slice(&w.events), stack.view_mut()).unwrap();
+        assert_eq!(
+            r.represent(RepresentationKind::EventStack, &w)
+                .unwrap()
+                .data,
+            stack
+        );
+        // The time surface at t_ref = 120: the ON event at 95 is 25 ns old, the OFF one at 110
+        // 10 ns old; the events after t_ref do not count.
+        let s = r
+            .represent(RepresentationKind::TimeSurface, &w)
+            .unwrap()
+            .data;
+        assert_eq!(s[[0, 0, 1]], (-25.0f64 / 20.0).exp() as f32);
+        assert_eq!(s[[1, 1, 2]], (-10.0f64 / 20.0).exp() as f32);
+        assert_eq!(s[[1, 2, 3]], 0.0);
+    }
+
+    #[test]
+    fn bad_settings_are_refused_by_name() {
+        for (cfg, name) in [
+            (
+                RepresentConfig {
+                    tau_ns: -1.0,
+                    ..RepresentConfig::default()
+                },
+                "tau-ns",
+            ),
+            (
+                RepresentConfig {
+                    surface_tau_ns: 0.0,
+                    ..RepresentConfig::default()
+                },
+                "surface-tau-ns",
+            ),
+        ] {
+            let e = Representer::new(cfg).unwrap_err().to_string();
+            assert!(e.contains(name), "{e}");
+        }
     }
 }

@@ -239,3 +239,83 @@ fn create_dir(dir: &Path) -> Result<(), SinkError> {
         source,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array2;
+    use neuspike_schemas::FrameKind;
+
+    fn frame(kind: FrameKind, method: &str, seq: u64, t_ref_ns: i64, value: f32) -> Frame {
+        Frame {
+            kind,
+            method: method.into(),
+            t_ref_ns,
+            compute_ns: 1,
+            seq,
+            data: Array2::from_elem((4, 5), value),
+        }
+    }
+
+    fn config(out: &Path, within_ns: i64) -> SinkConfig {
+        SinkConfig {
+            out: out.to_path_buf(),
+            bit_depth: BitDepth::Eight,
+            write_ground_truth: false,
+            truth_within_ns: within_ns,
+        }
+    }
+
+    #[test]
+    fn a_frame_waits_for_its_truth_and_is_scored_against_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut sink = Sink::new(&config(dir.path(), 0), true).expect("sink");
+        sink.on_frame("tfp", frame(FrameKind::Reconstruction, "tfp", 0, 100, 0.5))
+            .expect("frame");
+        // Not written yet: its truth may still come.
+        let csv = || std::fs::read_to_string(dir.path().join("metrics.csv")).expect("csv");
+        assert_eq!(csv().lines().count(), 1, "header only");
+        sink.on_truth(frame(FrameKind::GroundTruth, "ground-truth", 0, 100, 0.5))
+            .expect("truth");
+        let rows = csv();
+        assert_eq!(rows.lines().count(), 2, "{rows}");
+        assert!(
+            rows.lines().nth(1).is_some_and(|r| r.contains(",inf,")),
+            "{rows}"
+        );
+        // A frame past the last truth waits until the truth stream ends, then goes unscored.
+        sink.on_frame("tfp", frame(FrameKind::Reconstruction, "tfp", 1, 200, 0.5))
+            .expect("frame");
+        assert_eq!(csv().lines().count(), 2);
+        sink.truth_ended().expect("end");
+        assert_eq!(csv().lines().count(), 3);
+        let tally = InputTally {
+            announced: Some(3),
+            received: 2,
+            missing: 1,
+            ended: true,
+        };
+        let summary = sink.finish([("tfp", tally)]).expect("summary");
+        let text = std::fs::read_to_string(summary).expect("summary");
+        assert!(text.contains("| tfp | 3 | 2 | 1 | yes |"), "{text}");
+    }
+
+    #[test]
+    fn the_nearest_truth_within_the_tolerance_scores_a_frame() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut sink = Sink::new(&config(dir.path(), 30), true).expect("sink");
+        sink.on_truth(frame(FrameKind::GroundTruth, "ground-truth", 0, 80, 0.5))
+            .expect("truth");
+        sink.on_truth(frame(FrameKind::GroundTruth, "ground-truth", 1, 125, 0.25))
+            .expect("truth");
+        // 100 is 20 from the first truth and 25 from the second: the first scores it.
+        sink.on_frame("tfp", frame(FrameKind::Reconstruction, "tfp", 0, 100, 0.5))
+            .expect("frame");
+        sink.truth_ended().expect("end");
+        let rows = std::fs::read_to_string(dir.path().join("metrics.csv")).expect("csv");
+        assert!(
+            rows.lines().nth(1).is_some_and(|r| r.contains(",inf,")),
+            "{rows}"
+        );
+    }
+}

@@ -577,3 +577,95 @@ impl SpikeFile {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neuspike_formats::pku::PkuWriter;
+    use neuspike_schemas::bytes_per_plane;
+
+    fn config(file: Option<PathBuf>) -> SpikeSourceConfig {
+        SpikeSourceConfig {
+            scene: "bright-static".into(),
+            file,
+            file_width: 16,
+            file_height: 4,
+            head_columns: 0,
+            start_plane: 0,
+            truth: None,
+            lum_per_rate: None,
+            chunk_planes: 20,
+            gt_every_planes: 20,
+            max_planes: Some(45),
+            camera: CameraConfig {
+                width: 16,
+                height: 8,
+                ..CameraConfig::default()
+            },
+        }
+    }
+
+    fn steps(source: &mut SpikeSource) -> Vec<SpikeStep> {
+        std::iter::from_fn(|| source.next_step().expect("step")).collect()
+    }
+
+    #[test]
+    fn a_scene_plays_in_chunks_with_truth_at_every_kth_plane() {
+        let mut source = SpikeSource::open(&config(None)).expect("scene");
+        assert!(source.sends_truth());
+        let steps = steps(&mut source);
+        let chunks: Vec<(u64, u64, usize)> = steps
+            .iter()
+            .map(|s| (s.chunk.seq, s.chunk.first_plane, s.chunk.n_planes))
+            .collect();
+        assert_eq!(chunks, [(0, 0, 20), (1, 20, 20), (2, 40, 5)]);
+        let period = steps[0].chunk.plane_period_ns;
+        let truth: Vec<(u64, i64)> = steps
+            .iter()
+            .flat_map(|s| s.truth.iter().map(|f| (f.seq, f.t_ref_ns)))
+            .collect();
+        assert_eq!(truth, [(0, 0), (1, 20 * period), (2, 40 * period)]);
+        // Each chunk is due when its last plane has been read out.
+        assert_eq!(steps[2].due_ns, 45 * period);
+        assert!(source.finish().is_ok());
+    }
+
+    #[test]
+    fn a_recording_plays_from_its_start_plane_and_ends_at_its_last_whole_plane() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("planes.dat");
+        let geometry = PkuGeometry::new(16, 4);
+        let per = bytes_per_plane(16, 4);
+        let bits: Vec<u8> = (0..7 * per).map(|i| (i * 37 % 251) as u8).collect();
+        let mut w = PkuWriter::new(Vec::new(), &path, geometry).expect("writer");
+        w.write_planes(&bits).expect("planes");
+        let mut bytes = w.finish().expect("finish").0;
+        bytes.extend_from_slice(&[0xAB; 3]); // a partial plane at the end
+        std::fs::write(&path, bytes).expect("write");
+        let mut cfg = config(Some(path));
+        cfg.gt_every_planes = 0;
+        cfg.max_planes = None;
+        cfg.chunk_planes = 4;
+        cfg.start_plane = 2;
+        let mut source = SpikeSource::open(&cfg).expect("file");
+        assert!(!source.sends_truth());
+        let steps = steps(&mut source);
+        let chunks: Vec<(u64, u64, usize)> = steps
+            .iter()
+            .map(|s| (s.chunk.seq, s.chunk.first_plane, s.chunk.n_planes))
+            .collect();
+        assert_eq!(chunks, [(0, 2, 4), (1, 6, 1)]);
+        let played: Vec<u8> = steps.iter().flat_map(|s| s.chunk.bits.clone()).collect();
+        assert_eq!(played, bits[2 * per..]);
+        assert_eq!(steps[0].chunk.lum_per_rate, Some(DEFAULT_FILE_LUM_PER_RATE));
+        // A paced playback's clock starts at the start plane.
+        assert_eq!(steps[0].due_ns, 4 * steps[0].chunk.plane_period_ns);
+        assert!(source.finish().is_ok());
+        cfg.start_plane = 7;
+        let e = SpikeSource::open(&cfg)
+            .err()
+            .expect("past the end")
+            .to_string();
+        assert!(e.contains("spike-source"), "{e}");
+    }
+}
