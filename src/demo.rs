@@ -60,16 +60,6 @@ pub fn prepare(out: &Path, scene: &str) -> eyre::Result<PathBuf> {
         };
         // Built by `run` beforehand when the program runs from its sources; never from here.
         map.remove("build");
-        let name = map
-            .get("path")
-            .and_then(serde_yaml::Value::as_str)
-            .and_then(|p| Path::new(p).file_name())
-            .and_then(|n| n.to_str())
-            .map(str::to_string);
-        if let Some(name) = name {
-            let bin = graph::node_binary(&name)?;
-            map.insert("path".into(), bin.display().to_string().into());
-        }
         let args = map
             .get("args")
             .and_then(serde_yaml::Value::as_str)
@@ -86,6 +76,9 @@ pub fn prepare(out: &Path, scene: &str) -> eyre::Result<PathBuf> {
         };
         map.insert("args".into(), args.into());
     }
+    // The graph's relative paths mean nothing in `out`: every node runs the binary beside this
+    // program, and a missing one is an error saying how to build it.
+    graph::resolve_node_binaries(&mut g, &out)?;
     graph::write_types(&out)?;
     let path = out.join("graph.yml");
     let text = serde_yaml::to_string(&g).wrap_err("cannot write the demo graph")?;

@@ -82,7 +82,7 @@ pub fn node_binary(name: &str) -> eyre::Result<PathBuf> {
 
 /// Points every node whose `path:` names a neuspike node binary (`neuspike-*`) at that binary
 /// beside this program, or else at the graph's own path when it exists.
-fn resolve_node_binaries(graph: &mut Value, graph_dir: &Path) -> eyre::Result<()> {
+pub fn resolve_node_binaries(graph: &mut Value, graph_dir: &Path) -> eyre::Result<()> {
     let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);
     for node in list.into_iter().flatten() {
         let Some(path) = node.get("path").and_then(Value::as_str).map(PathBuf::from) else {
