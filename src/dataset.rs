@@ -26,7 +26,9 @@
 //! Output (`out/`): shards of at most `shard` samples, `out/<shard:03>/{spike,events}.npy`
 //! (`[n, channels, size, size]` float32) and `{truth,tfp,tfi}.npy` (`[n, size, size]`);
 //! `samples.csv` (one row a sample: texture, light, speed, thresholds, `lum_per_rate`, whether the
-//! scene is complex); `dataset.yml` (every setting, and the counts). Deterministic for a seed.
+//! scene is complex); `dataset.yml` (every setting, and the counts); with `--also`, one more
+//! `<kind>.npy` a representation kind (`[n, bins, size, size]`: a voxel grid, an event stack or a
+//! time surface for other networks). Deterministic for a seed.
 
 use std::fs;
 use std::io::Write;
@@ -102,6 +104,11 @@ pub struct DatasetOptions {
     /// Seed of every draw.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// More representations of each sample's window, by the represent node's names (e.g.
+    /// `voxel_grid,event_stack,time_surface` for E2VID-style networks), each written as
+    /// `<kind>.npy` with represent's default settings (5 time bins, a 500 us time surface).
+    #[arg(long, value_delimiter = ',')]
+    pub also: Vec<RepresentationKind>,
 }
 
 /// What one sample was made of (a row of `samples.csv`).
@@ -140,6 +147,8 @@ pub struct Sample {
     pub tfp: Array2<f32>,
     /// TFI at the reference plane, as luminance.
     pub tfi: Array2<f32>,
+    /// The representations of `--also`, in its order.
+    pub also: Vec<ndarray::Array3<f32>>,
     /// How it was made.
     pub info: SampleInfo,
 }
@@ -371,6 +380,11 @@ pub fn sample(
         .data;
     let rate = represent.represent(RepresentationKind::Tfp, &window)?.data;
     let isi = represent.represent(RepresentationKind::Isi, &window)?.data;
+    let also = opts
+        .also
+        .iter()
+        .map(|&kind| Ok(represent.represent(kind, &window)?.data))
+        .collect::<eyre::Result<Vec<_>>>()?;
 
     let phi = CameraConfig::default().phi;
     let mut tfp = Array2::<f32>::zeros((s, s));
@@ -397,6 +411,7 @@ pub fn sample(
         truth,
         tfp,
         tfi,
+        also,
         info,
     })
 }
@@ -495,6 +510,10 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         )?;
         save_stacked(&dir.join("tfp.npy"), &views(|s| s.tfp.view().into_dyn()))?;
         save_stacked(&dir.join("tfi.npy"), &views(|s| s.tfi.view().into_dyn()))?;
+        for (k, kind) in opts.also.iter().enumerate() {
+            let arrays: Vec<_> = samples.iter().map(|s| s.also[k].view()).collect();
+            save_stacked(&dir.join(format!("{}.npy", kind.name())), &arrays)?;
+        }
         for (i, s) in (start..end).zip(&samples) {
             let f = &s.info;
             writeln!(
@@ -523,7 +542,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
     let yml = format!(
         "# neuspike dataset: see src/dataset.rs\nsplit: {:?}\nsamples: {}\nshards: {}\ncomplex: {}\n\
          per_cell: {}\nsize: {}\nwindow_planes: {}\nreference_plane: {}\nchannels: {}\ntau_ns: {}\n\
-         rate_hz: {}\nphi: {}\nlight_scales: {:?}\nspeeds_px_s: {:?}\nphotos: {}\nseed: {}\n",
+         rate_hz: {}\nphi: {}\nlight_scales: {:?}\nspeeds_px_s: {:?}\nphotos: {}\nseed: {}\nalso: [{}]\n",
         opts.split,
         summary.samples,
         summary.shards,
@@ -539,7 +558,12 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         LIGHT_SCALES,
         SPEEDS_PX_S,
         photos.len(),
-        opts.seed
+        opts.seed,
+        opts.also
+            .iter()
+            .map(|k| k.name())
+            .collect::<Vec<_>>()
+            .join(", ")
     );
     let yml_path = out.join("dataset.yml");
     fs::write(&yml_path, yml).wrap_err_with(|| format!("cannot write {}", yml_path.display()))?;
@@ -563,6 +587,43 @@ mod tests {
             textures: None,
             shard: 10,
             seed: 7,
+            also: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn also_writes_the_other_representations_of_each_window() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let also = vec![
+            RepresentationKind::VoxelGrid,
+            RepresentationKind::EventStack,
+            RepresentationKind::TimeSurface,
+        ];
+        let o = DatasetOptions {
+            also: also.clone(),
+            ..opts(Split::Train, dir.path().join("set"))
+        };
+        generate(&o, false).expect("generate");
+        assert!(
+            fs::read_to_string(o.out.join("dataset.yml"))
+                .expect("yml")
+                .contains("also: [voxel_grid, event_stack, time_surface]")
+        );
+        // Sample 24 (the fastest speed in the brightest light) is the fifth of shard 2.
+        let (light, speed) = cell_of(24);
+        let direct = sample(&o, &[], 24, light, speed).expect("sample 24");
+        assert!(direct.info.events > 0);
+        for (k, kind) in also.iter().enumerate() {
+            let stacked: ndarray::Array4<f32> =
+                ndarray_npy::read_npy(o.out.join(format!("002/{}.npy", kind.name()))).expect("npy");
+            assert_eq!(stacked.dim().0, 5, "{}", kind.name());
+            assert_eq!(
+                stacked.index_axis(Axis(0), 4),
+                direct.also[k],
+                "{}",
+                kind.name()
+            );
+            assert!(direct.also[k].iter().any(|&v| v != 0.0), "{}", kind.name());
         }
     }
 

@@ -246,6 +246,9 @@ pub struct Report {
     pub elapsed: Duration,
     /// When the dataflow started: files older than this are an earlier run's.
     pub started_at: std::time::SystemTime,
+    /// The nodes' log files (dora's `out/<run>/` beside the graph), kept when a node failed and
+    /// removed after a clean run.
+    pub logs: Option<PathBuf>,
 }
 
 impl Report {
@@ -255,6 +258,9 @@ impl Report {
             if let Err(e) = r {
                 eprintln!("node `{node}` failed: {e}");
             }
+        }
+        if let Some(logs) = &self.logs {
+            eprintln!("node logs: {}", logs.display());
         }
         println!(
             "ran in {:.2} s (wall, builds excluded)",
@@ -359,12 +365,34 @@ pub fn run(
     let _ = printer.join();
     let result = result.wrap_err("the dataflow task panicked")??;
     let elapsed = started.elapsed();
+    let logs = keep_logs_of_failure(graph_path.parent(), &result);
     Ok(Report {
         result,
         out_dirs,
         elapsed,
         started_at,
+        logs,
     })
+}
+
+/// dora writes every node's log into `out/<run>/` beside the graph. Its lines were printed as
+/// they came, so after a clean run the folder is removed (and `out/` with it when that leaves it
+/// empty); after a failure it is kept and returned.
+fn keep_logs_of_failure(graph_dir: Option<&Path>, result: &DataflowResult) -> Option<PathBuf> {
+    let out = graph_dir?.join("out");
+    let dir = out.join(result.uuid.to_string());
+    if !dir.is_dir() {
+        return None;
+    }
+    if !result.is_ok() {
+        return Some(dir);
+    }
+    if let Err(e) = std::fs::remove_dir_all(&dir) {
+        tracing::warn!("cannot remove the node logs {}: {e}", dir.display());
+    }
+    // Fails, as wanted, when another run's logs are still there.
+    let _ = std::fs::remove_dir(&out);
+    None
 }
 
 /// Prints a node's log line as `node | message`; the daemon's own lines only when they warn.
