@@ -133,6 +133,117 @@ fn nodes(graph: &Value) -> impl Iterator<Item = &Value> {
         .flatten()
 }
 
+/// The window a consumer grants each input in the graphs neuspike writes: large messages in
+/// flight per link (8 frames of 400 x 250 are 3.2 MB, within a node's 8 MB shared-memory pool).
+pub const CREDIT_WINDOW: u64 = 8;
+
+/// Wires neuspike's credit flow control into `graph` (see `neuspike_runtime::credit`): every input
+/// fed by another node of the graph gets `queue_size: window` and dora's default queue policy
+/// (the zero-copy path), its node an output `credits`, and the producer an input
+/// `credits-<consumer>` reading it (through the daemon: credits are small and must not be lost).
+/// Inputs already reading `credits`, timers and unknown sources are left alone.
+pub fn wire_credits(graph: &mut Value, window: u64) {
+    use serde_yaml::Mapping;
+    let Some(list) = graph.get_mut("nodes").and_then(Value::as_sequence_mut) else {
+        return;
+    };
+    let ids: Vec<String> = list
+        .iter()
+        .filter_map(|n| n.get("id").and_then(Value::as_str).map(str::to_string))
+        .collect();
+    let credit_type = Value::from("neuspike/messages/v1/Credit");
+    // (producer, consumer) pairs, in order.
+    let mut links: Vec<(String, String)> = Vec::new();
+    for node in list.iter_mut() {
+        let Some(id) = node.get("id").and_then(Value::as_str).map(str::to_string) else {
+            continue;
+        };
+        let Some(inputs) = node.get_mut("inputs").and_then(Value::as_mapping_mut) else {
+            continue;
+        };
+        for (_, spec) in inputs.iter_mut() {
+            let source = match &*spec {
+                Value::String(s) => s.clone(),
+                other => match other.get("source").and_then(Value::as_str) {
+                    Some(s) => s.to_string(),
+                    None => continue,
+                },
+            };
+            let Some((producer, output)) = source.split_once('/') else {
+                continue;
+            };
+            if output == "credits" || !ids.iter().any(|i| i == producer) {
+                continue;
+            }
+            let mut m = Mapping::new();
+            m.insert("source".into(), Value::from(source.clone()));
+            m.insert("queue_size".into(), Value::from(window));
+            *spec = Value::Mapping(m);
+            let link = (producer.to_string(), id.clone());
+            if !links.contains(&link) {
+                links.push(link);
+            }
+        }
+    }
+    let entry = |node: &mut Value, key: &str| -> Option<Value> {
+        let map = node.as_mapping_mut()?;
+        Some(
+            map.entry(Value::from(key))
+                .or_insert_with(|| Value::Mapping(Mapping::new()))
+                .clone(),
+        )
+    };
+    for node in list.iter_mut() {
+        let Some(id) = node.get("id").and_then(Value::as_str).map(str::to_string) else {
+            continue;
+        };
+        if links.iter().any(|(_, c)| *c == id) {
+            let mut outputs = node
+                .get("outputs")
+                .and_then(Value::as_sequence)
+                .cloned()
+                .unwrap_or_default();
+            if !outputs.iter().any(|o| o.as_str() == Some("credits")) {
+                outputs.push(Value::from("credits"));
+            }
+            let mut types = entry(node, "output_types").unwrap_or_default();
+            if let Some(t) = types.as_mapping_mut() {
+                t.insert("credits".into(), credit_type.clone());
+            }
+            if let Some(map) = node.as_mapping_mut() {
+                map.insert("outputs".into(), Value::Sequence(outputs));
+                map.insert("output_types".into(), types);
+            }
+        }
+        let consumers: Vec<&String> = links
+            .iter()
+            .filter(|(p, _)| *p == id)
+            .map(|(_, c)| c)
+            .collect();
+        if consumers.is_empty() {
+            continue;
+        }
+        let mut inputs = entry(node, "inputs").unwrap_or_default();
+        let mut types = entry(node, "input_types").unwrap_or_default();
+        for c in consumers {
+            let mut m = Mapping::new();
+            m.insert("source".into(), Value::from(format!("{c}/credits")));
+            m.insert("queue_size".into(), Value::from(100));
+            m.insert("queue_policy".into(), Value::from("backpressure"));
+            if let Some(i) = inputs.as_mapping_mut() {
+                i.insert(Value::from(format!("credits-{c}")), Value::Mapping(m));
+            }
+            if let Some(t) = types.as_mapping_mut() {
+                t.insert(Value::from(format!("credits-{c}")), credit_type.clone());
+            }
+        }
+        if let Some(map) = node.as_mapping_mut() {
+            map.insert("inputs".into(), inputs);
+            map.insert("input_types".into(), types);
+        }
+    }
+}
+
 /// Appends `extra` to the `args:` of node `id`; an unknown node is an error.
 fn apply_override(graph: &mut Value, id: &str, extra: &str) -> eyre::Result<()> {
     let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);
@@ -432,6 +543,49 @@ fn spawn_progress(csv: PathBuf, done: Arc<AtomicBool>) -> std::thread::JoinHandl
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn credits_are_wired_from_every_consumer_back_to_its_producers() {
+        let mut g: Value = serde_yaml::from_str(
+            "nodes:\n  - id: src\n    outputs: [a, b]\n  - id: mid\n    inputs: { a: { source: src/a, queue_size: 1000, queue_policy: backpressure }, t: dora/timer/millis/10 }\n    outputs: [c]\n  - id: sink\n    inputs: { c: mid/c, b: src/b }\n",
+        )
+        .expect("yaml");
+        wire_credits(&mut g, 8);
+        let node = |id: &str| {
+            nodes(&g)
+                .find(|n| n.get("id").and_then(Value::as_str) == Some(id))
+                .cloned()
+                .expect("node")
+        };
+        let (src, mid, sink) = (node("src"), node("mid"), node("sink"));
+        assert_eq!(mid["inputs"]["a"]["queue_size"].as_u64(), Some(8));
+        assert!(mid["inputs"]["a"]["queue_policy"].is_null());
+        assert_eq!(mid["inputs"]["t"].as_str(), Some("dora/timer/millis/10"));
+        assert_eq!(sink["inputs"]["b"]["source"].as_str(), Some("src/b"));
+        assert_eq!(
+            src["inputs"]["credits-mid"]["source"].as_str(),
+            Some("mid/credits")
+        );
+        assert_eq!(
+            src["inputs"]["credits-sink"]["queue_policy"].as_str(),
+            Some("backpressure")
+        );
+        assert_eq!(
+            mid["inputs"]["credits-sink"]["source"].as_str(),
+            Some("sink/credits")
+        );
+        assert!(src["outputs"].as_sequence().is_some_and(|o| o.len() == 2));
+        assert_eq!(mid["outputs"][1].as_str(), Some("credits"));
+        assert_eq!(sink["outputs"][0].as_str(), Some("credits"));
+        assert_eq!(
+            sink["output_types"]["credits"].as_str(),
+            Some("neuspike/messages/v1/Credit")
+        );
+        // Twice is once.
+        let before = g.clone();
+        wire_credits(&mut g, 8);
+        assert_eq!(g, before);
+    }
 
     const GRAPH: &str = "nodes:\n  - id: src\n    path: ../target/release/neuspike-spike-source\n    args: --scene a\n  - id: sink\n    path: ../target/release/neuspike-sink\n    args: --bit-depth 8 --out ../out/x\n";
 

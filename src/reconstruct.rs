@@ -96,7 +96,7 @@ pub fn graph_yaml(
     let bins = graph::node_dir().unwrap_or_default();
     let bin = |name: &str| bins.join(format!("neuspike-{name}"));
     let build = graph::build_command().map_or(String::new(), |cmd| format!("\n    build: {cmd}"));
-    let queue = "queue_size: 1000, queue_policy: backpressure";
+    let queue = format!("queue_size: {}", graph::CREDIT_WINDOW);
     let m = opts.method.as_str();
     let mut y = String::new();
     let _ = writeln!(
@@ -317,7 +317,25 @@ pub fn graph_yaml(
             format!("input_types: {{ {m}: {}{truth_type} }}", t("Frame")),
         ],
     );
-    y
+    with_credits(&y)
+}
+
+/// `yaml` with neuspike's credit flow control wired in ([`graph::wire_credits`]), its first
+/// comment line kept.
+fn with_credits(yaml: &str) -> String {
+    let Ok(mut g) = serde_yaml::from_str::<serde_yaml::Value>(yaml) else {
+        return yaml.to_string();
+    };
+    graph::wire_credits(&mut g, graph::CREDIT_WINDOW);
+    let comment: String = yaml
+        .lines()
+        .take_while(|l| l.starts_with('#'))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    match serde_yaml::to_string(&g) {
+        Ok(body) => format!("{comment}{body}"),
+        Err(_) => yaml.to_string(),
+    }
 }
 
 /// The spike source's plane period: its `--rate-hz` among `source_args` (the other arguments are
@@ -473,9 +491,15 @@ mod tests {
             assert_eq!(find(&nodes, "represent")["outputs"][0].as_str(), Some(repr));
             let src_args = find(&nodes, "spike-source")["args"].as_str().expect("args");
             assert!(src_args.contains("--file /d/x.dat") && src_args.contains("--file-width 40"));
+            let sink = find(&nodes, "sink");
             assert_eq!(
-                find(&nodes, "sink")["inputs"][m]["queue_policy"].as_str(),
-                Some("backpressure")
+                sink["inputs"][m]["queue_size"].as_u64(),
+                Some(graph::CREDIT_WINDOW)
+            );
+            assert_eq!(sink["outputs"][0].as_str(), Some("credits"));
+            assert_eq!(
+                infer["inputs"]["credits-sink"]["source"].as_str(),
+                Some("sink/credits")
             );
         }
     }
@@ -525,9 +549,10 @@ mod tests {
                 infer["inputs"]["events"]["source"].as_str(),
                 Some("align/events")
             );
+            assert!(infer["inputs"]["events"]["queue_policy"].is_null());
             assert_eq!(
-                infer["inputs"]["events"]["queue_policy"].as_str(),
-                Some("backpressure")
+                align["inputs"][format!("credits-infer-{m}").as_str()]["source"].as_str(),
+                Some(format!("infer-{m}/credits").as_str())
             );
             assert!(
                 infer["args"]
@@ -623,7 +648,13 @@ mod tests {
             align["inputs"]["events"]["source"].as_str(),
             Some("event-source/events")
         );
-        assert!(align["outputs"][1].is_null());
+        let outputs: Vec<&str> = align["outputs"]
+            .as_sequence()
+            .expect("outputs")
+            .iter()
+            .filter_map(serde_yaml::Value::as_str)
+            .collect();
+        assert_eq!(outputs, ["windows", "credits"]);
         let represent = find(&graph, "represent");
         assert_eq!(represent["outputs"][1].as_str(), Some("event_integration"));
         let args = represent["args"].as_str().expect("args");

@@ -245,11 +245,11 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
         // (600 - 33) / 20 + 1 windows, each a frame, none missing; 30 truth frames.
         let name = format!("{method:?}").to_lowercase();
         assert!(
-            summary.contains(&format!("| {name} | 29 | 29 | 0 | yes |")),
+            summary.contains(&format!("| {name} | 29 | 29 | 29 | 0 | yes |")),
             "{method:?}: {summary}"
         );
         assert!(
-            summary.contains("| ground_truth | 30 | 30 | 0 | yes |"),
+            summary.contains("| ground_truth | 30 | 30 | 30 | 0 | yes |"),
             "{summary}"
         );
         let rows = read_metrics(&out);

@@ -1,13 +1,17 @@
 //! The receive loop: every input's sequence numbers and end-of-stream marker, accounted once.
 
 use std::collections::BTreeMap;
+use std::time::Instant;
 
-use dora_node_api::{Event, EventStream};
+use dora_node_api::Event;
 use neuspike_schemas::arrow::array::ArrayRef;
 use neuspike_schemas::meta::SEQ;
 use neuspike_schemas::{Meta, MetaExt, SeqStatus, SeqTracker, is_end_of_stream};
 
+use crate::Link;
+use crate::link::Polled;
 use crate::metadata::meta_from_dora;
+use crate::reorder::{Pushed, Reorder};
 
 /// What the receive loop hands a node.
 #[derive(Debug)]
@@ -49,10 +53,15 @@ pub struct InputState {
     pub ended: bool,
 }
 
+/// A message held until its turn: its header and payload.
+type Held = (Meta, ArrayRef);
+
 /// The inputs a node reads, and the state of each.
-#[derive(Clone, Debug, Default)]
+#[derive(Debug, Default)]
 pub struct Inputs {
     streams: BTreeMap<String, InputState>,
+    /// Messages that came before their turn, by input.
+    waiting: BTreeMap<String, Reorder<Held>>,
 }
 
 impl Inputs {
@@ -64,6 +73,7 @@ impl Inputs {
                 .into_iter()
                 .map(|id| (id.as_ref().to_string(), InputState::default()))
                 .collect(),
+            waiting: BTreeMap::new(),
         }
     }
 
@@ -97,9 +107,62 @@ impl Inputs {
     }
 
     /// Accounts for one received message: `Ok(None)` when the input is not read by the node.
-    fn accept(&mut self, input: &str, meta: &Meta) -> eyre::Result<Option<Accepted>> {
+    /// Takes a message of `input` off dora's queue: held until its turn (see [`Reorder`]).
+    /// `false` for an input the node does not read, or a message whose turn has passed.
+    fn arrive(
+        &mut self,
+        input: &str,
+        meta: Meta,
+        data: ArrayRef,
+        now: Instant,
+    ) -> eyre::Result<bool> {
         let Some(state) = self.streams.get_mut(input) else {
-            return Ok(None);
+            tracing::warn!(input, "input not read by this node: ignored");
+            return Ok(false);
+        };
+        if state.ended {
+            tracing::warn!(input, "a message after the end-of-stream marker: ignored");
+            return Ok(false);
+        }
+        // A marker's position is the count it announces: it comes after every message.
+        let pos = match is_end_of_stream(&meta) {
+            Some(count) => count,
+            None => meta
+                .uint("message", SEQ)
+                .map_err(|e| eyre::eyre!("input `{input}`: {e}"))?,
+        };
+        let queue = self.waiting.entry(input.to_string()).or_default();
+        match queue.push(pos, (meta, data), now) {
+            Pushed::Held => Ok(true),
+            Pushed::Late => {
+                let _ = state.seq.observe(pos);
+                tracing::warn!(input, seq = pos, "a message came after its turn: dropped");
+                Ok(false)
+            }
+        }
+    }
+
+    /// The next message whose turn has come, on any input (all that is held when `flush`).
+    fn next_due(&mut self, now: Instant, flush: bool) -> Option<(String, Held)> {
+        self.waiting.iter_mut().find_map(|(input, queue)| {
+            let popped = if flush {
+                queue.pop_any()
+            } else {
+                queue.pop(now)
+            };
+            popped.map(|(_, held)| (input.clone(), held))
+        })
+    }
+
+    /// When the first held message stops waiting for the ones before it.
+    fn deadline(&self) -> Option<Instant> {
+        self.waiting.values().filter_map(Reorder::deadline).min()
+    }
+
+    /// Accounts a message handed over in order: `lost` says how many before it never came.
+    fn accept(&mut self, input: &str, meta: &Meta) -> eyre::Result<Accepted> {
+        let Some(state) = self.streams.get_mut(input) else {
+            eyre::bail!("input `{input}` is not read by this node");
         };
         if let Some(count) = is_end_of_stream(meta) {
             let lost = state.seq.end(count);
@@ -107,69 +170,116 @@ impl Inputs {
             if lost > 0 {
                 tracing::error!(input, lost, "messages lost at the end of the stream");
             }
-            return Ok(Some(Accepted::End(count)));
+            return Ok(Accepted::End(count));
         }
         let seq = meta
             .uint("message", SEQ)
             .map_err(|e| eyre::eyre!("input `{input}`: {e}"))?;
-        match state.seq.observe(seq) {
-            SeqStatus::InOrder => {}
+        let lost = match state.seq.observe(seq) {
+            SeqStatus::InOrder => 0,
             SeqStatus::Gap { missing } => {
-                tracing::error!(input, seq, missing, "messages lost before this one")
+                tracing::error!(input, seq, missing, "messages lost before this one");
+                missing
             }
-            SeqStatus::Stale => tracing::warn!(input, seq, "stale message"),
-        }
-        Ok(Some(Accepted::Message))
+            SeqStatus::Stale => {
+                tracing::warn!(input, seq, "stale message");
+                0
+            }
+        };
+        Ok(Accepted::Message { lost })
     }
 }
 
 enum Accepted {
-    Message,
+    /// A message, after `lost` that never came.
+    Message {
+        lost: u64,
+    },
     End(u64),
 }
 
-/// Runs the receive loop: hands `on` every message and end-of-stream marker of the node's
-/// `inputs`, in the order they come, until every input has ended, `on` returns [`Flow::Stop`], or
-/// dora closes the stream. `InputClosed` and `Stop` never end it: dora's scheduler may deliver
-/// them before an input's last messages (the tail of a run was lost that way), so only the
-/// end-of-stream markers, or the end of the event stream, do.
+/// The receive loop: hands every message and end-of-stream marker of the inputs in `inputs` to
+/// `on`, with the node's [`Link`] to send on, in sequence order per input, until every input has
+/// ended or `on` returns [`Flow::Stop`].
+///
+/// - A message that arrives before its turn waits for the ones before it (dora may deliver an
+///   output's messages out of order, see [`crate::reorder`]); a missing one is given up after a
+///   wait and counted as lost, and a message that comes after its turn is dropped and logged.
+/// - Sequence gaps are logged and counted in `inputs`; messages of inputs the node does not read
+///   are logged and skipped; credits go back once `on` has taken a message; messages dora
+///   dropped are logged.
+/// - dora's `InputClosed`/`Stop` never end the loop (an input ends on its marker), only the end
+///   of the event stream does; what is still held is handed over then, and an input still open is
+///   logged.
+///
+/// # Errors
+/// A message without a sequence number (named by its input), the first error of `on`, or credits
+/// that could not be returned.
 pub fn receive(
-    events: &mut EventStream,
+    link: &mut Link,
     inputs: &mut Inputs,
-    mut on: impl FnMut(Received<'_>) -> eyre::Result<Flow>,
+    mut on: impl FnMut(&mut Link, Received<'_>) -> eyre::Result<Flow>,
 ) -> eyre::Result<()> {
     if inputs.streams.is_empty() {
         return Ok(());
     }
-    while let Some(event) = events.recv() {
-        match event {
-            Event::Input { id, metadata, data } => {
-                let input: &str = id.as_ref();
-                let meta = meta_from_dora(&metadata.parameters);
-                let flow = match inputs.accept(input, &meta)? {
-                    None => {
-                        tracing::warn!(input, "input not read by this node: ignored");
-                        Flow::Continue
-                    }
-                    Some(Accepted::End(count)) => on(Received::End { input, count })?,
-                    Some(Accepted::Message) => on(Received::Message {
-                        input,
-                        meta: &meta,
-                        data: data.as_array(),
-                    })?,
-                };
-                if flow == Flow::Stop {
-                    return Ok(());
+    let mut flush = false;
+    loop {
+        while let Some((input, (meta, data))) = inputs.next_due(Instant::now(), flush) {
+            let flow = match inputs.accept(&input, &meta)? {
+                Accepted::End(count) => {
+                    let flow = on(
+                        link,
+                        Received::End {
+                            input: &input,
+                            count,
+                        },
+                    )?;
+                    link.ended(&input)?;
+                    flow
                 }
-                if inputs.all_ended() {
-                    break;
+                Accepted::Message { lost } => {
+                    let flow = on(
+                        link,
+                        Received::Message {
+                            input: &input,
+                            meta: &meta,
+                            data: &data,
+                        },
+                    )?;
+                    link.taken(&input, lost)?;
+                    flow
                 }
+            };
+            if flow == Flow::Stop || inputs.all_ended() {
+                link.log_drops();
+                return Ok(());
             }
-            Event::InputClosed { id } => tracing::debug!(input = %id, "input closed"),
-            Event::Stop(cause) => tracing::debug!(?cause, "stop received; draining the inputs"),
-            _ => {}
+        }
+        if flush {
+            break;
+        }
+        let polled = match inputs.deadline() {
+            Some(deadline) => link.next_event_until(deadline)?,
+            None => link.next_event()?.map_or(Polled::Ended, Polled::Event),
+        };
+        match polled {
+            Polled::Event(Event::Input { id, metadata, data }) => {
+                let meta = meta_from_dora(&metadata.parameters);
+                inputs.arrive(id.as_ref(), meta, data.as_array().clone(), Instant::now())?;
+                link.log_drops();
+            }
+            Polled::Event(Event::InputClosed { id }) => {
+                tracing::debug!(input = %id, "input closed")
+            }
+            Polled::Event(Event::Stop(cause)) => {
+                tracing::debug!(?cause, "stop received; draining the inputs")
+            }
+            Polled::Event(_) | Polled::Timeout => {}
+            Polled::Ended => flush = true,
         }
     }
+    link.log_drops();
     for (id, s) in inputs.iter() {
         if !s.ended {
             tracing::error!(input = id, "input ended without its end-of-stream marker");
@@ -209,8 +319,9 @@ pub(crate) mod tests {
         c.message("a", &frame(9)).expect("after the end"); // never handed over
         let mut seen = Vec::new();
         let mut inputs = Inputs::new(["a", "b"]);
-        c.run(|_node, mut events| {
-            receive(&mut events, &mut inputs, |msg| {
+        c.run(|node, events| {
+            let mut link = Link::new(node, events)?;
+            receive(&mut link, &mut inputs, |_, msg| {
                 seen.push(match msg {
                     Received::Message { input, meta, data } => {
                         let f = Frame::from_arrow(meta, data)?;
@@ -222,11 +333,40 @@ pub(crate) mod tests {
             })
         })
         .expect("run");
-        assert_eq!(seen, ["a0", "a2", "b0", "b end 1", "a end 4"]);
+        // a2 waits for a1, which never comes: it is handed over when the stream ends.
+        assert_eq!(seen, ["a0", "b0", "b end 1", "a2", "a end 4"]);
         let a = inputs.get("a").expect("a");
         assert_eq!((a.seq.received(), a.seq.missing(), a.ended), (2, 2, true));
         assert_eq!((inputs.missing(), inputs.announced()), (2, 4));
         assert!(inputs.all_ended() && inputs.get("c").is_none());
+    }
+
+    #[test]
+    fn messages_out_of_order_are_handed_over_in_order_and_a_late_one_is_dropped() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut c = CannedInputs::new(dir.path());
+        for seq in [2, 0, 1, 1, 4, 3] {
+            c.message("a", &frame(seq)).expect("a");
+        }
+        c.end::<Frame>("a", 5).expect("a end");
+        let mut seen = Vec::new();
+        let mut inputs = Inputs::new(["a"]);
+        c.run(|node, events| {
+            let mut link = Link::new(node, events)?;
+            receive(&mut link, &mut inputs, |_, msg| {
+                if let Received::Message { meta, data, .. } = msg {
+                    seen.push(Frame::from_arrow(meta, data)?.seq);
+                }
+                Ok(Flow::Continue)
+            })
+        })
+        .expect("run");
+        assert_eq!(seen, [0, 1, 2, 3, 4]);
+        let a = inputs.get("a").expect("a");
+        assert_eq!(
+            (a.seq.received(), a.seq.missing(), a.seq.stale(), a.ended),
+            (5, 0, 1, true)
+        );
     }
 
     #[test]
@@ -238,7 +378,10 @@ pub(crate) mod tests {
         c.raw("a", meta, data).expect("raw");
         let mut inputs = Inputs::new(["a"]);
         let e = c
-            .run(|_node, mut events| receive(&mut events, &mut inputs, |_| Ok(Flow::Continue)))
+            .run(|node, events| {
+                let mut link = Link::new(node, events)?;
+                receive(&mut link, &mut inputs, |_, _| Ok(Flow::Continue))
+            })
             .expect_err("refused")
             .to_string();
         assert!(e.contains("input `a`") && e.contains("seq"), "{e}");

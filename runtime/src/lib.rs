@@ -6,9 +6,13 @@
 //!   takes the end-of-stream markers, and ends when every input the node reads has ended, never
 //!   on dora's `InputClosed`/`Stop` (dora's scheduler may deliver those before an input's last
 //!   messages).
-//! - [`Outputs`]: the node's outputs, declared with their message type; sending follows each
-//!   output's sequence numbers, and [`Outputs::end_all`] sends every end-of-stream marker with
-//!   its count.
+//! - [`Link`]: the node's event stream and outputs. Outputs are declared with their message
+//!   type; sending follows each output's sequence numbers, and [`Link::end_all`] sends every
+//!   end-of-stream marker with its count.
+//! - [`credit`]: lossless flow control over dora's zero-copy path. A consumer grants each input
+//!   its queue's size and returns credits as it takes messages; a producer sends only while every
+//!   consumer of the output has one, so no queue overflows and nothing is dropped or copied
+//!   through the daemon. A graph turns it on per node (an output `credits`, read by producers).
 //! - [`produce`]: a source's loop: it steps until the source is done or a stop is requested, and
 //!   ends every output whatever happened, so the messages already sent stay a whole stream.
 //! - logging ([`init_logging`]), configuration ([`parse_config`]), the rayon worker a node's loop
@@ -16,19 +20,21 @@
 //!   that drive a node's `run` without a daemon.
 #![deny(missing_docs)]
 
+pub mod credit;
 mod inputs;
+mod link;
 mod metadata;
-mod outputs;
+pub mod reorder;
 pub mod testing;
 
 pub use inputs::{Flow, InputState, Inputs, Received, receive};
+pub use link::{Link, produce};
 pub use metadata::{meta_from_dora, meta_to_dora};
-pub use outputs::{Outputs, produce};
 
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
-use dora_node_api::{DoraNode, Event, EventStream, StopCause};
+use dora_node_api::DoraNode;
 use eyre::WrapErr;
 
 /// The log filter when `RUST_LOG` is unset: our nodes at `info`, dora's node API at `error` (its
@@ -70,6 +76,45 @@ pub fn parse_config<C: clap::Parser>(node: &str) -> eyre::Result<C> {
     C::try_parse().map_err(|e| eyre::eyre!("{node}: bad configuration in the graph's `args:`: {e}"))
 }
 
+/// The zenoh settings a neuspike node's session gets unless `DORA_ZENOH_CONFIG_OVERLAY` names
+/// the user's own file. dora publishes on zenoh with `CongestionControl::Drop`: a message that
+/// finds the link's 2 real-time batches busy for 1 ms is dropped, which a loaded machine does
+/// often. With credits bounding what is in flight, a queue of 16 batches and a wait of up to 1 s
+/// before dropping makes that path lossless in practice (and a loss that still happens is a gap
+/// in the sequence numbers, counted and logged).
+pub const ZENOH_OVERLAY: &str = "{ transport: { link: { tx: { queue: { size: { real_time: 16 }, \
+     congestion_control: { drop: { wait_before_drop: 1000000 } } } } } } }";
+
+/// Connects to the dora daemon (`DoraNode::init_from_env`) with the [`ZENOH_OVERLAY`] settings.
+/// Call it first in `main`, before any thread starts.
+///
+/// # Errors
+/// The overlay file could not be written, or dora could not connect.
+pub fn init_node() -> eyre::Result<(DoraNode, dora_node_api::EventStream)> {
+    const OVERLAY_ENV: &str = "DORA_ZENOH_CONFIG_OVERLAY";
+    let _overlay = if std::env::var_os(OVERLAY_ENV).is_none() {
+        use std::io::Write;
+        let mut file = tempfile::Builder::new()
+            .prefix("neuspike-zenoh-")
+            .suffix(".json5")
+            .tempfile()
+            .wrap_err("cannot write the zenoh settings to a temporary file")?;
+        file.write_all(ZENOH_OVERLAY.as_bytes())
+            .wrap_err("cannot write the zenoh settings to a temporary file")?;
+        // SAFETY: called at the start of a node's `main`, before it starts any thread, so
+        // nothing reads the environment concurrently. dora reads the setting only from there.
+        #[allow(unsafe_code)]
+        unsafe {
+            std::env::set_var(OVERLAY_ENV, file.path())
+        };
+        Some(file)
+    } else {
+        None
+    };
+    // The file is read while the session opens, inside `init_from_env`; dropped after.
+    DoraNode::init_from_env().map_err(|e| eyre::eyre!("cannot connect to the dora daemon: {e}"))
+}
+
 /// Runs a node's loop `f` on a worker of a new rayon pool (one thread per core), so that the
 /// parallel part of every kernel the loop calls (the scene renderer, the event kernels, the
 /// filters) starts on the calling thread. Called from outside a pool, each parallel call waits
@@ -89,21 +134,26 @@ pub fn run_on_rayon<R: Send>(
         .install(f)
 }
 
-/// The ids of the inputs the graph gives `node` (none under the test harness).
+/// The ids of the data inputs the graph gives `node` (none under the test harness): its
+/// consumers' credits, which the [`Link`] takes, are not among them.
 pub fn graph_inputs(node: &DoraNode) -> BTreeSet<String> {
+    let credits = link::credit_inputs(node);
     node.node_config()
         .inputs
         .keys()
         .map(|k| k.to_string())
+        .filter(|k| !credits.contains(k))
         .collect()
 }
 
-/// The ids of the outputs the graph declares for `node` (none under the test harness).
+/// The ids of the data outputs the graph declares for `node` (none under the test harness): the
+/// `credits` output, which the [`Link`] sends on, is not among them.
 pub fn graph_outputs(node: &DoraNode) -> BTreeSet<String> {
     node.node_config()
         .outputs
         .iter()
         .map(|k| k.to_string())
+        .filter(|k| k != credit::CREDITS)
         .collect()
 }
 
@@ -143,21 +193,5 @@ impl Pacer {
                 std::thread::sleep(due - now);
             }
         }
-    }
-}
-
-/// Whether a source was asked to stop (a source has no inputs, so only a manual stop counts);
-/// never blocks.
-pub fn stop_requested(events: &mut EventStream) -> bool {
-    match events.try_recv() {
-        Ok(Event::Stop(StopCause::Manual)) => {
-            tracing::info!("stop requested");
-            true
-        }
-        Ok(other) => {
-            tracing::debug!(?other, "ignored event");
-            false
-        }
-        Err(_) => false,
     }
 }

@@ -24,6 +24,7 @@
 //! describe the same layouts (URN prefix `neuspike/messages/v1`).
 #![deny(missing_docs)]
 
+mod credit;
 mod events;
 mod frame;
 mod kind;
@@ -32,6 +33,7 @@ mod spikes;
 mod stream;
 mod window;
 
+pub use credit::{Credit, HELLO};
 pub use events::{Event, EventBatch};
 pub use frame::{Frame, FrameKind, Representation};
 pub use kind::{RepresentationKind, UnknownKind};

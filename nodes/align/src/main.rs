@@ -5,7 +5,7 @@
 
 use dora_node_api::{DoraNode, EventStream};
 use neuspike_align::{AlignConfig, Aligner};
-use neuspike_runtime::{Flow, Inputs, Outputs, Received, graph_inputs, graph_outputs, receive};
+use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, graph_outputs, receive};
 use neuspike_schemas::{AlignedWindow, EventBatch, Message, SpikeChunk};
 
 /// Node arguments (the graph's `args:`).
@@ -28,7 +28,7 @@ fn main() -> std::process::ExitCode {
 fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("align")?;
-    let (node, events) = DoraNode::init_from_env()?;
+    let (node, events) = neuspike_runtime::init_node()?;
     let mut aligner = Aligner::new(args.align, graph_inputs(&node).contains("events"));
     if graph_outputs(&node).contains("events") {
         aligner = aligner.with_event_stream();
@@ -37,7 +37,7 @@ fn start() -> eyre::Result<()> {
 }
 
 /// Sends every ready window, each followed by its batch of the event stream (if wanted).
-fn send_ready(out: &mut Outputs, aligner: &mut Aligner) -> eyre::Result<()> {
+fn send_ready(out: &mut Link, aligner: &mut Aligner) -> eyre::Result<()> {
     while let Some(window) = aligner.pop_ready() {
         out.send("windows", &window)?;
         if let Some(batch) = aligner.pop_stream() {
@@ -47,14 +47,14 @@ fn send_ready(out: &mut Outputs, aligner: &mut Aligner) -> eyre::Result<()> {
     Ok(())
 }
 
-fn run(node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyre::Result<()> {
-    let mut out = Outputs::new(node);
+fn run(node: DoraNode, events: EventStream, mut aligner: Aligner) -> eyre::Result<()> {
+    let mut out = Link::new(node, events)?;
     out.declare::<AlignedWindow>("windows");
     if aligner.streams_events() {
         out.declare::<EventBatch>("events");
     }
     let mut inputs = Inputs::new(["spikes", "events"]);
-    receive(&mut events, &mut inputs, |msg| {
+    receive(&mut out, &mut inputs, |out, msg| {
         match msg {
             Received::Message {
                 input: "spikes",
@@ -69,7 +69,7 @@ fn run(node: DoraNode, mut events: EventStream, mut aligner: Aligner) -> eyre::R
             } => aligner.close_spikes(),
             Received::End { .. } => aligner.close_events(),
         }
-        send_ready(&mut out, &mut aligner)?;
+        send_ready(out, &mut aligner)?;
         Ok(if aligner.finished() {
             Flow::Stop
         } else {

@@ -12,7 +12,7 @@
 
 use dora_node_api::{DoraNode, EventStream};
 use neuspike_event_source::playback::{EventSource, EventSourceConfig};
-use neuspike_runtime::{Flow, Outputs, Pace, Pacer, produce};
+use neuspike_runtime::{Flow, Link, Pace, Pacer, produce};
 use neuspike_schemas::EventBatch;
 
 /// Node arguments (the graph's `args:`).
@@ -44,22 +44,22 @@ fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("event-source")?;
     let source = open_source(&args)?;
-    let (node, events) = DoraNode::init_from_env()?;
+    let (node, events) = neuspike_runtime::init_node()?;
     neuspike_runtime::run_on_rayon("event-source", || run(node, events, source, &args))
 }
 
 /// Sends every batch, then the end-of-stream marker, whatever happened.
 fn run(
     node: DoraNode,
-    mut events: EventStream,
+    events: EventStream,
     mut source: EventSource,
     args: &Args,
 ) -> eyre::Result<()> {
-    let mut out = Outputs::new(node);
+    let mut out = Link::new(node, events)?;
     out.declare::<EventBatch>("events");
     source.log_start();
     let pacer = Pacer::start(args.pace);
-    let played = produce(&mut out, &mut events, |out| {
+    let played = produce(&mut out, |out| {
         let Some(step) = source.next_step()? else {
             return Ok(Flow::Stop);
         };

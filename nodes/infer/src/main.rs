@@ -11,7 +11,7 @@
 
 use dora_node_api::{DoraNode, EventStream};
 use neuspike_infer::{EVENTS, InferConfig, Reconstructor};
-use neuspike_runtime::{Flow, Inputs, Outputs, Received, graph_inputs, receive};
+use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, receive};
 use neuspike_schemas::{EventBatch, Frame, Message, Representation};
 
 /// tract allocates every intermediate tensor afresh on each run; with the system allocator those
@@ -41,7 +41,7 @@ fn main() -> std::process::ExitCode {
 fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("infer")?;
-    let (node, events) = DoraNode::init_from_env()?;
+    let (node, events) = neuspike_runtime::init_node()?;
     let inputs: Vec<String> = graph_inputs(&node).into_iter().collect();
     let stage = args
         .infer
@@ -51,12 +51,12 @@ fn start() -> eyre::Result<()> {
 }
 
 /// Reconstructs every window whose inputs all came, in order, and sends its frame.
-fn run(node: DoraNode, mut events: EventStream, mut stage: Reconstructor) -> eyre::Result<()> {
-    let mut out = Outputs::new(node);
+fn run(node: DoraNode, events: EventStream, mut stage: Reconstructor) -> eyre::Result<()> {
+    let mut out = Link::new(node, events)?;
     out.declare::<Frame>("frames");
     let mut inputs = Inputs::new(stage.input_ids());
     let infer_err = |e| eyre::eyre!("infer: {e}");
-    receive(&mut events, &mut inputs, |msg| {
+    receive(&mut out, &mut inputs, |out, msg| {
         match msg {
             Received::Message {
                 input: EVENTS,

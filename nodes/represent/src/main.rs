@@ -9,7 +9,7 @@
 
 use dora_node_api::{DoraNode, EventStream};
 use neuspike_represent::{RepresentConfig, Representer};
-use neuspike_runtime::{Flow, Inputs, Outputs, Received, graph_outputs, receive};
+use neuspike_runtime::{Flow, Inputs, Link, Received, graph_outputs, receive};
 use neuspike_schemas::{AlignedWindow, Message, Representation, RepresentationKind};
 
 /// Node arguments (the graph's `args:`).
@@ -34,7 +34,7 @@ fn start() -> eyre::Result<()> {
     let args: Args = neuspike_runtime::parse_config("represent")?;
     let representer =
         Representer::new(args.represent).map_err(|e| eyre::eyre!("represent: {e}"))?;
-    let (node, events) = DoraNode::init_from_env()?;
+    let (node, events) = neuspike_runtime::init_node()?;
     let outputs = graph_outputs(&node);
     let kinds: Vec<RepresentationKind> = RepresentationKind::ALL
         .into_iter()
@@ -46,17 +46,17 @@ fn start() -> eyre::Result<()> {
 /// Sends the representations `kinds` of every window, each on the output of its name.
 fn run(
     node: DoraNode,
-    mut events: EventStream,
+    events: EventStream,
     mut representer: Representer,
     kinds: &[RepresentationKind],
 ) -> eyre::Result<()> {
     tracing::info!(outputs = ?kinds.iter().map(|k| k.name()).collect::<Vec<_>>(), "represent started");
-    let mut out = Outputs::new(node);
+    let mut out = Link::new(node, events)?;
     for k in kinds {
         out.declare::<Representation>(k.name());
     }
     let mut inputs = Inputs::new(["windows"]);
-    receive(&mut events, &mut inputs, |msg| {
+    receive(&mut out, &mut inputs, |out, msg| {
         if let Received::Message { meta, data, .. } = msg {
             let w = AlignedWindow::from_arrow(meta, data)?;
             for &kind in kinds {

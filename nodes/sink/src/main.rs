@@ -7,7 +7,7 @@
 
 use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;
-use neuspike_runtime::{Flow, Inputs, Received, graph_inputs, receive};
+use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, receive};
 use neuspike_schemas::{Frame, Message};
 use neuspike_sink::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
 
@@ -31,22 +31,23 @@ fn main() -> std::process::ExitCode {
 fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("sink")?;
-    let (node, events) = DoraNode::init_from_env()?;
+    let (node, events) = neuspike_runtime::init_node()?;
     let inputs: Vec<String> = graph_inputs(&node).into_iter().collect();
     run(node, events, &args.sink, &inputs)
 }
 
 /// Writes and scores every frame of `inputs` (`ground_truth` among them, when the graph has it).
 fn run(
-    _node: DoraNode,
-    mut events: EventStream,
+    node: DoraNode,
+    events: EventStream,
     cfg: &SinkConfig,
     inputs: &[String],
 ) -> eyre::Result<()> {
     let has_gt = inputs.iter().any(|i| i == GROUND_TRUTH);
     let mut sink = Sink::new(cfg, has_gt).wrap_err("sink")?;
     let mut streams = Inputs::new(inputs);
-    receive(&mut events, &mut streams, |msg| {
+    let mut link = Link::new(node, events)?;
+    receive(&mut link, &mut streams, |_, msg| {
         match msg {
             Received::Message { input, meta, data } => {
                 let f = Frame::from_arrow(meta, data)

@@ -49,6 +49,8 @@ fn writes_scores_and_summarises() {
         bit_depth: BitDepth::Eight,
         write_ground_truth: true,
         truth_within_ns: 0,
+        write_every: 1,
+        score_every: 1,
     };
     c.run(|node, events| run(node, events, &cfg, &inputs(&["tfp", "ground_truth"])))
         .unwrap();
@@ -89,6 +91,8 @@ fn scores_with_offset_truth(offset_ns: i64, within_ns: i64) -> Vec<String> {
         bit_depth: BitDepth::Eight,
         write_ground_truth: false,
         truth_within_ns: within_ns,
+        write_every: 1,
+        score_every: 1,
     };
     c.run(|node, events| run(node, events, &cfg, &inputs(&["tfp", "ground_truth"])))
         .unwrap();

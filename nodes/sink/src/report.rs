@@ -248,7 +248,9 @@ pub struct InputCounts {
     pub input: String,
     /// Frames the input should have carried.
     pub expected: u64,
-    /// Frames from it written to disk.
+    /// Frames from it that reached the sink.
+    pub received: u64,
+    /// Frames from it written to disk as PNG.
     pub written: u64,
     /// Frames that never arrived.
     pub missing: u64,
@@ -262,6 +264,8 @@ pub struct InputCounts {
 pub struct Summary {
     methods: BTreeMap<String, MethodAccumulator>,
     counts: BTreeMap<String, InputCounts>,
+    /// `(write_every, score_every)` when either is above 1.
+    sampling: Option<(u64, u64)>,
 }
 
 impl Summary {
@@ -275,27 +279,17 @@ impl Summary {
         self.methods.entry(row.method.clone()).or_default().add(row);
     }
 
-    /// Records how many frames `input` was expected to carry, how many were written and how many
-    /// are missing, and whether it ended with its end-of-stream marker. A second call for the same
-    /// input replaces the first.
-    pub fn set_counts(
-        &mut self,
-        input: &str,
-        expected: u64,
-        written: u64,
-        missing: u64,
-        ended: bool,
-    ) {
-        self.counts.insert(
-            input.to_owned(),
-            InputCounts {
-                input: input.to_owned(),
-                expected,
-                written,
-                missing,
-                ended,
-            },
-        );
+    /// Records how many frames an input was expected to carry, received, written and missed, and
+    /// whether it ended with its end-of-stream marker. A second call for the same input replaces
+    /// the first.
+    pub fn set_counts(&mut self, counts: InputCounts) {
+        self.counts.insert(counts.input.clone(), counts);
+    }
+
+    /// Records that one frame in `write_every` was written and one in `score_every` scored (the
+    /// summary says so when either is above 1).
+    pub fn set_sampling(&mut self, write_every: u64, score_every: u64) {
+        self.sampling = (write_every > 1 || score_every > 1).then_some((write_every, score_every));
     }
 
     /// The counts set with [`Summary::set_counts`], sorted by input.
@@ -345,14 +339,15 @@ impl Summary {
     /// The frame counts as a Markdown table, one row an input sorted by input.
     pub fn to_markdown_counts(&self) -> String {
         let mut table = String::from(
-            "| input | expected | written | missing | ended |\n|---|---:|---:|---:|---|\n",
+            "| input | expected | received | written | missing | ended |\n|---|---:|---:|---:|---:|---|\n",
         );
         for c in self.counts.values() {
             let _ = writeln!(
                 table,
-                "| {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} |",
                 c.input.replace('|', "\\|"),
                 c.expected,
+                c.received,
                 c.written,
                 c.missing,
                 if c.ended {
@@ -367,11 +362,19 @@ impl Summary {
 
     /// The whole summary as Markdown: the metrics table, the frame counts and how to read them.
     pub fn to_markdown(&self) -> String {
+        let sampling = match self.sampling {
+            Some((w, s)) => format!(
+                "\nSampled: a PNG of one frame in {w} (`--write-every {w}`), one frame in {s} \
+                 scored (`--score-every {s}`), by sequence number; every frame was received and \
+                 counted.\n"
+            ),
+            None => String::new(),
+        };
         format!(
             "# neuspike run summary\n\n## Metrics per method\n\n{}\n\
              PSNR dB: mean over frames with a finite PSNR; exact: frames with MSE 0 (PSNR inf), \
              counted, never averaged. PSNR after gain: least-squares gain, clipped to [0, 1]. \
-             NaN: figures that were NaN, left out of the means.\n\n## Frames per input\n\n{}",
+             NaN: figures that were NaN, left out of the means.\n\n## Frames per input\n\n{}{sampling}",
             self.to_markdown_table(),
             self.to_markdown_counts(),
         )
@@ -466,6 +469,17 @@ mod tests {
         assert!(err.to_string().contains("nowhere"), "{err}");
     }
 
+    fn counts(input: &str, expected: u64, written: u64, missing: u64, ended: bool) -> InputCounts {
+        InputCounts {
+            input: input.to_owned(),
+            expected,
+            received: expected - missing,
+            written,
+            missing,
+            ended,
+        }
+    }
+
     #[test]
     fn summary_mean_skips_inf_and_counts_it() {
         let mut s = Summary::new();
@@ -474,8 +488,8 @@ mod tests {
         s.add(&row(2, "tfp", Some(30.0), Some(0.9)));
         s.add(&row(0, "neuspike", None, None));
         s.add(&row(1, "neuspike", Some(f64::NAN), Some(0.8)));
-        s.set_counts("tfp", 4, 3, 1, true);
-        s.set_counts("neuspike", 2, 1, 0, false);
+        s.set_counts(counts("tfp", 4, 3, 1, true));
+        s.set_counts(counts("neuspike", 2, 1, 0, false));
 
         let methods = s.methods();
         assert_eq!(methods.len(), 2);
@@ -509,27 +523,34 @@ mod tests {
             lines[3],
             "| tfp | 3 | 25.00 | 1 | 26.00 | 1 | 0.8000 | 7.500 | 2.000 | 0 |"
         );
-        let counts = s.counts();
-        assert_eq!(counts.len(), 2);
+        let all = s.counts();
+        assert_eq!(all.len(), 2);
         assert_eq!(
-            counts[1],
+            all[1],
             InputCounts {
                 input: "tfp".to_owned(),
                 expected: 4,
+                received: 3,
                 written: 3,
                 missing: 1,
                 ended: true,
             }
         );
         let md = s.to_markdown();
-        assert!(md.contains("| tfp | 4 | 3 | 1 | yes |"), "{md}");
+        assert!(md.contains("| tfp | 4 | 3 | 3 | 1 | yes |"), "{md}");
         assert!(
-            md.contains("| neuspike | 2 | 1 | 0 | no (no end-of-stream marker) |"),
+            md.contains("| neuspike | 2 | 2 | 1 | 0 | no (no end-of-stream marker) |"),
             "{md}"
+        );
+        assert!(!md.contains("Sampled"), "{md}");
+        s.set_sampling(10, 1);
+        assert!(
+            s.to_markdown()
+                .contains("a PNG of one frame in 10 (`--write-every 10`), one frame in 1 scored")
         );
         assert!(md.contains(&table), "{md}");
         // a second call replaces the first
-        s.set_counts("tfp", 5, 5, 0, true);
+        s.set_counts(counts("tfp", 5, 5, 0, true));
         assert_eq!(s.counts()[1].expected, 5);
         assert_eq!(s.counts().len(), 2);
     }
@@ -540,7 +561,7 @@ mod tests {
         let path = dir.path().join("summary.md");
         let mut s = Summary::new();
         s.add(&row(0, "tfi", Some(31.0), Some(0.9)));
-        s.set_counts("tfi", 1, 1, 0, true);
+        s.set_counts(counts("tfi", 1, 1, 0, true));
         s.write(&path).expect("write");
         assert_eq!(
             std::fs::read_to_string(&path).expect("read"),

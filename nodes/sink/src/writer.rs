@@ -9,7 +9,7 @@ use neuspike_schemas::Frame;
 use crate::SinkError;
 use crate::metrics::{check_same_shape, entropy_2d, psnr, psnr_after_gain, ssim};
 use crate::png_out::{BitDepth, write_frame_png};
-use crate::report::{FrameMetrics, MetricsCsv, Summary};
+use crate::report::{FrameMetrics, InputCounts, MetricsCsv, Summary};
 
 /// The sink's settings (the node's `args:`).
 #[derive(Clone, Debug, clap::Args)]
@@ -29,6 +29,14 @@ pub struct SinkConfig {
     /// between two frames.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(i64).range(0..))]
     pub truth_within_ns: i64,
+    /// Write a PNG of one frame in N (those whose sequence number is a multiple of N, so that
+    /// every method keeps the same instants); every frame is still received and counted. A live
+    /// graph at 1,000 frames/s sets it so that the disk does not hold the camera back.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    pub write_every: u64,
+    /// Score one frame in N (metrics and a `metrics.csv` row), chosen as `--write-every` does.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    pub score_every: u64,
 }
 
 /// How long ground truth is kept for frames that come late, nanoseconds.
@@ -55,8 +63,12 @@ pub struct Sink {
     write_gt: bool,
     has_gt: bool,
     truth_within_ns: i64,
+    write_every: u64,
+    score_every: u64,
     csv: MetricsCsv,
     summary: Summary,
+    /// Frames received, by input.
+    received: BTreeMap<String, u64>,
     /// Frames written, by input.
     written: BTreeMap<String, u64>,
     /// Ground truth by time, kept until every frame input has passed it.
@@ -83,8 +95,11 @@ impl Sink {
             write_gt: cfg.write_ground_truth,
             has_gt,
             truth_within_ns: cfg.truth_within_ns,
+            write_every: cfg.write_every.max(1),
+            score_every: cfg.score_every.max(1),
             csv,
             summary: Summary::default(),
+            received: BTreeMap::new(),
             written: BTreeMap::new(),
             truth: BTreeMap::new(),
             truth_until_ns: i64::MIN,
@@ -105,11 +120,12 @@ impl Sink {
 
     /// Takes a ground-truth frame; writes the frames that waited for it.
     pub fn on_truth(&mut self, f: Frame) -> Result<(), SinkError> {
-        if self.write_gt {
+        *self.received.entry(GROUND_TRUTH.to_string()).or_default() += 1;
+        if self.write_gt && f.seq.is_multiple_of(self.write_every) {
             let (path, _) = self.frame_path("ground-truth", f.seq)?;
             write_frame_png(&path, f.data.view(), self.depth)?;
+            *self.written.entry(GROUND_TRUTH.to_string()).or_default() += 1;
         }
-        *self.written.entry(GROUND_TRUTH.to_string()).or_default() += 1;
         self.truth_until_ns = self.truth_until_ns.max(f.t_ref_ns);
         self.truth.insert(f.t_ref_ns, f);
         self.drain_pending()
@@ -143,8 +159,19 @@ impl Sink {
     }
 
     fn write(&mut self, input: &str, f: Frame) -> Result<(), SinkError> {
-        let (path, name) = self.frame_path(&f.method, f.seq)?;
-        write_frame_png(&path, f.data.view(), self.depth)?;
+        *self.received.entry(input.to_string()).or_default() += 1;
+        let name = if f.seq.is_multiple_of(self.write_every) {
+            let (path, name) = self.frame_path(&f.method, f.seq)?;
+            write_frame_png(&path, f.data.view(), self.depth)?;
+            *self.written.entry(input.to_string()).or_default() += 1;
+            name
+        } else {
+            String::new()
+        };
+        if !f.seq.is_multiple_of(self.score_every) {
+            self.evict_truth();
+            return Ok(());
+        }
         let gt = self.nearest_truth(f.t_ref_ns);
         let (p, pg, ss) = match gt {
             Some(g) => {
@@ -175,7 +202,6 @@ impl Sink {
         };
         self.csv.append(&row)?;
         self.summary.add(&row);
-        *self.written.entry(input.to_string()).or_default() += 1;
         self.evict_truth();
         Ok(())
     }
@@ -218,15 +244,17 @@ impl Sink {
         self.truth_closed = true;
         self.drain_pending()?;
         for (name, t) in tallies {
-            let written = self.written.get(name).copied().unwrap_or(0);
-            self.summary.set_counts(
-                name,
-                t.announced.unwrap_or(t.received + t.missing),
-                written,
-                t.missing,
-                t.ended,
-            );
+            self.summary.set_counts(InputCounts {
+                input: name.to_string(),
+                expected: t.announced.unwrap_or(t.received + t.missing),
+                received: self.received.get(name).copied().unwrap_or(0),
+                written: self.written.get(name).copied().unwrap_or(0),
+                missing: t.missing,
+                ended: t.ended,
+            });
         }
+        self.summary
+            .set_sampling(self.write_every, self.score_every);
         let path = self.out.join("summary.md");
         self.summary.write(&path)?;
         Ok(path)
@@ -263,7 +291,56 @@ mod tests {
             bit_depth: BitDepth::Eight,
             write_ground_truth: false,
             truth_within_ns: within_ns,
+            write_every: 1,
+            score_every: 1,
         }
+    }
+
+    #[test]
+    fn one_frame_in_n_is_written_or_scored_and_every_frame_is_counted() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let cfg = SinkConfig {
+            write_every: 3,
+            score_every: 2,
+            ..config(dir.path(), 0)
+        };
+        let mut sink = Sink::new(&cfg, false).expect("sink");
+        for seq in 0..7 {
+            sink.on_frame(
+                "tfp",
+                frame(FrameKind::Reconstruction, "tfp", seq, seq as i64, 0.5),
+            )
+            .expect("frame");
+        }
+        let pngs: Vec<bool> = (0..7)
+            .map(|s| dir.path().join(format!("tfp/{s:06}.png")).is_file())
+            .collect();
+        assert_eq!(pngs, [true, false, false, true, false, false, true]);
+        let csv = std::fs::read_to_string(dir.path().join("metrics.csv")).expect("csv");
+        let seqs: Vec<&str> = csv
+            .lines()
+            .skip(1)
+            .map(|r| r.split(',').next().unwrap_or(""))
+            .collect();
+        assert_eq!(seqs, ["0", "2", "4", "6"], "{csv}");
+        // Seq 2 and 4 were scored, not written: their rows name no file.
+        assert!(
+            csv.lines().nth(2).is_some_and(|r| !r.contains(".png")),
+            "{csv}"
+        );
+        let tally = InputTally {
+            announced: Some(7),
+            received: 7,
+            missing: 0,
+            ended: true,
+        };
+        let text = std::fs::read_to_string(sink.finish([("tfp", tally)]).expect("summary"))
+            .expect("summary");
+        assert!(text.contains("| tfp | 7 | 7 | 3 | 0 | yes |"), "{text}");
+        assert!(
+            text.contains("one frame in 3 (`--write-every 3`)"),
+            "{text}"
+        );
     }
 
     #[test]
@@ -297,7 +374,7 @@ mod tests {
         };
         let summary = sink.finish([("tfp", tally)]).expect("summary");
         let text = std::fs::read_to_string(summary).expect("summary");
-        assert!(text.contains("| tfp | 3 | 2 | 1 | yes |"), "{text}");
+        assert!(text.contains("| tfp | 3 | 2 | 2 | 1 | yes |"), "{text}");
     }
 
     #[test]

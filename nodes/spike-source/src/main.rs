@@ -11,7 +11,7 @@
 //! sends as fast as the receivers take them.
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_runtime::{Flow, Outputs, Pace, Pacer, produce};
+use neuspike_runtime::{Flow, Link, Pace, Pacer, produce};
 use neuspike_schemas::{Frame, SpikeChunk};
 use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig};
 
@@ -44,25 +44,25 @@ fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("spike-source")?;
     let source = open_source(&args)?;
-    let (node, events) = DoraNode::init_from_env()?;
+    let (node, events) = neuspike_runtime::init_node()?;
     neuspike_runtime::run_on_rayon("spike-source", || run(node, events, source, &args))
 }
 
 /// Sends every chunk and its ground truth, then the end-of-stream markers, whatever happened.
 fn run(
     node: DoraNode,
-    mut events: EventStream,
+    events: EventStream,
     mut source: SpikeSource,
     args: &Args,
 ) -> eyre::Result<()> {
-    let mut out = Outputs::new(node);
+    let mut out = Link::new(node, events)?;
     out.declare::<SpikeChunk>("spikes");
     if source.sends_truth() {
         out.declare::<Frame>("ground_truth");
     }
     source.log_start();
     let pacer = Pacer::start(args.pace);
-    produce(&mut out, &mut events, |out| {
+    produce(&mut out, |out| {
         let Some(step) = source.next_step()? else {
             return Ok(Flow::Stop);
         };
