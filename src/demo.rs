@@ -12,8 +12,9 @@ pub const DEMO_GRAPH: &str = include_str!("../graphs/demo.yml");
 
 /// What a demo run writes in its folder, cleared before each run so that a failed run never
 /// shows an earlier run's results as its own.
-const PRODUCTS: [&str; 7] = [
+const PRODUCTS: [&str; 8] = [
     "summary.md",
+    "summary.yml",
     "metrics.csv",
     "graph.yml",
     "types",

@@ -5,6 +5,7 @@
 //! [`graph::run`] directly.
 #![deny(missing_docs)]
 
+pub mod bench_live;
 pub mod bench_model;
 pub mod dataset;
 pub mod graph;

@@ -77,6 +77,16 @@ enum Command {
     /// integration of one window, its ground truth and the TFP/TFI baselines, as .npy shards
     /// (see training/README.md).
     Dataset(neuspike::dataset::DatasetOptions),
+    /// Stream the spike-only live graph paced to a camera's clock (default 30 s of a 20 kHz camera
+    /// at 1,000 TFP frames/s) and report the wall time against the camera time, the frames lost
+    /// and the latency, one Markdown row a run.
+    BenchLive {
+        #[command(flatten)]
+        opts: neuspike::bench_live::LiveBenchOptions,
+        /// Skip building the node binaries.
+        #[arg(long)]
+        no_build: bool,
+    },
     /// Time a learned model (ONNX) under tract at a frame size, on 1 and 2 threads (as the infer
     /// node runs it: shapes pinned, optimised once, padded to the network's stride).
     BenchModel {
@@ -236,6 +246,17 @@ fn run(cli: Cli) -> eyre::Result<()> {
             report.into_result()
         }
         Command::Demo { scene, no_build } => demo(&scene, !no_build),
+        Command::BenchLive { opts, no_build } => {
+            if !no_build {
+                graph::build_nodes()?;
+            }
+            let runs = neuspike::bench_live::run(&opts)?;
+            let lost: u64 = runs.iter().map(|r| r.missing).sum();
+            if lost > 0 {
+                eyre::bail!("bench-live: {lost} frames lost");
+            }
+            Ok(())
+        }
         Command::Simulate {
             scene,
             out,

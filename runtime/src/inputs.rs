@@ -239,6 +239,7 @@ pub fn receive(
                     flow
                 }
                 Accepted::Message { lost } => {
+                    link.saw(&meta);
                     let flow = on(
                         link,
                         Received::Message {

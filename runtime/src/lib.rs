@@ -28,7 +28,7 @@ pub mod reorder;
 pub mod testing;
 
 pub use inputs::{Flow, InputState, Inputs, Received, receive};
-pub use link::{Link, produce};
+pub use link::{Link, produce, unix_now_ns};
 pub use metadata::{meta_from_dora, meta_to_dora};
 
 use std::collections::BTreeSet;

@@ -11,7 +11,7 @@ use dora_node_api::{DoraArray, DoraNode, Event, EventStream, StopCause};
 use eyre::WrapErr;
 use neuspike_schemas::arrow::array::new_empty_array;
 use neuspike_schemas::arrow::datatypes::DataType;
-use neuspike_schemas::meta::SEQ;
+use neuspike_schemas::meta::{ORIGIN_UNIX_NS, SEQ};
 use neuspike_schemas::{Credit, Message, MetaExt, end_of_stream_header};
 
 use crate::Flow;
@@ -56,6 +56,15 @@ pub struct Link {
     ledger: CreditLedger,
     returns: CreditReturns,
     stop: bool,
+    /// The newest origin stamp among the messages taken so far (see [`ORIGIN_UNIX_NS`]).
+    origin_unix_ns: Option<i64>,
+}
+
+/// Now, Unix nanoseconds (0 before 1970, saturated after 2262).
+pub fn unix_now_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
 }
 
 /// The inputs of `node` that carry its consumers' credits.
@@ -87,11 +96,13 @@ impl Link {
         {
             CreditReturns::new(config.inputs.iter().filter_map(
                 |(id, input)| match &input.mapping {
-                    InputMapping::User(u) if !credit_in.contains(AsRef::<str>::as_ref(id)) => Some((
-                        id.to_string(),
-                        format!("{}/{}", u.source, u.output),
-                        input.queue_size.unwrap_or(DEFAULT_QUEUE_SIZE) as u64,
-                    )),
+                    InputMapping::User(u) if !credit_in.contains(AsRef::<str>::as_ref(id)) => {
+                        Some((
+                            id.to_string(),
+                            format!("{}/{}", u.source, u.output),
+                            input.queue_size.unwrap_or(DEFAULT_QUEUE_SIZE) as u64,
+                        ))
+                    }
                     _ => None,
                 },
             ))
@@ -106,6 +117,7 @@ impl Link {
             ledger,
             returns,
             stop: false,
+            origin_unix_ns: None,
         };
         if let Some(hello) = link.returns.hello() {
             link.send_credit(&hello)?;
@@ -197,6 +209,13 @@ impl Link {
             if n > 0 {
                 tracing::error!(input = %input, dropped = n, "dora dropped messages: a queue was full");
             }
+        }
+    }
+
+    /// A message was taken: its origin stamp, if newer, is what this node's next messages carry.
+    pub(crate) fn saw(&mut self, meta: &neuspike_schemas::Meta) {
+        if let Some(neuspike_schemas::Parameter::Integer(t)) = meta.get(ORIGIN_UNIX_NS) {
+            self.origin_unix_ns = Some(self.origin_unix_ns.map_or(*t, |o| o.max(*t)));
         }
     }
 
@@ -296,13 +315,17 @@ impl Link {
             .ok_or_else(|| eyre::eyre!("output `{id}` was never declared by this node"))
     }
 
-    /// Sends `msg` on output `id`, once every consumer of it has a credit left.
+    /// Sends `msg` on output `id`, once every consumer of it has a credit left. The message is
+    /// stamped with its origin ([`ORIGIN_UNIX_NS`]): the newest stamp this node has taken, or now
+    /// for a source.
     ///
     /// # Errors
     /// The output is not declared or already ended, the message has no sequence number, the graph
     /// ended while waiting for credits, or dora refused it.
     pub fn send<M: Message>(&mut self, id: &str, msg: &M) -> eyre::Result<()> {
-        let (meta, data) = msg.to_arrow();
+        let (mut meta, data) = msg.to_arrow();
+        let origin = self.origin_unix_ns.unwrap_or_else(unix_now_ns);
+        meta.set_int(ORIGIN_UNIX_NS, origin);
         let seq = meta
             .uint("message", SEQ)
             .map_err(|e| eyre::eyre!("output `{id}`: {e}"))?;

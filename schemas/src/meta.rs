@@ -62,6 +62,9 @@ pub const LUM_PER_RATE: &str = "lum_per_rate";
 pub const EOS: &str = "eos";
 /// Number of messages sent on an output before its end-of-stream marker.
 pub const COUNT: &str = "count";
+/// Wall-clock time, Unix nanoseconds, at which the newest camera data a message derives from
+/// left its source (the node runtime stamps it; a sink measures latency from it).
+pub const ORIGIN_UNIX_NS: &str = "origin_unix_ns";
 
 /// Why a message could not be decoded. Each variant names what was wrong and the value found.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -7,8 +7,9 @@
 
 use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;
-use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, receive};
-use neuspike_schemas::{Frame, Message};
+use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, receive, unix_now_ns};
+use neuspike_schemas::meta::ORIGIN_UNIX_NS;
+use neuspike_schemas::{Frame, Message, Parameter};
 use neuspike_sink::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
 
 /// Node arguments (the graph's `args:`).
@@ -55,6 +56,9 @@ fn run(
                 if input == GROUND_TRUTH {
                     sink.on_truth(f)?;
                 } else {
+                    if let Some(Parameter::Integer(origin)) = meta.get(ORIGIN_UNIX_NS) {
+                        sink.on_latency(input, unix_now_ns().saturating_sub(*origin));
+                    }
                     sink.on_frame(input, f)?;
                 }
             }

@@ -242,7 +242,7 @@ pub struct MethodSummary {
 }
 
 /// How many frames one input was expected to carry, and what became of them (set by the node).
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct InputCounts {
     /// The input's id.
     pub input: String,
@@ -266,6 +266,38 @@ pub struct Summary {
     counts: BTreeMap<String, InputCounts>,
     /// `(write_every, score_every)` when either is above 1.
     sampling: Option<(u64, u64)>,
+    /// Latencies by input, nanoseconds.
+    latency_ns: BTreeMap<String, Vec<i64>>,
+}
+
+/// The latency of a stream, milliseconds.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Latency {
+    /// Frames measured.
+    pub frames: usize,
+    /// Median.
+    pub p50_ms: f64,
+    /// 99th percentile (nearest rank).
+    pub p99_ms: f64,
+    /// Largest.
+    pub max_ms: f64,
+}
+
+impl Latency {
+    /// The figures of `ns` (`None` when empty).
+    pub fn of(ns: &[i64]) -> Option<Latency> {
+        let mut v = ns.to_vec();
+        v.sort_unstable();
+        let n = v.len();
+        // Nearest rank: the smallest value with at least p% of the values at or below it.
+        let rank = |p: usize| v[(n * p).div_ceil(100).clamp(1, n) - 1] as f64 * 1e-6;
+        (n > 0).then(|| Latency {
+            frames: n,
+            p50_ms: rank(50),
+            p99_ms: rank(99),
+            max_ms: v[n - 1] as f64 * 1e-6,
+        })
+    }
 }
 
 impl Summary {
@@ -284,6 +316,22 @@ impl Summary {
     /// the first.
     pub fn set_counts(&mut self, counts: InputCounts) {
         self.counts.insert(counts.input.clone(), counts);
+    }
+
+    /// Records one frame's latency on `input`, nanoseconds.
+    pub fn add_latency(&mut self, input: &str, ns: i64) {
+        self.latency_ns
+            .entry(input.to_string())
+            .or_default()
+            .push(ns);
+    }
+
+    /// The latency of each input that had any, sorted by input.
+    pub fn latencies(&self) -> Vec<(String, Latency)> {
+        self.latency_ns
+            .iter()
+            .filter_map(|(k, v)| Latency::of(v).map(|l| (k.clone(), l)))
+            .collect()
     }
 
     /// Records that one frame in `write_every` was written and one in `score_every` scored (the
@@ -362,6 +410,26 @@ impl Summary {
 
     /// The whole summary as Markdown: the metrics table, the frame counts and how to read them.
     pub fn to_markdown(&self) -> String {
+        let mut latency = String::new();
+        let lat = self.latencies();
+        if !lat.is_empty() {
+            latency.push_str(
+                "\n## Latency\n\nFrom the newest camera data of a frame leaving its source to the \
+                 frame reaching the sink (wall clock).\n\n| input | frames | p50 ms | p99 ms | max ms |\n\
+                 |---|---:|---:|---:|---:|\n",
+            );
+            for (input, l) in lat {
+                let _ = writeln!(
+                    latency,
+                    "| {} | {} | {:.2} | {:.2} | {:.2} |",
+                    input.replace('|', "\\|"),
+                    l.frames,
+                    l.p50_ms,
+                    l.p99_ms,
+                    l.max_ms
+                );
+            }
+        }
         let sampling = match self.sampling {
             Some((w, s)) => format!(
                 "\nSampled: a PNG of one frame in {w} (`--write-every {w}`), one frame in {s} \
@@ -374,10 +442,30 @@ impl Summary {
             "# neuspike run summary\n\n## Metrics per method\n\n{}\n\
              PSNR dB: mean over frames with a finite PSNR; exact: frames with MSE 0 (PSNR inf), \
              counted, never averaged. PSNR after gain: least-squares gain, clipped to [0, 1]. \
-             NaN: figures that were NaN, left out of the means.\n\n## Frames per input\n\n{}{sampling}",
+             NaN: figures that were NaN, left out of the means.\n\n## Frames per input\n\n{}{sampling}{latency}",
             self.to_markdown_table(),
             self.to_markdown_counts(),
         )
+    }
+
+    /// The machine-readable summary (`summary.yml`): every input's counts and latency.
+    pub fn to_file(&self) -> SummaryFile {
+        let latency: BTreeMap<String, Latency> = self.latencies().into_iter().collect();
+        SummaryFile {
+            inputs: self
+                .counts
+                .values()
+                .map(|c| {
+                    (
+                        c.input.clone(),
+                        InputFigures {
+                            counts: c.clone(),
+                            latency: latency.get(&c.input).copied(),
+                        },
+                    )
+                })
+                .collect(),
+        }
     }
 
     /// Writes [`Summary::to_markdown`] to `path` (e.g. `summary.md`) atomically, through
@@ -390,8 +478,34 @@ impl Summary {
                     path: tmp.to_owned(),
                     source,
                 })
+        })?;
+        let yml = serde_yaml::to_string(&self.to_file()).unwrap_or_default();
+        let yml_path = path.with_extension("yml");
+        write_atomically(&yml_path, |out, tmp| {
+            out.write_all(yml.as_bytes())
+                .map_err(|source| SinkError::Io {
+                    path: tmp.to_owned(),
+                    source,
+                })
         })
     }
+}
+
+/// One input's figures in `summary.yml`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct InputFigures {
+    /// Frames expected, received, written, missing; whether the input ended.
+    #[serde(flatten)]
+    pub counts: InputCounts,
+    /// Latency, when the frames carried their origin.
+    pub latency: Option<Latency>,
+}
+
+/// `summary.yml`: what a program reads of a run (the Markdown summary is for people).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SummaryFile {
+    /// By input.
+    pub inputs: BTreeMap<String, InputFigures>,
 }
 
 #[cfg(test)]
@@ -553,6 +667,35 @@ mod tests {
         s.set_counts(counts("tfp", 5, 5, 0, true));
         assert_eq!(s.counts()[1].expected, 5);
         assert_eq!(s.counts().len(), 2);
+    }
+
+    #[test]
+    fn latency_percentiles_are_nearest_rank_and_reported_per_input() {
+        assert_eq!(Latency::of(&[]), None);
+        let ns: Vec<i64> = (1..=200).rev().map(|i| i * 1_000_000).collect();
+        let l = Latency::of(&ns).expect("figures");
+        assert_eq!(
+            (l.frames, l.p50_ms, l.p99_ms, l.max_ms),
+            (200, 100.0, 198.0, 200.0)
+        );
+        let one = Latency::of(&[2_500_000]).expect("one");
+        assert_eq!((one.p50_ms, one.p99_ms), (2.5, 2.5));
+        let mut s = Summary::new();
+        assert!(!s.to_markdown().contains("## Latency"));
+        s.add_latency("tfp", 1_000_000);
+        s.add_latency("tfp", 3_000_000);
+        let md = s.to_markdown();
+        assert!(md.contains("| tfp | 2 | 1.00 | 3.00 | 3.00 |"), "{md}");
+        s.set_counts(counts("tfp", 2, 2, 0, true));
+        let file = s.to_file();
+        let back: SummaryFile =
+            serde_yaml::from_str(&serde_yaml::to_string(&file).expect("yaml")).expect("read");
+        assert_eq!(back, file);
+        let tfp = &back.inputs["tfp"];
+        assert_eq!(
+            (tfp.counts.received, tfp.latency.map(|l| l.p99_ms)),
+            (2, Some(3.0))
+        );
     }
 
     #[test]

@@ -137,6 +137,12 @@ impl Sink {
         self.drain_pending()
     }
 
+    /// Records that a frame of `input` reached the sink `latency_ns` after the newest camera
+    /// data it derives from left its source.
+    pub fn on_latency(&mut self, input: &str, latency_ns: i64) {
+        self.summary.add_latency(input, latency_ns);
+    }
+
     /// Takes a reconstructed frame from `input`.
     pub fn on_frame(&mut self, input: &str, f: Frame) -> Result<(), SinkError> {
         self.pending.push_back((input.to_string(), f));

@@ -1,0 +1,283 @@
+//! `neuspike bench-live`: the spike-only live graph (`graphs/spike-tfp-live.yml`) paced to a
+//! camera's clock, timed against the camera time it covers, with its losses and latency.
+
+use std::path::{Path, PathBuf};
+
+use eyre::{WrapErr, bail};
+use neuspike_sink::report::SummaryFile;
+
+use crate::graph;
+
+/// The live graph, built into the program.
+pub const LIVE_GRAPH: &str = include_str!("../graphs/spike-tfp-live.yml");
+
+/// What to run (the `neuspike bench-live` arguments).
+#[derive(Clone, Debug, clap::Args)]
+pub struct LiveBenchOptions {
+    /// Camera time to stream, seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub seconds: f64,
+    /// Spike camera plane rate, Hz (a Vidar runs at 20,000 or 40,000).
+    #[arg(long, default_value_t = 20_000)]
+    pub rate_hz: u64,
+    /// TFP frames a second: a frame every `rate_hz / fps` planes.
+    #[arg(long, default_value_t = 1_000)]
+    pub fps: u64,
+    /// Planes a TFP frame averages.
+    #[arg(long, default_value_t = 33)]
+    pub window_planes: u64,
+    /// Built-in scene the simulated camera sees.
+    #[arg(long, default_value = "bright-static")]
+    pub scene: String,
+    /// The sink writes a PNG of one frame in N (every frame is received and counted).
+    #[arg(long, default_value_t = 10)]
+    pub write_every: u64,
+    /// Runs, one after the other.
+    #[arg(long, default_value_t = 1)]
+    pub runs: usize,
+    /// Folder of the graph and its frames.
+    #[arg(long, default_value = "out/bench-live")]
+    pub out: PathBuf,
+}
+
+/// One run's figures.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LiveRun {
+    /// Camera time streamed, seconds.
+    pub camera_s: f64,
+    /// Wall time of the dataflow, seconds (start-up included).
+    pub wall_s: f64,
+    /// Frames the graph should have made.
+    pub expected: u64,
+    /// Frames that reached the sink.
+    pub received: u64,
+    /// Frames lost on the way.
+    pub missing: u64,
+    /// Latency p50 and p99, milliseconds.
+    pub latency_ms: Option<(f64, f64)>,
+}
+
+impl LiveRun {
+    /// Camera time over wall time: 1 or more keeps up.
+    pub fn real_time(&self) -> f64 {
+        if self.wall_s > 0.0 {
+            self.camera_s / self.wall_s
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Checks the options and writes the graph with them into `opts.out`; returns its path.
+pub fn prepare(opts: &LiveBenchOptions) -> eyre::Result<PathBuf> {
+    let bad = |name: &str, v: String, why: &str| -> eyre::Result<PathBuf> {
+        bail!("bench-live: --{name} = {v} is invalid: {why}")
+    };
+    if !(opts.seconds.is_finite() && opts.seconds > 0.0 && opts.seconds <= 3600.0) {
+        return bad("seconds", opts.seconds.to_string(), "must be in (0, 3600]");
+    }
+    if opts.rate_hz == 0 || opts.rate_hz % 1000 != 0 {
+        return bad(
+            "rate-hz",
+            opts.rate_hz.to_string(),
+            "must be a positive multiple of 1000 (1-ms chunks)",
+        );
+    }
+    if opts.fps == 0 || opts.rate_hz % opts.fps != 0 {
+        return bad(
+            "fps",
+            opts.fps.to_string(),
+            "must divide --rate-hz (a frame every whole number of planes)",
+        );
+    }
+    let stride = opts.rate_hz / opts.fps;
+    let planes = (opts.seconds * opts.rate_hz as f64).round() as u64;
+    std::fs::create_dir_all(&opts.out)
+        .wrap_err_with(|| format!("cannot create {}", opts.out.display()))?;
+    let out = opts.out.canonicalize()?;
+    let frames = out.join("frames");
+    if frames.exists() {
+        std::fs::remove_dir_all(&frames)
+            .wrap_err_with(|| format!("cannot clear {}", frames.display()))?;
+    }
+    let mut g: serde_yaml::Value =
+        serde_yaml::from_str(LIVE_GRAPH).wrap_err("the built-in live graph is not YAML")?;
+    let nodes = g
+        .get_mut("nodes")
+        .and_then(serde_yaml::Value::as_sequence_mut);
+    for node in nodes.into_iter().flatten() {
+        let Some(map) = node.as_mapping_mut() else {
+            continue;
+        };
+        map.remove("build");
+        let id = map
+            .get("id")
+            .and_then(serde_yaml::Value::as_str)
+            .unwrap_or("")
+            .to_string();
+        let args = match id.as_str() {
+            "spike-source" => format!(
+                "--scene {} --rate-hz {} --chunk-planes {} --max-planes {planes} --seed 1 --pace realtime",
+                opts.scene,
+                opts.rate_hz,
+                opts.rate_hz / 1000
+            ),
+            "align" => format!(
+                "--window-planes {} --stride-planes {stride}",
+                opts.window_planes
+            ),
+            "represent" => format!("--tfp-planes {}", opts.window_planes),
+            "sink" => format!(
+                "--out {} --bit-depth 8 --write-every {}",
+                frames.display(),
+                opts.write_every
+            ),
+            _ => continue,
+        };
+        map.insert("args".into(), args.into());
+    }
+    graph::resolve_node_binaries(&mut g, &out)?;
+    graph::write_types(&out)?;
+    let path = out.join("graph.yml");
+    let text = serde_yaml::to_string(&g).wrap_err("cannot write the live graph")?;
+    std::fs::write(
+        &path,
+        format!("# Written by `neuspike bench-live`.\n{text}"),
+    )
+    .wrap_err_with(|| format!("cannot write {}", path.display()))?;
+    Ok(path)
+}
+
+/// Reads a run's figures from the sink's `summary.yml` in `frames`.
+pub fn figures(frames: &Path, camera_s: f64, wall_s: f64) -> eyre::Result<LiveRun> {
+    let path = frames.join("summary.yml");
+    let text = std::fs::read_to_string(&path)
+        .wrap_err_with(|| format!("the sink wrote no {}", path.display()))?;
+    let file: SummaryFile = serde_yaml::from_str(&text)
+        .wrap_err_with(|| format!("{}: not a summary", path.display()))?;
+    let Some(tfp) = file.inputs.get("tfp") else {
+        bail!("{}: no input `tfp`", path.display());
+    };
+    Ok(LiveRun {
+        camera_s,
+        wall_s,
+        expected: tfp.counts.expected,
+        received: tfp.counts.received,
+        missing: tfp.counts.missing,
+        latency_ms: tfp.latency.map(|l| (l.p50_ms, l.p99_ms)),
+    })
+}
+
+/// Runs the benchmark and prints one Markdown row a run.
+pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<LiveRun>> {
+    let path = prepare(opts)?;
+    let frames = opts.out.canonicalize()?.join("frames");
+    println!(
+        "| camera | frames/s | camera s | wall s | real time | frames | lost | latency p50 ms | latency p99 ms |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    let mut runs = Vec::new();
+    for _ in 0..opts.runs {
+        let report = graph::run(&path, &[], false, None, None)?;
+        let wall_s = report.elapsed.as_secs_f64();
+        report.into_result()?;
+        let r = figures(&frames, opts.seconds, wall_s)?;
+        let (p50, p99) = r.latency_ms.map_or(("-".into(), "-".into()), |(a, b)| {
+            (format!("{a:.1}"), format!("{b:.1}"))
+        });
+        println!(
+            "| {} kHz | {} | {:.1} | {:.2} | {:.3}x | {}/{} | {} | {p50} | {p99} |",
+            opts.rate_hz / 1000,
+            opts.fps,
+            r.camera_s,
+            r.wall_s,
+            r.real_time(),
+            r.received,
+            r.expected,
+            r.missing
+        );
+        runs.push(r);
+    }
+    Ok(runs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn opts(out: PathBuf) -> LiveBenchOptions {
+        LiveBenchOptions {
+            seconds: 0.5,
+            rate_hz: 40_000,
+            fps: 200,
+            window_planes: 33,
+            scene: "bright-static".into(),
+            write_every: 10,
+            runs: 1,
+            out,
+        }
+    }
+
+    #[test]
+    fn the_graph_is_the_shipped_one_with_the_camera_and_rate_set() {
+        let shipped = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/graphs/spike-tfp-live.yml"
+        ))
+        .expect("graphs/spike-tfp-live.yml");
+        assert_eq!(LIVE_GRAPH, shipped);
+        let dir = tempfile::tempdir().expect("tempdir");
+        let o = opts(dir.path().join("b"));
+        // Without node binaries beside the test program the graph cannot be resolved, but the
+        // options are checked first.
+        for (bad, name) in [
+            (
+                LiveBenchOptions {
+                    fps: 300,
+                    ..o.clone()
+                },
+                "--fps",
+            ),
+            (
+                LiveBenchOptions {
+                    rate_hz: 20_500,
+                    ..o.clone()
+                },
+                "--rate-hz",
+            ),
+            (
+                LiveBenchOptions {
+                    seconds: 0.0,
+                    ..o.clone()
+                },
+                "--seconds",
+            ),
+        ] {
+            let e = prepare(&bad).expect_err(name).to_string();
+            assert!(e.contains(name), "{e}");
+        }
+        if let Ok(path) = prepare(&o) {
+            let text = std::fs::read_to_string(path).expect("graph");
+            assert!(text.contains("--rate-hz 40000 --chunk-planes 40 --max-planes 20000"));
+            assert!(text.contains("--stride-planes 200") && text.contains("--write-every 10"));
+        }
+    }
+
+    #[test]
+    fn figures_come_from_the_sinks_summary_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        std::fs::write(
+            dir.path().join("summary.yml"),
+            "inputs:\n  tfp:\n    input: tfp\n    expected: 10\n    received: 9\n    written: 1\n    missing: 1\n    ended: true\n    latency:\n      frames: 9\n      p50_ms: 2.0\n      p99_ms: 5.5\n      max_ms: 6.0\n",
+        )
+        .expect("write");
+        let r = figures(dir.path(), 1.0, 1.25).expect("figures");
+        assert_eq!((r.expected, r.received, r.missing), (10, 9, 1));
+        assert_eq!(r.latency_ms, Some((2.0, 5.5)));
+        assert_eq!(r.real_time(), 0.8);
+        let e = figures(&dir.path().join("none"), 1.0, 1.0)
+            .expect_err("no summary")
+            .to_string();
+        assert!(e.contains("summary.yml"), "{e}");
+    }
+}
