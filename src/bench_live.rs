@@ -76,14 +76,14 @@ pub fn prepare(opts: &LiveBenchOptions) -> eyre::Result<PathBuf> {
     if !(opts.seconds.is_finite() && opts.seconds > 0.0 && opts.seconds <= 3600.0) {
         return bad("seconds", opts.seconds.to_string(), "must be in (0, 3600]");
     }
-    if opts.rate_hz == 0 || opts.rate_hz % 1000 != 0 {
+    if opts.rate_hz == 0 || !opts.rate_hz.is_multiple_of(1000) {
         return bad(
             "rate-hz",
             opts.rate_hz.to_string(),
             "must be a positive multiple of 1000 (1-ms chunks)",
         );
     }
-    if opts.fps == 0 || opts.rate_hz % opts.fps != 0 {
+    if opts.fps == 0 || !opts.rate_hz.is_multiple_of(opts.fps) {
         return bad(
             "fps",
             opts.fps.to_string(),
