@@ -127,6 +127,47 @@ fn spike_tfp_static_scene_is_complete_and_accurate() {
     assert!(summary.contains("tfp"), "{summary}");
 }
 
+/// A sink much slower than its camera holds the whole graph back through the credits: nothing
+/// is lost and nothing queues up. Were the producers not held, frame `k` would wait behind `k`
+/// others (latency growing to seconds); held, it waits behind at most the frames the credits let
+/// into the graph.
+#[test]
+fn a_slow_sink_holds_the_graph_back_without_loss_or_queues() {
+    let out = tempfile::tempdir().expect("tempdir");
+    let delay_ms = 20;
+    run(
+        "spike-tfp-live.yml",
+        out.path(),
+        &[
+            ("spike-source", "--max-planes 4020 --scene bright-static"),
+            (
+                "sink",
+                &format!("--delay-us {} --write-every 50", delay_ms * 1000),
+            ),
+        ],
+    );
+    let text = std::fs::read_to_string(out.path().join("summary.yml")).expect("summary.yml");
+    let summary: neuspike_sink::report::SummaryFile = serde_yaml::from_str(&text).expect("summary");
+    let tfp = &summary.inputs["tfp"];
+    assert_eq!(
+        (tfp.counts.expected, tfp.counts.received, tfp.counts.missing),
+        (200, 200, 0),
+        "{text}"
+    );
+    assert_eq!(tfp.counts.written, 4, "seq 0, 50, 100, 150: {text}");
+    let latency = tfp.latency.expect("frames carry their origin");
+    // 4 links of 8 credits: about 32 frames ahead of the sink at most, 20 ms each; unheld, the
+    // last of the 200 frames would wait about 4 s.
+    let bound_ms = 60.0 * delay_ms as f64;
+    assert!(
+        latency.max_ms < bound_ms,
+        "latency grew to {:.0} ms (bound {bound_ms} ms): the producers were not held",
+        latency.max_ms
+    );
+    // And the sink did wait: the frames behind it waited too.
+    assert!(latency.p50_ms > delay_ms as f64, "{latency:?}");
+}
+
 /// Both cameras, TFP and TFI: both methods produce every frame and nothing goes missing.
 #[test]
 fn demo_graph_both_cameras_loses_nothing() {

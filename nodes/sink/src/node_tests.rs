@@ -51,6 +51,7 @@ fn writes_scores_and_summarises() {
         truth_within_ns: 0,
         write_every: 1,
         score_every: 1,
+        delay_us: 0,
     };
     c.run(|node, events| run(node, events, &cfg, &inputs(&["tfp", "ground_truth"])))
         .unwrap();
@@ -93,6 +94,7 @@ fn scores_with_offset_truth(offset_ns: i64, within_ns: i64) -> Vec<String> {
         truth_within_ns: within_ns,
         write_every: 1,
         score_every: 1,
+        delay_us: 0,
     };
     c.run(|node, events| run(node, events, &cfg, &inputs(&["tfp", "ground_truth"])))
         .unwrap();

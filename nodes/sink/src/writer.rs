@@ -37,6 +37,10 @@ pub struct SinkConfig {
     /// Score one frame in N (metrics and a `metrics.csv` row), chosen as `--write-every` does.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     pub score_every: u64,
+    /// Sleep this many microseconds after each reconstructed frame: a deliberately slow consumer,
+    /// to see what one does to a graph (credits hold its producers back; nothing queues up).
+    #[arg(long, default_value_t = 0)]
+    pub delay_us: u64,
 }
 
 /// How long ground truth is kept for frames that come late, nanoseconds.
@@ -65,6 +69,7 @@ pub struct Sink {
     truth_within_ns: i64,
     write_every: u64,
     score_every: u64,
+    delay: std::time::Duration,
     csv: MetricsCsv,
     summary: Summary,
     /// Frames received, by input.
@@ -97,6 +102,7 @@ impl Sink {
             truth_within_ns: cfg.truth_within_ns,
             write_every: cfg.write_every.max(1),
             score_every: cfg.score_every.max(1),
+            delay: std::time::Duration::from_micros(cfg.delay_us),
             csv,
             summary: Summary::default(),
             received: BTreeMap::new(),
@@ -146,7 +152,11 @@ impl Sink {
     /// Takes a reconstructed frame from `input`.
     pub fn on_frame(&mut self, input: &str, f: Frame) -> Result<(), SinkError> {
         self.pending.push_back((input.to_string(), f));
-        self.drain_pending()
+        self.drain_pending()?;
+        if !self.delay.is_zero() {
+            std::thread::sleep(self.delay);
+        }
+        Ok(())
     }
 
     /// Writes every pending frame whose ground truth has arrived or can no longer arrive.
@@ -299,6 +309,7 @@ mod tests {
             truth_within_ns: within_ns,
             write_every: 1,
             score_every: 1,
+            delay_us: 0,
         }
     }
 
