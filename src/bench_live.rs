@@ -100,52 +100,25 @@ pub fn prepare(opts: &LiveBenchOptions) -> eyre::Result<PathBuf> {
         std::fs::remove_dir_all(&frames)
             .wrap_err_with(|| format!("cannot clear {}", frames.display()))?;
     }
-    let mut g: serde_yaml::Value =
-        serde_yaml::from_str(LIVE_GRAPH).wrap_err("the built-in live graph is not YAML")?;
-    let nodes = g
-        .get_mut("nodes")
-        .and_then(serde_yaml::Value::as_sequence_mut);
-    for node in nodes.into_iter().flatten() {
-        let Some(map) = node.as_mapping_mut() else {
-            continue;
-        };
-        map.remove("build");
-        let id = map
-            .get("id")
-            .and_then(serde_yaml::Value::as_str)
-            .unwrap_or("")
-            .to_string();
-        let args = match id.as_str() {
-            "spike-source" => format!(
-                "--scene {} --rate-hz {} --chunk-planes {} --max-planes {planes} --seed 1 --pace realtime",
-                opts.scene,
-                opts.rate_hz,
-                opts.rate_hz / 1000
-            ),
-            "align" => format!(
-                "--window-planes {} --stride-planes {stride}",
-                opts.window_planes
-            ),
-            "represent" => format!("--tfp-planes {}", opts.window_planes),
-            "sink" => format!(
-                "--out {} --bit-depth 8 --write-every {}",
-                frames.display(),
-                opts.write_every
-            ),
-            _ => continue,
-        };
-        map.insert("args".into(), args.into());
-    }
-    graph::resolve_node_binaries(&mut g, &out)?;
-    graph::write_types(&out)?;
-    let path = out.join("graph.yml");
-    let text = serde_yaml::to_string(&g).wrap_err("cannot write the live graph")?;
-    std::fs::write(
-        &path,
-        format!("# Written by `neuspike bench-live`.\n{text}"),
-    )
-    .wrap_err_with(|| format!("cannot write {}", path.display()))?;
-    Ok(path)
+    graph::write_built_in(LIVE_GRAPH, &out, "neuspike bench-live", |id, _| match id {
+        "spike-source" => Some(format!(
+            "--scene {} --rate-hz {} --chunk-planes {} --max-planes {planes} --seed 1 --pace realtime",
+            opts.scene,
+            opts.rate_hz,
+            opts.rate_hz / 1000
+        )),
+        "align" => Some(format!(
+            "--window-planes {} --stride-planes {stride}",
+            opts.window_planes
+        )),
+        "represent" => Some(format!("--tfp-planes {}", opts.window_planes)),
+        "sink" => Some(format!(
+            "--out {} --bit-depth 8 --write-every {}",
+            frames.display(),
+            opts.write_every
+        )),
+        _ => None,
+    })
 }
 
 /// Reads a run's figures from the sink's `summary.yml` in `frames`.

@@ -50,42 +50,11 @@ pub fn prepare(out: &Path, scene: &str) -> eyre::Result<PathBuf> {
         };
         gone.wrap_err_with(|| format!("cannot clear {} from an earlier run", p.display()))?;
     }
-    let mut g: serde_yaml::Value =
-        serde_yaml::from_str(DEMO_GRAPH).wrap_err("the built-in demo graph is not YAML")?;
-    let nodes = g
-        .get_mut("nodes")
-        .and_then(serde_yaml::Value::as_sequence_mut);
-    for node in nodes.into_iter().flatten() {
-        let Some(map) = node.as_mapping_mut() else {
-            continue;
-        };
-        // Built by `run` beforehand when the program runs from its sources; never from here.
-        map.remove("build");
-        let args = map
-            .get("args")
-            .and_then(serde_yaml::Value::as_str)
-            .unwrap_or("")
-            .to_string();
-        let id = map
-            .get("id")
-            .and_then(serde_yaml::Value::as_str)
-            .unwrap_or("");
-        let args = match id {
-            "spike-source" | "event-source" => format!("{args} --scene {scene_arg}"),
-            "sink" => format!("{args} --out {}", out.display()),
-            _ => continue,
-        };
-        map.insert("args".into(), args.into());
-    }
-    // The graph's relative paths mean nothing in `out`: every node runs the binary beside this
-    // program, and a missing one is an error saying how to build it.
-    graph::resolve_node_binaries(&mut g, &out)?;
-    graph::write_types(&out)?;
-    let path = out.join("graph.yml");
-    let text = serde_yaml::to_string(&g).wrap_err("cannot write the demo graph")?;
-    std::fs::write(&path, format!("# Written by `neuspike demo`.\n{text}"))
-        .wrap_err_with(|| format!("cannot write {}", path.display()))?;
-    Ok(path)
+    graph::write_built_in(DEMO_GRAPH, &out, "neuspike demo", |id, args| match id {
+        "spike-source" | "event-source" => Some(format!("{args} --scene {scene_arg}")),
+        "sink" => Some(format!("{args} --out {}", out.display())),
+        _ => None,
+    })
 }
 
 #[cfg(test)]

@@ -244,6 +244,46 @@ pub fn wire_credits(graph: &mut Value, window: u64) {
     }
 }
 
+/// Writes a graph built into the program (`text`) into `out` as `graph.yml`, ready to run from
+/// there: no `build:` keys, each node's `args:` replaced by `args(id, old_args)` where that gives
+/// one, its nodes the binaries beside this program, the message types beside it. `by` names the
+/// command in the file's first line. Returns the graph's path.
+///
+/// # Errors
+/// `text` is not YAML, a node binary is missing, or a file cannot be written.
+pub fn write_built_in(
+    text: &str,
+    out: &Path,
+    by: &str,
+    args: impl Fn(&str, &str) -> Option<String>,
+) -> eyre::Result<PathBuf> {
+    let mut g: Value = serde_yaml::from_str(text)
+        .wrap_err_with(|| format!("{by}: the built-in graph is not YAML"))?;
+    let list = g.get_mut("nodes").and_then(Value::as_sequence_mut);
+    for node in list.into_iter().flatten() {
+        let Some(map) = node.as_mapping_mut() else {
+            continue;
+        };
+        // Built beforehand when the program runs from its sources; never from `out`.
+        map.remove("build");
+        let id = map.get("id").and_then(Value::as_str).unwrap_or("");
+        let old = map.get("args").and_then(Value::as_str).unwrap_or("");
+        if let Some(new) = args(id, old) {
+            map.insert("args".into(), new.into());
+        }
+    }
+    // The graph's relative paths mean nothing in `out`: every node runs the binary beside this
+    // program, and a missing one is an error saying how to build it.
+    resolve_node_binaries(&mut g, out)?;
+    write_types(out)?;
+    let path = out.join("graph.yml");
+    let body =
+        serde_yaml::to_string(&g).wrap_err_with(|| format!("{by}: cannot write the graph"))?;
+    std::fs::write(&path, format!("# Written by `{by}`.\n{body}"))
+        .wrap_err_with(|| format!("cannot write {}", path.display()))?;
+    Ok(path)
+}
+
 /// Appends `extra` to the `args:` of node `id`; an unknown node is an error.
 fn apply_override(graph: &mut Value, id: &str, extra: &str) -> eyre::Result<()> {
     let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);

@@ -258,27 +258,27 @@ impl Link {
     /// Waits until every consumer of `output` has a credit left; events that are not credits
     /// are kept for the receive loop.
     fn wait_for_credit(&mut self, output: &str) -> eyre::Result<()> {
-        while let Some(consumer) = self.ledger.blocked_on(output) {
-            let consumer = consumer.to_string();
-            let Some(e) = self.events.recv() else {
-                eyre::bail!(
-                    "output `{output}`: the graph ended while waiting for credits from input `{consumer}`"
-                );
-            };
-            if let Some(e) = self.absorb(e)? {
-                self.kept.push_back(e);
-            }
-        }
-        Ok(())
+        self.wait_while(output, CreditLedger::blocked_on, "sent a credit")
     }
 
     /// Waits until every consumer of `output` has taken all that was sent on it.
     fn wait_drained(&mut self, output: &str) -> eyre::Result<()> {
-        while let Some(consumer) = self.ledger.undrained(output) {
+        self.wait_while(output, CreditLedger::undrained, "returned every credit")
+    }
+
+    /// Takes events while `holder` names a consumer holding `output` back; events that are not
+    /// credits are kept for the receive loop.
+    fn wait_while(
+        &mut self,
+        output: &str,
+        holder: for<'l> fn(&'l CreditLedger, &str) -> Option<&'l str>,
+        awaited: &str,
+    ) -> eyre::Result<()> {
+        while let Some(consumer) = holder(&self.ledger, output) {
             let consumer = consumer.to_string();
             let Some(e) = self.events.recv() else {
                 eyre::bail!(
-                    "output `{output}`: the graph ended before input `{consumer}` returned every credit"
+                    "output `{output}`: the graph ended before input `{consumer}` {awaited}"
                 );
             };
             if let Some(e) = self.absorb(e)? {
