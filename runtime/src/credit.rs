@@ -103,6 +103,11 @@ impl CreditLedger {
         }
     }
 
+    /// Whether there were consumers and every one has ended: what is sent goes nowhere.
+    pub fn all_gone(&self) -> bool {
+        !self.consumers.is_empty() && self.consumers.values().all(|c| *c == Consumer::Gone)
+    }
+
     /// The consumer on `input` ended: it holds nothing back any more.
     pub fn closed(&mut self, input: &str) {
         if let Some(c) = self.consumers.get_mut(input) {
@@ -285,6 +290,10 @@ mod tests {
         // A consumer that ended holds nothing back.
         l.closed("from-cf");
         assert_eq!(l.blocked_on("events"), None);
+        assert!(!l.all_gone());
+        l.closed("from-represent");
+        assert!(l.all_gone());
+        assert!(!CreditLedger::new("p", Vec::<String>::new()).all_gone());
         l.grant("from-cf", &credit(true, &[("align/events", 5)]));
         assert_eq!(l.left("from-cf", "events"), None);
     }

@@ -49,8 +49,11 @@ pub enum Flow {
 pub struct InputState {
     /// The input's sequence numbers: received, missing, stale, announced.
     pub seq: SeqTracker,
-    /// Whether the end-of-stream marker arrived.
+    /// Whether the stream ended: its end-of-stream marker arrived, or dora closed it and
+    /// nothing came for [`CLOSE_GRACE`] (then `broken` too).
     pub ended: bool,
+    /// Whether it ended without its marker: its sender failed.
+    pub broken: bool,
 }
 
 /// A message held until its turn: its header and payload.
@@ -62,7 +65,14 @@ pub struct Inputs {
     streams: BTreeMap<String, InputState>,
     /// Messages that came before their turn, by input.
     waiting: BTreeMap<String, Reorder<Held>>,
+    /// Inputs dora closed before their marker, and when.
+    closed: BTreeMap<String, Instant>,
 }
+
+/// How long an input dora closed before its end-of-stream marker came may still deliver (dora
+/// may say an input closed before its last messages); after that its sender is taken to have
+/// failed and the input ends, so that a node whose producer died finishes within seconds.
+pub const CLOSE_GRACE: std::time::Duration = std::time::Duration::from_secs(1);
 
 impl Inputs {
     /// The inputs `ids` (the node's declared inputs, or those its method reads). Messages on any
@@ -74,6 +84,7 @@ impl Inputs {
                 .map(|id| (id.as_ref().to_string(), InputState::default()))
                 .collect(),
             waiting: BTreeMap::new(),
+            closed: BTreeMap::new(),
         }
     }
 
@@ -144,8 +155,11 @@ impl Inputs {
 
     /// The next message whose turn has come, on any input (all that is held when `flush`).
     fn next_due(&mut self, now: Instant, flush: bool) -> Option<(String, Held)> {
+        let closed = &self.closed;
         self.waiting.iter_mut().find_map(|(input, queue)| {
-            let popped = if flush {
+            // A closed input past its grace hands over all it holds.
+            let expired = closed.get(input).is_some_and(|t| now >= *t + CLOSE_GRACE);
+            let popped = if flush || expired {
                 queue.pop_any()
             } else {
                 queue.pop(now)
@@ -154,9 +168,52 @@ impl Inputs {
         })
     }
 
-    /// When the first held message stops waiting for the ones before it.
+    /// When the first held message stops waiting for the ones before it, or a closed input's
+    /// grace runs out.
     fn deadline(&self) -> Option<Instant> {
-        self.waiting.values().filter_map(Reorder::deadline).min()
+        let closing = self.closed.values().map(|t| *t + CLOSE_GRACE);
+        self.waiting
+            .values()
+            .filter_map(Reorder::deadline)
+            .chain(closing)
+            .min()
+    }
+
+    /// dora closed `input`: unless its marker comes within [`CLOSE_GRACE`], it ends broken.
+    fn close(&mut self, input: &str, now: Instant) {
+        if self.streams.get(input).is_some_and(|s| !s.ended) {
+            self.closed.entry(input.to_string()).or_insert(now);
+        }
+    }
+
+    /// Ends the closed inputs whose grace ran out, once what they hold is handed over; returns
+    /// each with the count of messages it covered (received and missing).
+    fn expire(&mut self, now: Instant) -> Vec<(String, u64)> {
+        let mut ended = Vec::new();
+        let due: Vec<String> = self
+            .closed
+            .iter()
+            .filter(|(_, t)| now >= **t + CLOSE_GRACE)
+            .map(|(k, _)| k.clone())
+            .collect();
+        for input in due {
+            if self.waiting.get(&input).is_some_and(|q| !q.is_empty()) {
+                continue;
+            }
+            self.closed.remove(&input);
+            if let Some(state) = self.streams.get_mut(&input)
+                && !state.ended
+            {
+                tracing::error!(
+                    input,
+                    "input closed without its end-of-stream marker: its sender failed"
+                );
+                state.ended = true;
+                state.broken = true;
+                ended.push((input, state.seq.received() + state.seq.missing()));
+            }
+        }
+        ended
     }
 
     /// Accounts a message handed over in order: `lost` says how many before it never came.
@@ -260,6 +317,28 @@ pub fn receive(
         if flush {
             break;
         }
+        // An input whose sender failed ends as if its marker had come: the node finishes.
+        for (input, count) in inputs.expire(Instant::now()) {
+            let flow = on(
+                link,
+                Received::End {
+                    input: &input,
+                    count,
+                },
+            )?;
+            link.ended(&input)?;
+            if flow == Flow::Stop || inputs.all_ended() {
+                link.log_drops();
+                return Ok(());
+            }
+        }
+        // Nobody is left to take what this node makes: it stops (the node that failed is
+        // reported by the runner; this one ends cleanly).
+        if link.consumers_gone() {
+            tracing::warn!("every node this one feeds has ended before it: stopping");
+            link.log_drops();
+            return Ok(());
+        }
         let polled = match inputs.deadline() {
             Some(deadline) => link.next_event_until(deadline)?,
             None => link.next_event()?.map_or(Polled::Ended, Polled::Event),
@@ -271,7 +350,8 @@ pub fn receive(
                 link.log_drops();
             }
             Polled::Event(Event::InputClosed { id }) => {
-                tracing::debug!(input = %id, "input closed")
+                tracing::debug!(input = %id, "input closed");
+                inputs.close(id.as_ref(), Instant::now());
             }
             Polled::Event(Event::Stop(cause)) => {
                 tracing::debug!(?cause, "stop received; draining the inputs")

@@ -237,6 +237,12 @@ impl Link {
         }
     }
 
+    /// Whether every consumer that returns credits has ended (none: `false`): a source with
+    /// nobody left to take its messages stops.
+    pub fn consumers_gone(&self) -> bool {
+        self.ledger.all_gone()
+    }
+
     /// Whether a stop was asked for (never blocks; a source has no other inputs to wait on).
     pub fn stop_requested(&mut self) -> eyre::Result<bool> {
         while !self.stop {
@@ -415,6 +421,12 @@ pub fn produce(
             Ok(true) => break Ok(()),
             Ok(false) => {}
             Err(e) => break Err(e),
+        }
+        // Nobody is left to take what the source makes: it stops (the node that failed is
+        // reported by the runner; the source ends cleanly).
+        if link.consumers_gone() {
+            tracing::warn!("every node this source feeds has ended before it: stopping");
+            break Ok(());
         }
         match step(link) {
             Ok(Flow::Continue) => {}
