@@ -32,11 +32,12 @@ pub use png_out::BitDepth;
 pub use report::{FrameMetrics, MetricsCsv, Summary};
 pub use writer::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
 
-/// What can go wrong while the sink writes or reads its files. Every message names the file.
+/// What can go wrong while the sink writes or reads its files. Every message names the file; the
+/// cause is the error's source (printed after it in a chain, never twice).
 #[derive(Debug, thiserror::Error)]
 pub enum SinkError {
     /// Creating, writing, renaming or opening a file failed.
-    #[error("I/O error on {}: {source}", path.display())]
+    #[error("I/O error on {}", path.display())]
     Io {
         /// The file the operation was on (for an atomic write, the `.tmp` file or the target).
         path: PathBuf,
@@ -45,7 +46,7 @@ pub enum SinkError {
         source: std::io::Error,
     },
     /// Encoding or decoding a PNG failed.
-    #[error("PNG error on {}: {source}", path.display())]
+    #[error("PNG error on {}", path.display())]
     Png {
         /// The file being encoded or decoded.
         path: PathBuf,
