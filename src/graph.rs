@@ -433,19 +433,25 @@ impl Report {
         }
     }
 
+    /// The nodes that failed, sorted by id.
+    pub fn failed_nodes(&self) -> Vec<String> {
+        self.result
+            .node_results
+            .iter()
+            .filter(|(_, r)| r.is_err())
+            .map(|(n, _)| n.to_string())
+            .collect()
+    }
+
     /// An error when any node failed.
     pub fn into_result(self) -> eyre::Result<()> {
         if self.result.is_ok() {
             Ok(())
         } else {
-            let failed: Vec<String> = self
-                .result
-                .node_results
-                .iter()
-                .filter(|(_, r)| r.is_err())
-                .map(|(n, _)| n.to_string())
-                .collect();
-            Err(eyre!("the graph failed: nodes {}", failed.join(", ")))
+            Err(eyre!(
+                "the graph failed: nodes {}",
+                self.failed_nodes().join(", ")
+            ))
         }
     }
 }

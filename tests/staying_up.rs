@@ -79,14 +79,7 @@ fn a_node_killed_mid_run_ends_the_run_within_seconds_naming_it() {
         "the run went on {took:?} after represent died"
     );
     // Only the killed node failed: the others ended on their own.
-    let failed: Vec<String> = report
-        .result
-        .node_results
-        .iter()
-        .filter(|(_, r)| r.is_err())
-        .map(|(n, _)| n.to_string())
-        .collect();
-    assert_eq!(failed, ["represent"]);
+    assert_eq!(report.failed_nodes(), ["represent"]);
     let e = report.into_result().expect_err("a failed run").to_string();
     assert!(e.contains("represent"), "{e}");
 

@@ -255,6 +255,18 @@ enum Accepted {
     End(u64),
 }
 
+/// Hands `on` the end of `input` (after `count` messages), then returns the credits still owed.
+fn end_input(
+    link: &mut Link,
+    input: &str,
+    count: u64,
+    on: &mut impl FnMut(&mut Link, Received<'_>) -> eyre::Result<Flow>,
+) -> eyre::Result<Flow> {
+    let flow = on(link, Received::End { input, count })?;
+    link.ended(input)?;
+    Ok(flow)
+}
+
 /// The receive loop: hands every message and end-of-stream marker of the inputs in `inputs` to
 /// `on`, with the node's [`Link`] to send on, in sequence order per input, until every input has
 /// ended or `on` returns [`Flow::Stop`].
@@ -284,17 +296,7 @@ pub fn receive(
     loop {
         while let Some((input, (meta, data))) = inputs.next_due(Instant::now(), flush) {
             let flow = match inputs.accept(&input, &meta)? {
-                Accepted::End(count) => {
-                    let flow = on(
-                        link,
-                        Received::End {
-                            input: &input,
-                            count,
-                        },
-                    )?;
-                    link.ended(&input)?;
-                    flow
-                }
+                Accepted::End(count) => end_input(link, &input, count, &mut on)?,
                 Accepted::Message { lost } => {
                     link.saw(&meta);
                     let flow = on(
@@ -319,14 +321,7 @@ pub fn receive(
         }
         // An input whose sender failed ends as if its marker had come: the node finishes.
         for (input, count) in inputs.expire(Instant::now()) {
-            let flow = on(
-                link,
-                Received::End {
-                    input: &input,
-                    count,
-                },
-            )?;
-            link.ended(&input)?;
+            let flow = end_input(link, &input, count, &mut on)?;
             if flow == Flow::Stop || inputs.all_ended() {
                 link.log_drops();
                 return Ok(());
