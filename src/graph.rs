@@ -389,8 +389,8 @@ fn run_build(cmd: &str, dir: &Path) -> eyre::Result<()> {
 
 /// What a run produced.
 pub struct Report {
-    /// Per-node results from the daemon.
-    pub result: DataflowResult,
+    /// The nodes that failed, sorted by id, with the cause dora gave.
+    pub failures: Vec<(String, String)>,
     /// Output folders of the graph's sinks.
     pub out_dirs: Vec<PathBuf>,
     /// Wall time of the dataflow, from its start to the end of its last node (builds excluded).
@@ -405,10 +405,8 @@ pub struct Report {
 impl Report {
     /// Prints failures, where the outputs are, and each sink's summary.
     pub fn print(&self) {
-        for (node, r) in &self.result.node_results {
-            if let Err(e) = r {
-                eprintln!("node `{node}` failed: {e}");
-            }
+        for (node, cause) in &self.failures {
+            eprintln!("node `{node}` failed: {cause}");
         }
         if let Some(logs) = &self.logs {
             eprintln!("node logs: {}", logs.display());
@@ -435,17 +433,12 @@ impl Report {
 
     /// The nodes that failed, sorted by id.
     pub fn failed_nodes(&self) -> Vec<String> {
-        self.result
-            .node_results
-            .iter()
-            .filter(|(_, r)| r.is_err())
-            .map(|(n, _)| n.to_string())
-            .collect()
+        self.failures.iter().map(|(n, _)| n.clone()).collect()
     }
 
     /// An error when any node failed.
     pub fn into_result(self) -> eyre::Result<()> {
-        if self.result.is_ok() {
+        if self.failures.is_empty() {
             Ok(())
         } else {
             Err(eyre!(
@@ -456,8 +449,39 @@ impl Report {
     }
 }
 
-/// Runs a graph: build commands (when `build`), then the dataflow on an embedded daemon. When
-/// `progress` names a sink folder, a spinner counts the frames scored there.
+/// Reads the graph at `graph_path` (canonical), appends the `--set` overrides to its nodes'
+/// arguments, runs its build commands (when `build_first`) and points its nodes at the node
+/// binaries; the `build:` keys are removed (done).
+///
+/// # Errors
+/// The graph cannot be read, names an unknown node in an override, a build fails, or a node
+/// binary is missing.
+pub fn prepare(
+    graph_path: &Path,
+    overrides: &[(String, String)],
+    build_first: bool,
+) -> eyre::Result<Value> {
+    let mut graph = read_graph(graph_path)?;
+    for (id, extra) in overrides {
+        apply_override(&mut graph, id, extra)?;
+    }
+    if build_first {
+        build(graph_path, &graph)?;
+    }
+    resolve_node_binaries(&mut graph, graph_path.parent().unwrap_or(Path::new(".")))?;
+    let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);
+    for node in list.into_iter().flatten() {
+        if let Some(map) = node.as_mapping_mut() {
+            map.remove("build");
+        }
+    }
+    Ok(graph)
+}
+
+/// Runs a graph: build commands (when `build`), then the dataflow on one embedded daemon, every
+/// node on this machine whatever machine its `deploy:` names (`crate::cluster` runs a graph on
+/// the machines it names). When `progress` names a sink folder, a spinner counts the frames
+/// scored there.
 pub fn run(
     graph_path: &Path,
     overrides: &[(String, String)],
@@ -468,14 +492,8 @@ pub fn run(
     let graph_path = graph_path
         .canonicalize()
         .wrap_err_with(|| format!("graph {} not found", graph_path.display()))?;
-    let mut graph = read_graph(&graph_path)?;
-    for (id, extra) in overrides {
-        apply_override(&mut graph, id, extra)?;
-    }
-    if build_first {
-        build(&graph_path, &graph)?;
-    }
-    resolve_node_binaries(&mut graph, graph_path.parent().unwrap_or(Path::new(".")))?;
+    let mut graph = prepare(&graph_path, overrides, build_first)?;
+    crate::cluster::strip_deploy(&mut graph);
     let out_dirs = sink_out_dirs(&graph_path, &graph);
     let started_at = std::time::SystemTime::now();
     let descriptor: Descriptor = serde_yaml::from_value(graph)
@@ -523,8 +541,13 @@ pub fn run(
     let result = result.wrap_err("the dataflow task panicked")??;
     let elapsed = started.elapsed();
     let logs = keep_logs_of_failure(graph_path.parent(), &result);
+    let failures = result
+        .node_results
+        .iter()
+        .filter_map(|(node, r)| r.as_ref().err().map(|e| (node.to_string(), e.to_string())))
+        .collect();
     Ok(Report {
-        result,
+        failures,
         out_dirs,
         elapsed,
         started_at,

@@ -16,7 +16,10 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Run a graph (YAML dataflow) on an embedded dora daemon, after running its nodes' `build:`
-    /// commands.
+    /// commands. A graph whose nodes name machines (`deploy: { machine: ... }`, as in
+    /// graphs/distributed.yml) runs on a dora cluster instead: a coordinator and one daemon per
+    /// machine started here on loopback, or the cluster at `--coordinator`. That needs the dora
+    /// CLI (`pip install dora-rs-cli==1.1.0`).
     Run {
         /// The graph file.
         graph: PathBuf,
@@ -27,9 +30,17 @@ enum Command {
         /// Skip the nodes' `build:` commands.
         #[arg(long)]
         no_build: bool,
-        /// Stop the graph after this many seconds.
+        /// Stop the graph after this many seconds (one daemon only).
         #[arg(long)]
         stop_after_s: Option<f64>,
+        /// Run every node on one embedded daemon, whatever machines the graph names.
+        #[arg(long, conflicts_with = "coordinator")]
+        one_daemon: bool,
+        /// Run the graph on the dora cluster whose coordinator is at ADDR[:PORT] (port 6013 when
+        /// left out), with a daemon registered for each machine the graph names. Node binaries
+        /// must be at the same path on every machine.
+        #[arg(long, value_name = "ADDR[:PORT]")]
+        coordinator: Option<String>,
     },
     /// Run the default graph (both simulated cameras, TFP and TFI) on a built-in scene and print
     /// where the frames and metrics are, with the mean PSNR/SSIM per method.
@@ -235,13 +246,32 @@ fn run(cli: Cli) -> eyre::Result<()> {
             set,
             no_build,
             stop_after_s,
+            one_daemon,
+            coordinator,
         } => {
             let overrides = set
                 .iter()
                 .map(|s| graph::parse_override(s))
                 .collect::<eyre::Result<Vec<_>>>()?;
-            let stop_after = stop_after_s.map(std::time::Duration::from_secs_f64);
-            let report = graph::run(&graph, &overrides, !no_build, stop_after, None)?;
+            let cluster = match coordinator {
+                Some(c) => Some(neuspike::cluster::parse_coordinator(&c)?),
+                None if !one_daemon && neuspike::cluster::places_nodes(&graph)? => {
+                    Some(neuspike::cluster::Cluster::loopback())
+                }
+                None => None,
+            };
+            let report = match cluster {
+                Some(cluster) => {
+                    if stop_after_s.is_some() {
+                        eyre::bail!("--stop-after-s works on one daemon only (add --one-daemon)");
+                    }
+                    neuspike::cluster::run(&graph, &overrides, !no_build, &cluster)?
+                }
+                None => {
+                    let stop_after = stop_after_s.map(std::time::Duration::from_secs_f64);
+                    graph::run(&graph, &overrides, !no_build, stop_after, None)?
+                }
+            };
             report.print();
             report.into_result()
         }
