@@ -4,9 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use eyre::{WrapErr, bail};
-use neuspike_sink::report::SummaryFile;
+use neuspike_sink::report::{LatencyWindow, SummaryFile};
 
-use crate::graph;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::{graph, soak};
 
 /// The live graph, built into the program.
 pub const LIVE_GRAPH: &str = include_str!("../graphs/spike-tfp-live.yml");
@@ -38,6 +41,11 @@ pub struct LiveBenchOptions {
     /// Folder of the graph and its frames.
     #[arg(long, default_value = "out/bench-live")]
     pub out: PathBuf,
+    /// Soak: sample every process's resident memory each second (`rss.csv`), print it with the
+    /// latency of each minute, and fail unless memory stays flat, nothing is lost and latency
+    /// does not grow (see `scripts/soak.sh`).
+    #[arg(long)]
+    pub soak: bool,
 }
 
 /// One run's figures.
@@ -55,6 +63,8 @@ pub struct LiveRun {
     pub missing: u64,
     /// Latency p50 and p99, milliseconds.
     pub latency_ms: Option<(f64, f64)>,
+    /// Latency over each minute.
+    pub minutes: Vec<LatencyWindow>,
 }
 
 impl LiveRun {
@@ -138,6 +148,7 @@ pub fn figures(frames: &Path, camera_s: f64, wall_s: f64) -> eyre::Result<LiveRu
         received: tfp.counts.received,
         missing: tfp.counts.missing,
         latency_ms: tfp.latency.map(|l| (l.p50_ms, l.p99_ms)),
+        minutes: tfp.latency_by_minute.clone(),
     })
 }
 
@@ -151,7 +162,19 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<LiveRun>> {
     );
     let mut runs = Vec::new();
     for _ in 0..opts.runs {
-        let report = graph::run(&path, &[], false, None, None)?;
+        let done = Arc::new(AtomicBool::new(false));
+        let rss_csv = opts.out.canonicalize()?.join("rss.csv");
+        let sampler = opts
+            .soak
+            .then(|| soak::spawn_sampler(rss_csv.clone(), done.clone()));
+        let report = graph::run(&path, &[], false, None, None);
+        done.store(true, Ordering::Relaxed);
+        let samples = match sampler.map(|s| s.join()) {
+            Some(Ok(samples)) => samples?,
+            Some(Err(_)) => bail!("bench-live: the memory sampler panicked"),
+            None => Vec::new(),
+        };
+        let report = report?;
         let wall_s = report.elapsed.as_secs_f64();
         report.into_result()?;
         let r = figures(&frames, opts.seconds, wall_s)?;
@@ -169,6 +192,9 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<LiveRun>> {
             r.expected,
             r.missing
         );
+        if opts.soak {
+            soak::report(&samples, &r.minutes, r.missing, &rss_csv)?;
+        }
         runs.push(r);
     }
     Ok(runs)
@@ -188,6 +214,7 @@ mod tests {
             write_every: 10,
             runs: 1,
             out,
+            soak: false,
         }
     }
 

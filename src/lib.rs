@@ -12,5 +12,6 @@ pub mod dataset;
 pub mod graph;
 pub mod reconstruct;
 pub mod record;
+pub mod soak;
 
 pub mod demo;

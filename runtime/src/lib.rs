@@ -172,6 +172,7 @@ pub enum Pace {
 pub struct Pacer {
     pace: Pace,
     start: Instant,
+    start_unix_ns: i64,
 }
 
 impl Pacer {
@@ -180,18 +181,47 @@ impl Pacer {
         Pacer {
             pace,
             start: Instant::now(),
+            start_unix_ns: unix_now_ns(),
         }
     }
 
     /// Waits until `stream_ns` of camera time have passed since the start (no wait when fast;
-    /// a negative time is due at once).
-    pub fn wait_until(&self, stream_ns: i64) {
-        if self.pace == Pace::Realtime {
-            let due = self.start + Duration::from_nanos(u64::try_from(stream_ns).unwrap_or(0));
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
+    /// a negative time is due at once). Under [`Pace::Realtime`], returns the wall time (ns since
+    /// the epoch) at which a camera would have delivered that data: a source that has fallen
+    /// behind stamps it as its messages' origin ([`Link::set_origin`]), so their latency counts
+    /// the time they waited, as a real camera's buffer would hold them.
+    pub fn wait_until(&self, stream_ns: i64) -> Option<i64> {
+        if self.pace != Pace::Realtime {
+            return None;
         }
+        let stream_ns = stream_ns.max(0);
+        let due = self.start + Duration::from_nanos(stream_ns as u64);
+        let now = Instant::now();
+        if due > now {
+            std::thread::sleep(due - now);
+        }
+        Some(self.start_unix_ns.saturating_add(stream_ns))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_paced_source_learns_when_the_camera_would_have_delivered_its_data() {
+        assert_eq!(Pacer::start(Pace::Fast).wait_until(1_000_000_000), None);
+        let before = unix_now_ns();
+        let p = Pacer::start(Pace::Realtime);
+        let start = Instant::now();
+        // Due 2 ms after the start: waited for, and stamped 2 ms after the start.
+        let due = p.wait_until(2_000_000).expect("paced");
+        assert!(start.elapsed() >= Duration::from_millis(2));
+        assert!(due >= before + 2_000_000 && due <= unix_now_ns(), "{due}");
+        // Past data is due at once, stamped when it was due (a negative time at the start).
+        let t = Instant::now();
+        assert_eq!(p.wait_until(1_000_000), Some(due - 1_000_000));
+        assert_eq!(p.wait_until(-5), Some(due - 2_000_000));
+        assert!(t.elapsed() < Duration::from_millis(50));
     }
 }

@@ -212,6 +212,12 @@ impl Link {
         }
     }
 
+    /// Sets the origin stamp of this node's next messages (ns since the epoch): a paced source
+    /// stamps when the camera would have delivered its data ([`crate::Pacer::wait_until`]).
+    pub fn set_origin(&mut self, unix_ns: i64) {
+        self.origin_unix_ns = Some(unix_ns);
+    }
+
     /// A message was taken: its origin stamp, if newer, is what this node's next messages carry.
     pub(crate) fn saw(&mut self, meta: &neuspike_schemas::Meta) {
         if let Some(neuspike_schemas::Parameter::Integer(t)) = meta.get(ORIGIN_UNIX_NS) {

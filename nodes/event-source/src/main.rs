@@ -63,7 +63,9 @@ fn run(
         let Some(step) = source.next_step()? else {
             return Ok(Flow::Stop);
         };
-        pacer.wait_until(step.due_ns);
+        if let Some(due_unix_ns) = pacer.wait_until(step.due_ns) {
+            out.set_origin(due_unix_ns);
+        }
         out.send("events", &step.batch)?;
         Ok(Flow::Continue)
     });

@@ -57,7 +57,8 @@ fn run(
                     sink.on_truth(f)?;
                 } else {
                     if let Some(Parameter::Integer(origin)) = meta.get(ORIGIN_UNIX_NS) {
-                        sink.on_latency(input, unix_now_ns().saturating_sub(*origin));
+                        let now = unix_now_ns();
+                        sink.on_latency(input, now.saturating_sub(*origin), now);
                     }
                     sink.on_frame(input, f)?;
                 }

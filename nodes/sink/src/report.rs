@@ -266,8 +266,138 @@ pub struct Summary {
     counts: BTreeMap<String, InputCounts>,
     /// `(write_every, score_every)` when either is above 1.
     sampling: Option<(u64, u64)>,
-    /// Latencies by input, nanoseconds.
-    latency_ns: BTreeMap<String, Vec<i64>>,
+    /// Latency by input.
+    latency: BTreeMap<String, LatencyTrack>,
+}
+
+/// Length of one window of [`LatencyTrack::windows`]: a minute of wall time.
+pub const LATENCY_WINDOW_NS: i64 = 60_000_000_000;
+
+/// The latency of one stream: percentiles over the whole run and over each minute, in memory that
+/// does not grow with the run (histograms of microseconds, 3 significant digits: a percentile is
+/// within 0.1% of the exact one; the largest is exact).
+#[derive(Clone, Debug)]
+pub struct LatencyTrack {
+    all: Histogram,
+    max_ns: i64,
+    window: Histogram,
+    window_max_ns: i64,
+    /// Wall time the current window started, ns since the epoch; `None` before the first frame.
+    window_start_ns: Option<i64>,
+    /// Wall time of the first frame.
+    first_ns: i64,
+    windows: Vec<LatencyWindow>,
+}
+
+/// Histogram of latencies in microseconds, 1 us to an hour.
+#[derive(Clone, Debug)]
+struct Histogram(hdrhistogram::Histogram<u64>);
+
+impl Histogram {
+    const MAX_US: u64 = 3_600_000_000;
+
+    fn new() -> Self {
+        // Bounds and precision are constants in range: construction cannot fail.
+        Histogram(
+            hdrhistogram::Histogram::new_with_bounds(1, Self::MAX_US, 3)
+                .unwrap_or_else(|_| unreachable!("valid histogram bounds")),
+        )
+    }
+
+    /// Records `ns`, clamped to [1 us, 1 h] (a negative latency, from clocks that disagree, counts
+    /// as 1 us).
+    fn record(&mut self, ns: i64) {
+        let us = (ns / 1000).clamp(1, Self::MAX_US as i64) as u64;
+        self.0.saturating_record(us);
+    }
+
+    /// The figures, with `max_ns` as the largest; `None` when empty.
+    fn figures(&self, max_ns: i64) -> Option<Latency> {
+        let h = &self.0;
+        let ms = |q: f64| h.value_at_quantile(q) as f64 * 1e-3;
+        (h.len() > 0).then(|| Latency {
+            frames: h.len() as usize,
+            p50_ms: ms(0.50),
+            p99_ms: ms(0.99),
+            max_ms: max_ns as f64 * 1e-6,
+        })
+    }
+}
+
+impl LatencyTrack {
+    fn new() -> Self {
+        LatencyTrack {
+            all: Histogram::new(),
+            max_ns: i64::MIN,
+            window: Histogram::new(),
+            window_max_ns: i64::MIN,
+            window_start_ns: None,
+            first_ns: 0,
+            windows: Vec::new(),
+        }
+    }
+
+    /// Records a frame's latency `ns`, received at wall time `at_ns`.
+    fn add(&mut self, ns: i64, at_ns: i64) {
+        let start = *self.window_start_ns.get_or_insert_with(|| {
+            self.first_ns = at_ns;
+            at_ns
+        });
+        if at_ns.saturating_sub(start) >= LATENCY_WINDOW_NS {
+            self.close_window();
+            // The next window starts on the minute grid of the first frame.
+            let minutes = at_ns.saturating_sub(self.first_ns) / LATENCY_WINDOW_NS;
+            self.window_start_ns = Some(self.first_ns + minutes * LATENCY_WINDOW_NS);
+        }
+        self.all.record(ns);
+        self.max_ns = self.max_ns.max(ns);
+        self.window.record(ns);
+        self.window_max_ns = self.window_max_ns.max(ns);
+    }
+
+    fn close_window(&mut self) {
+        if let (Some(start), Some(l)) = (
+            self.window_start_ns,
+            self.window.figures(self.window_max_ns),
+        ) {
+            self.windows.push(LatencyWindow {
+                start_s: (start.saturating_sub(self.first_ns) / 1_000_000_000) as u64,
+                latency: l,
+            });
+        }
+        self.window.0.reset();
+        self.window_max_ns = i64::MIN;
+    }
+
+    /// The whole run's figures.
+    pub fn overall(&self) -> Option<Latency> {
+        self.all.figures(self.max_ns)
+    }
+
+    /// Each minute's figures, the current one included, oldest first.
+    pub fn windows(&self) -> Vec<LatencyWindow> {
+        let mut v = self.windows.clone();
+        if let (Some(start), Some(l)) = (
+            self.window_start_ns,
+            self.window.figures(self.window_max_ns),
+        ) {
+            v.push(LatencyWindow {
+                start_s: (start.saturating_sub(self.first_ns) / 1_000_000_000) as u64,
+                latency: l,
+            });
+        }
+        v
+    }
+}
+
+/// The latency of one minute of a stream.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LatencyWindow {
+    /// Seconds from the stream's first frame to the window's start.
+    pub start_s: u64,
+    /// The window's figures.
+    #[serde(flatten)]
+    pub latency: Latency,
 }
 
 /// The latency of a stream, milliseconds.
@@ -277,27 +407,10 @@ pub struct Latency {
     pub frames: usize,
     /// Median.
     pub p50_ms: f64,
-    /// 99th percentile (nearest rank).
+    /// 99th percentile.
     pub p99_ms: f64,
     /// Largest.
     pub max_ms: f64,
-}
-
-impl Latency {
-    /// The figures of `ns` (`None` when empty).
-    pub fn of(ns: &[i64]) -> Option<Latency> {
-        let mut v = ns.to_vec();
-        v.sort_unstable();
-        let n = v.len();
-        // Nearest rank: the smallest value with at least p% of the values at or below it.
-        let rank = |p: usize| v[(n * p).div_ceil(100).clamp(1, n) - 1] as f64 * 1e-6;
-        (n > 0).then(|| Latency {
-            frames: n,
-            p50_ms: rank(50),
-            p99_ms: rank(99),
-            max_ms: v[n - 1] as f64 * 1e-6,
-        })
-    }
 }
 
 impl Summary {
@@ -318,19 +431,22 @@ impl Summary {
         self.counts.insert(counts.input.clone(), counts);
     }
 
-    /// Records one frame's latency on `input`, nanoseconds.
-    pub fn add_latency(&mut self, input: &str, ns: i64) {
-        self.latency_ns
-            .entry(input.to_string())
-            .or_default()
-            .push(ns);
+    /// Records one frame's latency on `input`, nanoseconds, received at wall time `at_ns` (ns
+    /// since the epoch; it places the frame in its minute).
+    pub fn add_latency(&mut self, input: &str, ns: i64, at_ns: i64) {
+        if !self.latency.contains_key(input) {
+            self.latency.insert(input.to_string(), LatencyTrack::new());
+        }
+        if let Some(t) = self.latency.get_mut(input) {
+            t.add(ns, at_ns);
+        }
     }
 
     /// The latency of each input that had any, sorted by input.
     pub fn latencies(&self) -> Vec<(String, Latency)> {
-        self.latency_ns
+        self.latency
             .iter()
-            .filter_map(|(k, v)| Latency::of(v).map(|l| (k.clone(), l)))
+            .filter_map(|(k, t)| t.overall().map(|l| (k.clone(), l)))
             .collect()
     }
 
@@ -429,6 +545,33 @@ impl Summary {
                     l.max_ms
                 );
             }
+            let minutes: Vec<(&String, Vec<LatencyWindow>)> = self
+                .latency
+                .iter()
+                .map(|(k, t)| (k, t.windows()))
+                .filter(|(_, w)| w.len() > 1)
+                .collect();
+            if !minutes.is_empty() {
+                latency.push_str(
+                    "\nBy minute of the run:\n\n| input | from s | frames | p50 ms | p99 ms | max ms |\n\
+                     |---|---:|---:|---:|---:|---:|\n",
+                );
+                for (input, windows) in minutes {
+                    for w in windows {
+                        let l = w.latency;
+                        let _ = writeln!(
+                            latency,
+                            "| {} | {} | {} | {:.2} | {:.2} | {:.2} |",
+                            input.replace('|', "\\|"),
+                            w.start_s,
+                            l.frames,
+                            l.p50_ms,
+                            l.p99_ms,
+                            l.max_ms
+                        );
+                    }
+                }
+            }
         }
         let sampling = match self.sampling {
             Some((w, s)) => format!(
@@ -461,6 +604,11 @@ impl Summary {
                         InputFigures {
                             counts: c.clone(),
                             latency: latency.get(&c.input).copied(),
+                            latency_by_minute: self
+                                .latency
+                                .get(&c.input)
+                                .map(LatencyTrack::windows)
+                                .unwrap_or_default(),
                         },
                     )
                 })
@@ -499,6 +647,9 @@ pub struct InputFigures {
     pub counts: InputCounts,
     /// Latency, when the frames carried their origin.
     pub latency: Option<Latency>,
+    /// Latency over each minute of the run (wall clock, from the first frame).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub latency_by_minute: Vec<LatencyWindow>,
 }
 
 /// `summary.yml`: what a program reads of a run (the Markdown summary is for people).
@@ -670,32 +821,49 @@ mod tests {
     }
 
     #[test]
-    fn latency_percentiles_are_nearest_rank_and_reported_per_input() {
-        assert_eq!(Latency::of(&[]), None);
-        let ns: Vec<i64> = (1..=200).rev().map(|i| i * 1_000_000).collect();
-        let l = Latency::of(&ns).expect("figures");
-        assert_eq!(
-            (l.frames, l.p50_ms, l.p99_ms, l.max_ms),
-            (200, 100.0, 198.0, 200.0)
-        );
-        let one = Latency::of(&[2_500_000]).expect("one");
-        assert_eq!((one.p50_ms, one.p99_ms), (2.5, 2.5));
+    fn latency_percentiles_are_within_a_thousandth_and_reported_per_input_and_minute() {
         let mut s = Summary::new();
+        assert!(s.latencies().is_empty());
         assert!(!s.to_markdown().contains("## Latency"));
-        s.add_latency("tfp", 1_000_000);
-        s.add_latency("tfp", 3_000_000);
+        // 1..=200 ms, one frame a second: p50 100 ms, p99 198 ms (nearest rank), max 200 ms.
+        for i in (1..=200i64).rev() {
+            s.add_latency("tfp", i * 1_000_000, (200 - i) * 1_000_000_000);
+        }
+        let (_, l) = s.latencies().remove(0);
+        let near = |a: f64, b: f64| (a - b).abs() <= b * 1e-3;
+        assert_eq!(l.frames, 200);
+        assert!(near(l.p50_ms, 100.0) && near(l.p99_ms, 198.0), "{l:?}");
+        assert_eq!(l.max_ms, 200.0);
+        // 200 s: windows from 0, 60, 120 and 180 s; the last holds 20 frames, the first 60.
+        let w = s.latency["tfp"].windows();
+        assert_eq!(
+            w.iter().map(|w| w.start_s).collect::<Vec<_>>(),
+            [0, 60, 120, 180]
+        );
+        assert_eq!(
+            w.iter().map(|w| w.latency.frames).collect::<Vec<_>>(),
+            [60, 60, 60, 20]
+        );
+        assert_eq!(w[0].latency.max_ms, 200.0);
+        assert_eq!(w[3].latency.max_ms, 20.0);
         let md = s.to_markdown();
-        assert!(md.contains("| tfp | 2 | 1.00 | 3.00 | 3.00 |"), "{md}");
-        s.set_counts(counts("tfp", 2, 2, 0, true));
+        assert!(md.contains("| tfp | 200 | "), "{md}");
+        assert!(md.contains("| tfp | 180 | 20 | "), "{md}");
+        s.set_counts(counts("tfp", 200, 200, 0, true));
         let file = s.to_file();
         let back: SummaryFile =
             serde_yaml::from_str(&serde_yaml::to_string(&file).expect("yaml")).expect("read");
         assert_eq!(back, file);
         let tfp = &back.inputs["tfp"];
-        assert_eq!(
-            (tfp.counts.received, tfp.latency.map(|l| l.p99_ms)),
-            (2, Some(3.0))
-        );
+        assert_eq!(tfp.counts.received, 200);
+        assert_eq!(tfp.latency_by_minute.len(), 4);
+        // Out-of-range latencies are clamped, never lost.
+        let mut t = Summary::new();
+        t.add_latency("x", -5, 0);
+        t.add_latency("x", i64::MAX, 1);
+        let (_, l) = t.latencies().remove(0);
+        assert_eq!(l.frames, 2);
+        assert!(l.p50_ms > 0.0 && l.p99_ms <= 3.6e6 * 1.001, "{l:?}");
     }
 
     #[test]

@@ -144,9 +144,9 @@ impl Sink {
     }
 
     /// Records that a frame of `input` reached the sink `latency_ns` after the newest camera
-    /// data it derives from left its source.
-    pub fn on_latency(&mut self, input: &str, latency_ns: i64) {
-        self.summary.add_latency(input, latency_ns);
+    /// data it derives from left its source, at wall time `at_unix_ns` (ns since the epoch).
+    pub fn on_latency(&mut self, input: &str, latency_ns: i64, at_unix_ns: i64) {
+        self.summary.add_latency(input, latency_ns, at_unix_ns);
     }
 
     /// Takes a reconstructed frame from `input`.
