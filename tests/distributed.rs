@@ -220,7 +220,7 @@ fn the_distributed_graph_crosses_a_network_link_without_loss_and_as_on_one_machi
     let lat = two
         .out_dirs
         .first()
-        .map(|d| summary(d).inputs["tfp"].latency.clone());
+        .and_then(|d| summary(d).inputs["tfp"].latency);
     eprintln!(
         "two machines: {:.2} s, latency {lat:?}",
         two.elapsed.as_secs_f64()

@@ -73,18 +73,18 @@ impl CreditLedger {
             .grants
             .iter()
             .filter_map(|(source, n)| source.strip_prefix(&prefix).map(|o| (o, *n)));
+        let mine: Vec<(&str, u64)> = mine.collect();
         match consumer {
             Consumer::Gone => {}
-            Consumer::Waiting => {
-                if !credit.hello {
-                    tracing::warn!(
-                        input,
-                        "credits before the consumer's first message: ignored"
-                    );
+            // A first message, or a restarted consumer's (or one that saw this producer restart):
+            // the windows start over.
+            Consumer::Waiting | Consumer::Ready(_) if credit.hello => {
+                if mine.is_empty() && matches!(consumer, Consumer::Ready(_)) {
+                    // A hello for the consumer's other producers.
                     return;
                 }
                 let mut outputs = BTreeMap::new();
-                for (o, n) in mine {
+                for &(o, n) in &mine {
                     let w = outputs
                         .entry(o.to_string())
                         .or_insert(Window { left: 0, size: 0 });
@@ -92,6 +92,12 @@ impl CreditLedger {
                     w.size += n;
                 }
                 *consumer = Consumer::Ready(outputs);
+            }
+            Consumer::Waiting => {
+                tracing::warn!(
+                    input,
+                    "credits before the consumer's first message: ignored"
+                );
             }
             Consumer::Ready(outputs) => {
                 for (o, n) in mine {
@@ -206,6 +212,25 @@ impl CreditReturns {
                 .values()
                 .map(|r| (r.source.clone(), r.window))
                 .collect(),
+        })
+    }
+
+    /// The producer `node` was restarted: its new process waits for a first message, this one,
+    /// which grants every input it feeds its whole window again (`None` when it feeds none).
+    pub fn hello_for(&mut self, node: &str) -> Option<Credit> {
+        let prefix = format!("{node}/");
+        let grants: Vec<(String, u64)> = self
+            .inputs
+            .values_mut()
+            .filter(|r| r.source.starts_with(&prefix))
+            .map(|r| {
+                r.pending = 0;
+                (r.source.clone(), r.window)
+            })
+            .collect();
+        (!grants.is_empty()).then_some(Credit {
+            hello: true,
+            grants,
         })
     }
 

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use dora_node_api::Event;
 use neuspike_schemas::arrow::array::ArrayRef;
-use neuspike_schemas::meta::SEQ;
+use neuspike_schemas::meta::{CUT, LINK_N, SEQ};
 use neuspike_schemas::{Meta, MetaExt, SeqStatus, SeqTracker, is_end_of_stream};
 
 use crate::Link;
@@ -52,7 +52,10 @@ pub struct InputState {
     /// Whether the stream ended: its end-of-stream marker arrived, or dora closed it and
     /// nothing came for [`CLOSE_GRACE`] (then `broken` too).
     pub ended: bool,
-    /// Whether it ended without its marker: its sender failed.
+    /// The [`LINK_N`] the next message should carry.
+    next_link_n: u64,
+    /// Whether it was cut short: it ended without its marker (its sender failed), or its marker
+    /// said a node upstream failed.
     pub broken: bool,
 }
 
@@ -135,19 +138,24 @@ impl Inputs {
             tracing::warn!(input, "a message after the end-of-stream marker: ignored");
             return Ok(false);
         }
-        // A marker's position is the count it announces: it comes after every message.
-        let pos = match is_end_of_stream(&meta) {
-            Some(count) => count,
-            None => meta
+        // Its place among what the sender sent; from a sender that does not count, its sequence
+        // number (a marker's: the count it announces, after every message).
+        let pos = match (meta.get(LINK_N), is_end_of_stream(&meta)) {
+            (Some(neuspike_schemas::Parameter::Integer(n)), _) if *n >= 0 => *n as u64,
+            (_, Some(count)) => count,
+            _ => meta
                 .uint("message", SEQ)
                 .map_err(|e| eyre::eyre!("input `{input}`: {e}"))?,
         };
+        let seq = meta.uint("message", SEQ).ok();
         let queue = self.waiting.entry(input.to_string()).or_default();
         match queue.push(pos, (meta, data), now) {
             Pushed::Held => Ok(true),
             Pushed::Late => {
-                let _ = state.seq.observe(pos);
-                tracing::warn!(input, seq = pos, "a message came after its turn: dropped");
+                if let Some(seq) = seq {
+                    let _ = state.seq.observe(seq);
+                }
+                tracing::warn!(input, ?seq, "a message came after its turn: dropped");
                 Ok(false)
             }
         }
@@ -183,6 +191,18 @@ impl Inputs {
     fn close(&mut self, input: &str, now: Instant) {
         if self.streams.get(input).is_some_and(|s| !s.ended) {
             self.closed.entry(input.to_string()).or_insert(now);
+        }
+    }
+
+    /// The sender of `input` was restarted: a close seen before is forgotten, and the new
+    /// process counts what it sends from 0.
+    fn reopen(&mut self, input: &str) {
+        self.closed.remove(input);
+        if let Some(s) = self.streams.get_mut(input) {
+            s.next_link_n = 0;
+        }
+        if let Some(q) = self.waiting.get_mut(input) {
+            q.restart();
         }
     }
 
@@ -224,6 +244,10 @@ impl Inputs {
         if let Some(count) = is_end_of_stream(meta) {
             let lost = state.seq.end(count);
             state.ended = true;
+            if meta.flag(CUT) {
+                tracing::error!(input, "the stream was cut short: a node upstream failed");
+                state.broken = true;
+            }
             if lost > 0 {
                 tracing::error!(input, lost, "messages lost at the end of the stream");
             }
@@ -243,14 +267,26 @@ impl Inputs {
                 0
             }
         };
-        Ok(Accepted::Message { lost })
+        // The credits of messages lost on the way: a gap in the sender's count of what it sent
+        // (messages never made, a gap in `seq` alone, took none). A sender that does not count
+        // (not neuspike's runtime) has its `seq` gaps taken as lost on the way.
+        let on_the_way = match meta.get(LINK_N) {
+            Some(neuspike_schemas::Parameter::Integer(n)) if *n >= 0 => {
+                let n = *n as u64;
+                let gap = n.saturating_sub(state.next_link_n);
+                state.next_link_n = state.next_link_n.max(n + 1);
+                gap
+            }
+            _ => lost,
+        };
+        Ok(Accepted::Message { on_the_way })
     }
 }
 
 enum Accepted {
-    /// A message, after `lost` that never came.
+    /// A message, after `on_the_way` that its sender sent and never came.
     Message {
-        lost: u64,
+        on_the_way: u64,
     },
     End(u64),
 }
@@ -296,8 +332,13 @@ pub fn receive(
     loop {
         while let Some((input, (meta, data))) = inputs.next_due(Instant::now(), flush) {
             let flow = match inputs.accept(&input, &meta)? {
-                Accepted::End(count) => end_input(link, &input, count, &mut on)?,
-                Accepted::Message { lost } => {
+                Accepted::End(count) => {
+                    if inputs.get(&input).is_some_and(|s| s.broken) {
+                        link.mark_cut();
+                    }
+                    end_input(link, &input, count, &mut on)?
+                }
+                Accepted::Message { on_the_way } => {
                     link.saw(&meta);
                     let flow = on(
                         link,
@@ -307,7 +348,7 @@ pub fn receive(
                             data: &data,
                         },
                     )?;
-                    link.taken(&input, lost)?;
+                    link.taken(&input, on_the_way)?;
                     flow
                 }
             };
@@ -321,6 +362,7 @@ pub fn receive(
         }
         // An input whose sender failed ends as if its marker had come: the node finishes.
         for (input, count) in inputs.expire(Instant::now()) {
+            link.mark_cut();
             let flow = end_input(link, &input, count, &mut on)?;
             if flow == Flow::Stop || inputs.all_ended() {
                 link.log_drops();
@@ -334,12 +376,18 @@ pub fn receive(
             link.log_drops();
             return Ok(());
         }
-        let polled = match inputs.deadline() {
+        link.greet_restarted(Instant::now())?;
+        let deadline = match (inputs.deadline(), link.next_greeting()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        let polled = match deadline {
             Some(deadline) => link.next_event_until(deadline)?,
             None => link.next_event()?.map_or(Polled::Ended, Polled::Event),
         };
         match polled {
             Polled::Event(Event::Input { id, metadata, data }) => {
+                link.heard_on(id.as_ref());
                 let meta = meta_from_dora(&metadata.parameters);
                 inputs.arrive(id.as_ref(), meta, data.as_array().clone(), Instant::now())?;
                 link.log_drops();
@@ -347,6 +395,15 @@ pub fn receive(
             Polled::Event(Event::InputClosed { id }) => {
                 tracing::debug!(input = %id, "input closed");
                 inputs.close(id.as_ref(), Instant::now());
+            }
+            Polled::Event(Event::NodeRestarted { id }) => {
+                tracing::warn!(
+                    node = %id,
+                    "a producer was restarted: its stream goes on, what it missed is counted as a gap"
+                );
+                for input in link.producer_restarted(id.as_ref())? {
+                    inputs.reopen(&input);
+                }
             }
             Polled::Event(Event::Stop(cause)) => {
                 tracing::debug!(?cause, "stop received; draining the inputs")
@@ -379,6 +436,36 @@ pub(crate) mod tests {
             seq,
             data: ndarray::Array2::zeros((1, 2)),
         }
+    }
+
+    #[test]
+    fn a_stream_cut_upstream_cuts_the_streams_this_node_makes() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut c = CannedInputs::new(dir.path());
+        c.message("a", &frame(0)).expect("a0");
+        let (mut meta, data) = neuspike_schemas::end_of_stream::<Frame>(1);
+        meta.insert(CUT.to_string(), neuspike_schemas::Parameter::Bool(true));
+        c.raw("a", meta, data).expect("cut marker");
+        let mut inputs = Inputs::new(["a"]);
+        let mut cut = false;
+        let sent = c
+            .run(|node, events| {
+                let mut link = Link::new(node, events)?;
+                link.declare::<Frame>("f");
+                receive(&mut link, &mut inputs, |link, msg| {
+                    if let Received::Message { meta, data, .. } = msg {
+                        link.send("f", &Frame::from_arrow(meta, data)?)?;
+                    }
+                    Ok(Flow::Continue)
+                })?;
+                cut = link.is_cut();
+                link.end_all()
+            })
+            .expect("run");
+        let a = inputs.get("a").expect("a");
+        assert!(a.ended && a.broken);
+        assert_eq!(crate::testing::output_ids(&sent), ["f", "f"]);
+        assert!(cut, "the node's own marker is flagged cut");
     }
 
     #[test]

@@ -25,11 +25,13 @@ mod inputs;
 mod link;
 mod metadata;
 pub mod reorder;
+mod resume;
 pub mod testing;
 
 pub use inputs::{Flow, InputState, Inputs, Received, receive};
 pub use link::{Link, produce, unix_now_ns};
 pub use metadata::{meta_from_dora, meta_to_dora};
+pub use resume::Resume;
 
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
@@ -185,6 +187,28 @@ impl Pacer {
         }
     }
 
+    /// A clock that started at `start_unix_ns` (ns since the epoch; a later time counts as now):
+    /// a restarted source's, on its first start's clock ([`Resume`]).
+    pub fn started_at(pace: Pace, start_unix_ns: i64) -> Self {
+        let now = Instant::now();
+        let now_unix = unix_now_ns();
+        let ago = u64::try_from(now_unix.saturating_sub(start_unix_ns)).unwrap_or(0);
+        let start = now.checked_sub(Duration::from_nanos(ago)).unwrap_or(now);
+        Pacer {
+            pace,
+            start,
+            start_unix_ns: start_unix_ns.min(now_unix),
+        }
+    }
+
+    /// Camera time since the clock's start, ns (0 when not paced: a fast source has no clock).
+    pub fn elapsed_ns(&self) -> i64 {
+        match self.pace {
+            Pace::Realtime => i64::try_from(self.start.elapsed().as_nanos()).unwrap_or(i64::MAX),
+            Pace::Fast => 0,
+        }
+    }
+
     /// Waits until `stream_ns` of camera time have passed since the start (no wait when fast;
     /// a negative time is due at once). Under [`Pace::Realtime`], returns the wall time (ns since
     /// the epoch) at which a camera would have delivered that data: a source that has fallen
@@ -223,5 +247,10 @@ mod tests {
         assert_eq!(p.wait_until(1_000_000), Some(due - 1_000_000));
         assert_eq!(p.wait_until(-5), Some(due - 2_000_000));
         assert!(t.elapsed() < Duration::from_millis(50));
+        // A restarted source's clock runs from its first start.
+        let earlier = Pacer::started_at(Pace::Realtime, unix_now_ns() - 3_000_000_000);
+        let e = earlier.elapsed_ns();
+        assert!((3_000_000_000..3_100_000_000).contains(&e), "{e}");
+        assert_eq!(Pacer::started_at(Pace::Fast, 0).elapsed_ns(), 0);
     }
 }

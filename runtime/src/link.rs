@@ -11,7 +11,7 @@ use dora_node_api::{DoraArray, DoraNode, Event, EventStream, StopCause};
 use eyre::WrapErr;
 use neuspike_schemas::arrow::array::new_empty_array;
 use neuspike_schemas::arrow::datatypes::DataType;
-use neuspike_schemas::meta::{ORIGIN_UNIX_NS, SEQ};
+use neuspike_schemas::meta::{CUT, LINK_N, ORIGIN_UNIX_NS, SEQ};
 use neuspike_schemas::{Credit, Message, MetaExt, end_of_stream_header};
 
 use crate::Flow;
@@ -33,6 +33,8 @@ struct Output {
     data_type: DataType,
     /// One past the highest sequence number sent (or the floor set by [`Link::at_least`]).
     count: u64,
+    /// Messages sent on it (the next one's [`LINK_N`]).
+    sent: u64,
     ended: bool,
 }
 
@@ -58,7 +60,23 @@ pub struct Link {
     stop: bool,
     /// The newest origin stamp among the messages taken so far (see [`ORIGIN_UNIX_NS`]).
     origin_unix_ns: Option<i64>,
+    /// Whether this node's streams are cut short: it failed, or an input of it was ([`CUT`]).
+    cut: bool,
+    /// Producers dora restarted whose new process has not been heard from yet.
+    restarted: Vec<Restarted>,
 }
+
+/// A producer dora restarted: the inputs it feeds, and when to send it its credits again (dora
+/// tells of the restart before the new process listens, so the first credits may be lost).
+#[derive(Debug)]
+struct Restarted {
+    producer: String,
+    inputs: Vec<String>,
+    next: Instant,
+}
+
+/// How often a restarted producer is sent its credits until a message from it arrives.
+const GREET_EVERY: std::time::Duration = std::time::Duration::from_millis(200);
 
 /// Now, Unix nanoseconds (0 before 1970, saturated after 2262).
 pub fn unix_now_ns() -> i64 {
@@ -118,6 +136,8 @@ impl Link {
             returns,
             stop: false,
             origin_unix_ns: None,
+            cut: false,
+            restarted: Vec::new(),
         };
         if let Some(hello) = link.returns.hello() {
             link.send_credit(&hello)?;
@@ -210,6 +230,77 @@ impl Link {
                 tracing::error!(input = %input, dropped = n, "dora dropped messages: a queue was full");
             }
         }
+    }
+
+    /// The producer `producer` was restarted by dora: its new process gets this node's credits
+    /// afresh. Returns the inputs it feeds.
+    ///
+    /// # Errors
+    /// The credits could not be sent.
+    pub(crate) fn producer_restarted(&mut self, producer: &str) -> eyre::Result<Vec<String>> {
+        let fed: Vec<String> = self
+            .node
+            .node_config()
+            .inputs
+            .iter()
+            .filter(|(id, input)| {
+                !self.ledger.is_credit_input(id.as_ref())
+                    && matches!(&input.mapping, InputMapping::User(u) if AsRef::<str>::as_ref(&u.source) == producer)
+            })
+            .map(|(id, _)| id.to_string())
+            .collect();
+        if let Some(hello) = self.returns.hello_for(producer) {
+            self.send_credit(&hello)?;
+        }
+        self.restarted.retain(|r| r.producer != producer);
+        self.restarted.push(Restarted {
+            producer: producer.to_string(),
+            inputs: fed.clone(),
+            next: Instant::now() + GREET_EVERY,
+        });
+        Ok(fed)
+    }
+
+    /// A message arrived on `input`: the restarted producer feeding it has its credits.
+    pub(crate) fn heard_on(&mut self, input: &str) {
+        if !self.restarted.is_empty() {
+            self.restarted
+                .retain(|r| !r.inputs.iter().any(|i| i == input));
+        }
+    }
+
+    /// When a restarted producer not heard from is next sent its credits again.
+    pub(crate) fn next_greeting(&self) -> Option<Instant> {
+        self.restarted.iter().map(|r| r.next).min()
+    }
+
+    /// Sends their credits again to the restarted producers not heard from, when due.
+    ///
+    /// # Errors
+    /// The credits could not be sent.
+    pub(crate) fn greet_restarted(&mut self, now: Instant) -> eyre::Result<()> {
+        for i in 0..self.restarted.len() {
+            if self.restarted[i].next > now {
+                continue;
+            }
+            self.restarted[i].next = now + GREET_EVERY;
+            let producer = self.restarted[i].producer.clone();
+            if let Some(hello) = self.returns.hello_for(&producer) {
+                self.send_credit(&hello)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Marks this node's streams as cut short (their end-of-stream markers say so, see [`CUT`]):
+    /// the node failed, or a stream it reads was cut.
+    pub fn mark_cut(&mut self) {
+        self.cut = true;
+    }
+
+    /// Whether this node's streams are cut short (see [`Link::mark_cut`]).
+    pub fn is_cut(&self) -> bool {
+        self.cut
     }
 
     /// Sets the origin stamp of this node's next messages (ns since the epoch): a paced source
@@ -307,6 +398,7 @@ impl Link {
                 id: DataId::from(id.to_string()),
                 data_type: M::data_type(),
                 count: 0,
+                sent: 0,
                 ended: false,
             });
         }
@@ -350,6 +442,8 @@ impl Link {
         self.ledger.spend(id);
         let out = self.output(id)?;
         out.count = out.count.max(seq.saturating_add(1));
+        meta.set_int(LINK_N, i64::try_from(out.sent).unwrap_or(i64::MAX));
+        out.sent += 1;
         self.node
             .send_output(dora_id, meta_to_dora(&meta), DoraArray::from(data))
             .wrap_err_with(|| format!("failed to send on output `{id}`"))
@@ -383,7 +477,12 @@ impl Link {
             }
             self.outputs[i].ended = true;
             let id = self.outputs[i].id.clone();
-            let meta = end_of_stream_header(self.outputs[i].count);
+            let mut meta = end_marker(self.outputs[i].count, self.cut);
+            meta.set_int(
+                LINK_N,
+                i64::try_from(self.outputs[i].sent).unwrap_or(i64::MAX),
+            );
+            self.outputs[i].sent += 1;
             let data = new_empty_array(&self.outputs[i].data_type);
             let sent = self.wait_for_credit(id.as_ref()).and_then(|()| {
                 self.ledger.spend(id.as_ref());
@@ -410,6 +509,16 @@ impl Link {
             None => Ok(()),
         }
     }
+}
+
+/// The header of an output's end-of-stream marker after `count` messages, flagged [`CUT`] when
+/// the stream was cut short.
+pub(crate) fn end_marker(count: u64, cut: bool) -> neuspike_schemas::Meta {
+    let mut meta = end_of_stream_header(count);
+    if cut {
+        meta.insert(CUT.to_string(), neuspike_schemas::Parameter::Bool(true));
+    }
+    meta
 }
 
 /// Runs a source: calls `step` (which sends the next messages on `link`) until it returns
@@ -440,6 +549,9 @@ pub fn produce(
             Err(e) => break Err(e),
         }
     };
+    if result.is_err() {
+        link.mark_cut();
+    }
     let ended = link.end_all();
     result.and(ended)
 }
@@ -496,10 +608,24 @@ mod tests {
                 let e = r.expect_err("the step's error").to_string();
                 assert!(e.contains("recording broke"), "{e}");
                 assert_eq!(out.count("f"), 2);
+                // Its marker says the stream was cut short.
+                assert!(out.is_cut());
                 Ok(())
             })
             .expect("run");
         assert_eq!(output_ids(&sent), ["f", "f", "f"]);
         assert_eq!(payload_len(&sent[2]), 0, "ended after the error");
+    }
+
+    #[test]
+    fn a_marker_says_whether_its_stream_was_cut_short() {
+        use neuspike_schemas::{MetaExt, is_end_of_stream};
+        let whole = end_marker(7, false);
+        let cut = end_marker(7, true);
+        assert_eq!(
+            (is_end_of_stream(&whole), is_end_of_stream(&cut)),
+            (Some(7), Some(7))
+        );
+        assert!(!whole.flag(CUT) && cut.flag(CUT));
     }
 }

@@ -6,7 +6,7 @@
 //! before its turn until the ones before it arrive, and gives up on a missing one (a loss, then
 //! counted as a gap) after a wait or once it holds too many.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
 /// How long a message waits for the ones before it before they count as lost.
@@ -29,6 +29,8 @@ pub enum Pushed {
 pub struct Reorder<T> {
     next: u64,
     held: BTreeMap<u64, (T, Instant)>,
+    /// Messages due at once, before anything held: a restarted sender's predecessor's.
+    ready: VecDeque<(u64, T)>,
     max_wait: Duration,
     max_held: usize,
 }
@@ -45,6 +47,7 @@ impl<T> Reorder<T> {
         Reorder {
             next: 0,
             held: BTreeMap::new(),
+            ready: VecDeque::new(),
             max_wait,
             max_held: max_held.max(1),
         }
@@ -62,6 +65,9 @@ impl<T> Reorder<T> {
     /// The next message in order, if its turn has come: it is the next position, or the
     /// messages before it waited too long or too many are held (they count as lost).
     pub fn pop(&mut self, now: Instant) -> Option<(u64, T)> {
+        if let Some(first) = self.ready.pop_front() {
+            return Some(first);
+        }
         let (&pos, (_, since)) = self.held.first_key_value()?;
         let due = pos == self.next
             || now.saturating_duration_since(*since) >= self.max_wait
@@ -76,9 +82,21 @@ impl<T> Reorder<T> {
 
     /// Everything held, in order (the stream ended: nothing more will come).
     pub fn pop_any(&mut self) -> Option<(u64, T)> {
+        if let Some(first) = self.ready.pop_front() {
+            return Some(first);
+        }
         let (pos, (item, _)) = self.held.pop_first()?;
         self.next = pos.saturating_add(1);
         Some((pos, item))
+    }
+
+    /// The sender restarted and numbers its messages from 0 again: what is held is due at once,
+    /// in order, and the new numbering starts.
+    pub fn restart(&mut self) {
+        while let Some((pos, (item, _))) = self.held.pop_first() {
+            self.ready.push_back((pos, item));
+        }
+        self.next = 0;
     }
 
     /// When the first held message stops waiting, if one waits.
@@ -90,12 +108,12 @@ impl<T> Reorder<T> {
 
     /// Messages held.
     pub fn len(&self) -> usize {
-        self.held.len()
+        self.held.len() + self.ready.len()
     }
 
     /// Whether nothing is held.
     pub fn is_empty(&self) -> bool {
-        self.held.is_empty()
+        self.held.is_empty() && self.ready.is_empty()
     }
 }
 
@@ -140,5 +158,21 @@ mod tests {
         r.push(9, 'j', t0);
         assert_eq!(r.pop_any(), Some((9, 'j')));
         assert_eq!(r.len(), 0);
+    }
+
+    #[test]
+    fn after_a_restart_what_is_held_goes_first_and_numbering_starts_again() {
+        let t0 = Instant::now();
+        let mut r = Reorder::new(Duration::from_secs(10), 8);
+        r.push(0, "a", t0);
+        assert_eq!(r.pop(t0), Some((0, "a")));
+        r.push(2, "c", t0); // waits for 1, which the dead sender never sent
+        assert_eq!(r.pop(t0), None);
+        r.restart();
+        assert_eq!(r.push(0, "new-0", t0), Pushed::Held);
+        assert_eq!(r.len(), 2);
+        assert_eq!(r.pop(t0), Some((2, "c")));
+        assert_eq!(r.pop(t0), Some((0, "new-0")));
+        assert!(r.is_empty());
     }
 }

@@ -60,6 +60,13 @@ pub const PARAM_PREFIX: &str = "param.";
 pub const LUM_PER_RATE: &str = "lum_per_rate";
 /// Marks the end-of-stream message.
 pub const EOS: &str = "eos";
+/// A message's place among those its node sent on its output (from 0; the node runtime stamps
+/// it). A gap here is messages lost on the way; a gap in `seq` alone is messages never made (a
+/// window skipped upstream), which took no credit.
+pub const LINK_N: &str = "link_n";
+/// On an end-of-stream marker: the stream was cut short, because its node or a node upstream of
+/// it failed (a bool; absent is false).
+pub const CUT: &str = "cut";
 /// Number of messages sent on an output before its end-of-stream marker.
 pub const COUNT: &str = "count";
 /// Wall-clock time, Unix nanoseconds, at which the newest camera data a message derives from

@@ -166,6 +166,12 @@ impl Aligner {
         self.next_ref = self.ref_plane(self.ref_index, period);
     }
 
+    /// The sequence number of the next window: its place among the stream's windows, those
+    /// skipped for missing planes included, so that consumers count a skipped window as missing.
+    pub fn next_seq(&self) -> u64 {
+        self.emitted + self.skipped_windows
+    }
+
     /// Windows emitted so far.
     pub fn emitted(&self) -> u64 {
         self.emitted
@@ -324,7 +330,7 @@ impl Aligner {
                 n_planes: n,
                 t_first_ns: self.plane_time(first),
                 plane_period_ns: period,
-                seq: self.emitted,
+                seq: self.next_seq(),
                 bits,
                 lum_per_rate: self.lum_per_rate,
             },
@@ -341,7 +347,7 @@ impl Aligner {
         let lo = self.events.t_ns.partition_point(|&t| t < t_start);
         let hi = self.events.t_ns.partition_point(|&t| t < t_end);
         let (w, h) = self.event_size;
-        let mut batch = EventBatch::empty(w, h, t_start, t_end, self.emitted);
+        let mut batch = EventBatch::empty(w, h, t_start, t_end, self.next_seq());
         batch.t_ns.extend_from_slice(&self.events.t_ns[lo..hi]);
         batch.x.extend_from_slice(&self.events.x[lo..hi]);
         batch.y.extend_from_slice(&self.events.y[lo..hi]);
@@ -570,8 +576,10 @@ mod tests {
             a.push_spikes(c).unwrap();
             refs.extend(std::iter::from_fn(|| a.pop_ready()).map(|w| (w.ref_plane, w.seq())));
         }
-        assert_eq!(refs, vec![(2, 0), (12, 1), (14, 2)]);
-        assert_eq!(a.skipped_windows(), 4); // 4, 6, 8, 10
+        // Windows 4, 6, 8 and 10 needed lost planes: skipped, their numbers left as a gap.
+        assert_eq!(refs, vec![(2, 0), (12, 5), (14, 6)]);
+        assert_eq!(a.skipped_windows(), 4);
+        assert_eq!(a.next_seq(), 7);
     }
 
     #[test]

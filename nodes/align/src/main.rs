@@ -79,6 +79,11 @@ fn run(node: DoraNode, events: EventStream, mut aligner: Aligner) -> eyre::Resul
     aligner.close_spikes();
     aligner.close_events();
     send_ready(&mut out, &mut aligner)?;
+    // Windows skipped for missing planes count as sent-and-lost: the markers cover them.
+    out.at_least("windows", aligner.next_seq())?;
+    if aligner.streams_events() {
+        out.at_least("events", aligner.next_seq())?;
+    }
     out.end_all()?;
     tracing::info!(
         windows = aligner.emitted(),

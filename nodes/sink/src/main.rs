@@ -77,6 +77,7 @@ fn run(
             received: s.seq.received(),
             missing: s.seq.missing(),
             ended: s.ended,
+            cut: s.broken,
         };
         (name, tally)
     });

@@ -256,6 +256,10 @@ pub struct InputCounts {
     pub missing: u64,
     /// Whether the input closed with its end-of-stream marker.
     pub ended: bool,
+    /// Whether the stream was cut short because a node upstream failed: the frames after the
+    /// failure were never made, and are not counted as expected.
+    #[serde(default)]
+    pub cut: bool,
 }
 
 /// Per-method summary of a run, built row by row from what goes into `metrics.csv`, plus the frame
@@ -315,7 +319,7 @@ impl Histogram {
     fn figures(&self, max_ns: i64) -> Option<Latency> {
         let h = &self.0;
         let ms = |q: f64| h.value_at_quantile(q) as f64 * 1e-3;
-        (h.len() > 0).then(|| Latency {
+        (!h.is_empty()).then(|| Latency {
             frames: h.len() as usize,
             p50_ms: ms(0.50),
             p99_ms: ms(0.99),
@@ -514,7 +518,9 @@ impl Summary {
                 c.received,
                 c.written,
                 c.missing,
-                if c.ended {
+                if c.cut {
+                    "cut short: a node upstream failed"
+                } else if c.ended {
                     "yes"
                 } else {
                     "no (no end-of-stream marker)"
@@ -742,6 +748,7 @@ mod tests {
             written,
             missing,
             ended,
+            cut: false,
         }
     }
 
@@ -799,6 +806,7 @@ mod tests {
                 written: 3,
                 missing: 1,
                 ended: true,
+                cut: false,
             }
         );
         let md = s.to_markdown();
@@ -814,6 +822,17 @@ mod tests {
                 .contains("a PNG of one frame in 10 (`--write-every 10`), one frame in 1 scored")
         );
         assert!(md.contains(&table), "{md}");
+        // a stream cut short upstream says so
+        let mut cut = counts("tfi", 3, 3, 0, true);
+        cut.cut = true;
+        let mut t = Summary::new();
+        t.set_counts(cut);
+        assert!(
+            t.to_markdown_counts()
+                .contains("| tfi | 3 | 3 | 3 | 0 | cut short: a node upstream failed |"),
+            "{}",
+            t.to_markdown_counts()
+        );
         // a second call replaces the first
         s.set_counts(counts("tfp", 5, 5, 0, true));
         assert_eq!(s.counts()[1].expected, 5);

@@ -57,6 +57,8 @@ pub struct InputTally {
     pub missing: u64,
     /// Whether its end-of-stream marker came.
     pub ended: bool,
+    /// Whether the stream was cut short by a node that failed upstream.
+    pub cut: bool,
 }
 
 /// Writes and scores frames. Frames wait for the ground truth of their instant (or for the truth
@@ -267,6 +269,7 @@ impl Sink {
                 written: self.written.get(name).copied().unwrap_or(0),
                 missing: t.missing,
                 ended: t.ended,
+                cut: t.cut,
             });
         }
         self.summary
@@ -313,6 +316,106 @@ mod tests {
         }
     }
 
+    /// A tmpfs mounted on `dir` with `opts` (root only), unmounted when dropped.
+    struct Mount(PathBuf);
+
+    impl Mount {
+        fn tmpfs(dir: &Path, opts: &str) -> Option<Mount> {
+            let ok = std::process::Command::new("mount")
+                .args(["-t", "tmpfs", "-o", opts, "neuspike-test"])
+                .arg(dir)
+                .stderr(std::process::Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success());
+            if !ok {
+                eprintln!("SKIPPED: cannot mount a tmpfs here (root is needed)");
+            }
+            ok.then(|| Mount(dir.to_path_buf()))
+        }
+    }
+
+    impl Drop for Mount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount").arg(&self.0).status();
+        }
+    }
+
+    /// `e` and its causes on one line, as the node prints it.
+    fn chain(e: &dyn std::error::Error) -> String {
+        let mut s = e.to_string();
+        let mut cause = e.source();
+        while let Some(c) = cause {
+            s = format!("{s}: {c}");
+            cause = c.source();
+        }
+        s
+    }
+
+    /// A frame of noise (PNG cannot shrink it): about 64 KiB as an 8-bit PNG.
+    fn noise(seq: u64) -> Frame {
+        let mut x = seq.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let data = Array2::from_shape_fn((256, 256), |_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x % 256) as f32 / 255.0
+        });
+        Frame {
+            kind: FrameKind::Reconstruction,
+            method: "tfp".into(),
+            t_ref_ns: seq as i64,
+            compute_ns: 1,
+            seq,
+            data,
+        }
+    }
+
+    #[test]
+    fn a_full_disk_is_a_one_line_error_naming_the_file_with_nothing_half_written() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let Some(_mount) = Mount::tmpfs(dir.path(), "size=256k") else {
+            return;
+        };
+        let mut sink = Sink::new(&config(dir.path(), 0), false).expect("sink");
+        let e = (0..64)
+            .find_map(|seq| sink.on_frame("tfp", noise(seq)).err())
+            .map(|e| chain(&e))
+            .expect("256 KiB fill up");
+        assert!(!e.contains('\n'), "one line: {e}");
+        assert!(e.contains(".png") && e.contains("No space left"), "{e}");
+        // Every PNG there is whole; no temporary file is left.
+        let mut pngs = 0;
+        for entry in std::fs::read_dir(dir.path().join("tfp")).expect("tfp") {
+            let path = entry.expect("entry").path();
+            assert!(
+                path.extension().is_some_and(|x| x == "png"),
+                "left behind: {}",
+                path.display()
+            );
+            crate::png_out::read_frame_png(&path).expect("a whole PNG");
+            pngs += 1;
+        }
+        assert!(pngs >= 1, "no PNG fitted");
+    }
+
+    #[test]
+    fn a_read_only_folder_is_a_one_line_error_naming_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let Some(_mount) = Mount::tmpfs(dir.path(), "ro,size=64k") else {
+            return;
+        };
+        let out = dir.path().join("frames");
+        let e = Sink::new(&config(&out, 0), false)
+            .err()
+            .map(|e| chain(&e))
+            .expect("a read-only folder");
+        assert!(!e.contains('\n'), "one line: {e}");
+        assert!(
+            e.contains(&out.display().to_string()) && e.contains("Read-only"),
+            "{e}"
+        );
+    }
+
     #[test]
     fn one_frame_in_n_is_written_or_scored_and_every_frame_is_counted() {
         let dir = tempfile::tempdir().expect("tempdir");
@@ -350,6 +453,7 @@ mod tests {
             received: 7,
             missing: 0,
             ended: true,
+            cut: false,
         };
         let text = std::fs::read_to_string(sink.finish([("tfp", tally)]).expect("summary"))
             .expect("summary");
@@ -388,6 +492,7 @@ mod tests {
             received: 2,
             missing: 1,
             ended: true,
+            cut: false,
         };
         let summary = sink.finish([("tfp", tally)]).expect("summary");
         let text = std::fs::read_to_string(summary).expect("summary");

@@ -294,6 +294,18 @@ impl SpikeCamera {
         (k as i64).saturating_mul(self.period_ns) - self.period_ns / 2
     }
 
+    /// Moves the camera to tick `tick` without simulating the ticks between, as a camera switched
+    /// off and on again: its pixels keep their charge and restart their interval counts, and the
+    /// scene is rendered at the new time. Used when a source restarts mid-run.
+    pub fn jump_to(&mut self, tick: u64) {
+        self.tick = tick;
+        self.since.fill(0);
+        let key = tick - tick % self.render_step;
+        if key != self.key_tick {
+            self.render_key(key);
+        }
+    }
+
     /// Simulates the next `n` planes into a spike chunk with sequence number `seq`.
     pub fn next_chunk(&mut self, n: usize, seq: u64) -> SpikeChunk {
         let per = bytes_per_plane(self.cfg.width, self.cfg.height);

@@ -9,9 +9,14 @@
 //! itself. `--pace realtime` sends each chunk when its last plane would have been read out by the
 //! camera (plane rate `--rate-hz`, wall clock from the node's start); `--pace fast` (default)
 //! sends as fast as the receivers take them.
+//!
+//! Restarted by dora (`restart_policy: on-failure` in the graph), a paced source resumes where
+//! its camera is now, on its first start's clock, and numbers its chunks as if it had sent the
+//! planes it missed: its consumers count them as a gap. A fast source cannot tell where it
+//! stopped, and a restart of one fails with an error saying so.
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_runtime::{Flow, Link, Pace, Pacer, produce};
+use neuspike_runtime::{Flow, Link, Pace, Pacer, Resume, produce};
 use neuspike_schemas::{Frame, SpikeChunk};
 use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig};
 
@@ -61,7 +66,21 @@ fn run(
         out.declare::<Frame>("ground_truth");
     }
     source.log_start();
-    let pacer = Pacer::start(args.pace);
+    let resume = Resume::for_node(out.node())?;
+    let pacer = Pacer::started_at(args.pace, resume.first_start_unix_ns);
+    if resume.restarted {
+        if args.pace != Pace::Realtime {
+            eyre::bail!(
+                "spike-source was restarted, and with --pace fast it cannot tell where its stream stopped: a source that dora restarts must run with --pace realtime"
+            );
+        }
+        let plane = pacer.elapsed_ns() / args.source.camera.validate()?;
+        let first = source.skip_to(u64::try_from(plane).unwrap_or(0))?;
+        tracing::warn!(
+            first_plane = first,
+            "restarted: resuming on the first start's clock; the planes missed are a gap"
+        );
+    }
     produce(&mut out, |out| {
         let Some(step) = source.next_step()? else {
             return Ok(Flow::Stop);
@@ -75,6 +94,7 @@ fn run(
         }
         Ok(Flow::Continue)
     })?;
+    resume.finished();
     Ok(source.finish()?)
 }
 

@@ -177,6 +177,30 @@ impl SpikeSource {
         }
     }
 
+    /// Goes on from plane `plane` (counted from the first plane played), numbering what it sends
+    /// as if every plane before had been sent: what a source restarted mid-run does, so that its
+    /// consumers count the planes it missed as a gap. A simulated camera jumps there; a recording
+    /// is read up to there. Returns the first plane it will send.
+    ///
+    /// # Errors
+    /// The recording could not be read up to there.
+    pub fn skip_to(&mut self, plane: u64) -> Result<u64, SourceError> {
+        match self {
+            SpikeSource::Scene(s) => {
+                s.skip_to(plane);
+                Ok(s.cam.tick())
+            }
+            SpikeSource::File(f) => {
+                while f.sent < plane {
+                    if f.next_step()?.is_none() {
+                        break;
+                    }
+                }
+                Ok(f.sent)
+            }
+        }
+    }
+
     /// Logs what is about to be played.
     pub fn log_start(&self) {
         match self {
@@ -247,6 +271,19 @@ impl ScenePlayback {
             render_step = self.cam.render_step(),
             "spike camera started"
         );
+    }
+
+    /// Moves to the chunk boundary at or after plane `plane`, numbering chunks and ground truth
+    /// as if every plane before had been sent: a camera switched back on (see
+    /// [`SpikeCamera::jump_to`]).
+    fn skip_to(&mut self, plane: u64) {
+        let chunk = u64::from(self.chunk_planes);
+        let plane = plane.div_ceil(chunk).saturating_mul(chunk);
+        self.cam.jump_to(plane);
+        self.seq = plane / chunk;
+        if self.gt_every > 0 {
+            self.gt_seq = plane.div_ceil(self.gt_every);
+        }
     }
 
     /// The next chunk and the ground truth at its planes, or `None` after the last plane.
