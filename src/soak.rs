@@ -7,7 +7,7 @@
 //!   sample at the second second (Linux: `/proc/<pid>/status` `VmRSS`; elsewhere nothing is
 //!   sampled and the verdict says so);
 //! - nothing is lost: the sink received every frame it expected;
-//! - latency does not grow: the last minute's p99 is at most 1.25 times the median of the
+//! - latency does not grow: the last full minute's p99 is at most 1.25 times the median of the
 //!   minutes' p99s plus 1 ms (one busy minute is allowed; a trend is not).
 
 use std::collections::BTreeMap;
@@ -145,6 +145,13 @@ pub fn rss_flatness(samples: &[RssSample]) -> BTreeMap<String, (u64, u64)> {
 /// Whether the last minute's p99 stays within 1.25 x the median of the minutes' p99s + 1 ms:
 /// (last p99, bound, verdict); `None` with fewer than two minutes.
 pub fn latency_steady(minutes: &[LatencyWindow]) -> Option<(f64, f64, bool)> {
+    // The run's last seconds make a short last window: it is left out when it holds less than
+    // half a full one.
+    let full = minutes.iter().map(|w| w.latency.frames).max().unwrap_or(0);
+    let minutes = match minutes.split_last() {
+        Some((last, rest)) if rest.len() >= 2 && last.latency.frames * 2 < full => rest,
+        _ => minutes,
+    };
     if minutes.len() < 2 {
         return None;
     }
@@ -233,7 +240,7 @@ mod tests {
         let mut v = Vec::new();
         for t in 0..=200 {
             v.push(s(t, "sink", 1000 + t)); // grows 1 KiB a second
-            v.push(s(t, "align", if t == 150 { 5000 } else { 800 }));
+            v.push(s(t, "align", if t == 100 { 5000 } else { 800 }));
         }
         v.push(s(3, "late", 10)); // no sample at 2 s: left out
         let f = rss_flatness(&v);
@@ -252,7 +259,7 @@ mod tests {
         let w = |p99_ms: f64| LatencyWindow {
             start_s: 0,
             latency: Latency {
-                frames: 1,
+                frames: 100,
                 p50_ms: 1.0,
                 p99_ms,
                 max_ms: p99_ms,
@@ -270,5 +277,12 @@ mod tests {
         assert!(report(&[], &[w(4.0), w(4.0), w(9.0)], 0, Path::new("x")).is_err());
         assert!(report(&[], &[w(4.0), w(4.0)], 1, Path::new("x")).is_err());
         assert!(report(&[], &[w(4.0), w(4.0)], 0, Path::new("x")).is_ok());
+        // A short last window (the run's last seconds) is left out.
+        let mut short = w(50.0);
+        short.latency.frames = 10;
+        assert_eq!(
+            latency_steady(&[w(4.0), w(4.0), w(4.0), short]),
+            Some((4.0, 6.0, true))
+        );
     }
 }
