@@ -27,6 +27,7 @@
 mod credit;
 mod events;
 mod frame;
+pub mod ipc;
 mod kind;
 pub mod meta;
 mod spikes;

@@ -1,0 +1,399 @@
+//! The publish stage: what a graph makes, on zenoh for anyone who listens, and on ROS 2.
+//!
+//! - Every input goes out as neuspike's own message (Arrow IPC, [`neuspike_schemas::ipc`]) on the
+//!   key `neuspike/<graph>/<input>`, header included, so that a subscriber decodes it with
+//!   `neuspike-schemas` (or pyarrow) and tells a lost message by its sequence number.
+//! - Inputs named with `--ros2 INPUT=TOPIC[:ENCODING]` also go out as `sensor_msgs/msg/Image` on
+//!   rmw_zenoh's keys, with the liveliness tokens that make `ros2 topic list` show them and the
+//!   attachment every rmw_zenoh sample carries ([`ros2`]).
+//! - The zenoh session: peer mode, listening on loopback only, dialling a router on
+//!   `tcp/127.0.0.1:7447` (rmw_zenoh's `rmw_zenohd`) when one runs, multicast scouting off.
+//!   Anything else (other endpoints, a router elsewhere, TLS) comes from a zenoh JSON5 file
+//!   (`--zenoh-config`).
+
+pub mod ros2;
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use eyre::{WrapErr, bail, eyre};
+use neuspike_schemas::arrow::array::ArrayRef;
+use neuspike_schemas::{Frame, Message, Meta, ipc, is_end_of_stream};
+use zenoh::Wait;
+
+use crate::ros2::{Encoding, IMAGE_HASH, IMAGE_TYPE, RosNode};
+
+/// The node's settings (the graph's `args:`).
+#[derive(Clone, Debug, clap::Args)]
+pub struct PublishConfig {
+    /// The graph's name: keys are `neuspike/<graph>/<input>`.
+    #[arg(long, default_value = "neuspike")]
+    pub graph: String,
+    /// Publish INPUT (a Frame input) as a ROS 2 `sensor_msgs/msg/Image` on TOPIC, in ENCODING
+    /// `mono8` (default), `mono16` or `32FC1`, e.g. `--ros2 tfp=/neuspike/tfp:mono16`.
+    /// Repeatable.
+    #[arg(long = "ros2", value_name = "INPUT=TOPIC[:ENCODING]", value_parser = parse_ros2)]
+    pub ros2: Vec<RosTopic>,
+    /// ROS domain id.
+    #[arg(long, default_value_t = 0)]
+    pub ros_domain: u32,
+    /// The ROS 2 node name the topics belong to.
+    #[arg(long, default_value = "neuspike")]
+    pub ros_node: String,
+    /// The ROS 2 namespace.
+    #[arg(long, default_value = "/")]
+    pub ros_namespace: String,
+    /// `header.frame_id` of the images.
+    #[arg(long, default_value = "neuspike")]
+    pub frame_id: String,
+    /// zenoh endpoints to listen on (default: an ephemeral port on loopback). Repeatable.
+    #[arg(long = "listen", value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// zenoh endpoints to dial (default: `tcp/127.0.0.1:7447`, a local router such as
+    /// `rmw_zenohd`, if one runs). Repeatable.
+    #[arg(long = "connect", value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// A zenoh JSON5 configuration file, used instead of the settings above (mode, endpoints,
+    /// TLS: see `docs/robots.md`).
+    #[arg(long)]
+    pub zenoh_config: Option<PathBuf>,
+}
+
+/// One `--ros2` entry.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RosTopic {
+    /// The input it takes.
+    pub input: String,
+    /// The topic, e.g. `/neuspike/tfp`.
+    pub topic: String,
+    /// How pixels are written.
+    pub encoding: Encoding,
+}
+
+fn parse_ros2(s: &str) -> Result<RosTopic, String> {
+    let (input, rest) = s
+        .split_once('=')
+        .ok_or_else(|| format!("`{s}`: expected INPUT=TOPIC[:ENCODING]"))?;
+    let (topic, encoding) = match rest.rsplit_once(':') {
+        Some((t, e)) => {
+            let enc = <Encoding as clap::ValueEnum>::from_str(e, true)
+                .map_err(|_| format!("`{s}`: encoding `{e}` is not mono8, mono16 or 32FC1"))?;
+            (t, enc)
+        }
+        None => (rest, Encoding::Mono8),
+    };
+    let topic = ros2::strip_topic(topic);
+    if input.is_empty() || topic.is_empty() {
+        return Err(format!("`{s}`: the input and the topic must not be empty"));
+    }
+    if !topic
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/')
+    {
+        return Err(format!(
+            "`{s}`: a ROS 2 topic holds letters, digits, `_` and `/` only"
+        ));
+    }
+    Ok(RosTopic {
+        input: input.to_string(),
+        topic: format!("/{topic}"),
+        encoding,
+    })
+}
+
+impl PublishConfig {
+    /// The zenoh configuration: the file, or the safe defaults with the endpoints given.
+    ///
+    /// # Errors
+    /// The file cannot be read or is not a zenoh configuration.
+    pub fn zenoh(&self) -> eyre::Result<zenoh::Config> {
+        if let Some(path) = &self.zenoh_config {
+            return zenoh::Config::from_file(path)
+                .map_err(|e| eyre!("{}: not a zenoh configuration: {e}", path.display()));
+        }
+        let list = |v: &[String], default: &str| -> String {
+            let v: Vec<String> = if v.is_empty() {
+                vec![default.to_string()]
+            } else {
+                v.to_vec()
+            };
+            serde_json_list(&v)
+        };
+        let mut c = zenoh::Config::default();
+        let set = |c: &mut zenoh::Config, k: &str, v: &str| {
+            c.insert_json5(k, v)
+                .map_err(|e| eyre!("zenoh setting {k} = {v}: {e}"))
+        };
+        set(&mut c, "mode", "\"peer\"")?;
+        set(
+            &mut c,
+            "listen/endpoints",
+            &list(&self.listen, "tcp/127.0.0.1:0"),
+        )?;
+        set(
+            &mut c,
+            "connect/endpoints",
+            &list(&self.connect, "tcp/127.0.0.1:7447"),
+        )?;
+        set(&mut c, "scouting/multicast/enabled", "false")?;
+        Ok(c)
+    }
+
+    /// Checks the settings against the node's inputs: every `--ros2` input must be one.
+    ///
+    /// # Errors
+    /// A `--ros2` entry names an input the node does not have, or two name one topic.
+    pub fn check(&self, inputs: &[String]) -> eyre::Result<()> {
+        let mut topics = BTreeMap::new();
+        for r in &self.ros2 {
+            if !inputs.contains(&r.input) {
+                bail!(
+                    "--ros2 {}={}: the node has no input `{}` (it has {})",
+                    r.input,
+                    r.topic,
+                    r.input,
+                    inputs.join(", ")
+                );
+            }
+            if let Some(other) = topics.insert(r.topic.clone(), r.input.clone()) {
+                bail!(
+                    "--ros2: inputs `{other}` and `{}` both publish {}",
+                    r.input,
+                    r.topic
+                );
+            }
+        }
+        if self.graph.is_empty() || self.graph.contains(['*', '$', '#', '?']) {
+            bail!(
+                "--graph `{}`: a key expression chunk without * $ # ?",
+                self.graph
+            );
+        }
+        Ok(())
+    }
+}
+
+/// A JSON list of strings (endpoints hold no quotes or backslashes worth escaping beyond these).
+fn serde_json_list(v: &[String]) -> String {
+    let items: Vec<String> = v
+        .iter()
+        .map(|s| format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\"")))
+        .collect();
+    format!("[{}]", items.join(","))
+}
+
+/// A ROS 2 image publisher.
+struct RosImages {
+    key: zenoh::pubsub::Publisher<'static>,
+    encoding: Encoding,
+    gid: [u8; 16],
+    sent: i64,
+    _token: zenoh::liveliness::LivelinessToken,
+}
+
+/// What the node publishes, on one zenoh session.
+pub struct Publisher {
+    graph: String,
+    frame_id: String,
+    session: zenoh::Session,
+    arrow: BTreeMap<String, zenoh::pubsub::Publisher<'static>>,
+    ros: BTreeMap<String, RosImages>,
+    _node_token: Option<zenoh::liveliness::LivelinessToken>,
+    published: u64,
+}
+
+impl Publisher {
+    /// Opens the session and declares a publisher for each input (and its ROS 2 topic).
+    ///
+    /// # Errors
+    /// The session cannot open (an endpoint that cannot be bound), or a declaration fails.
+    pub fn open(cfg: &PublishConfig, inputs: &[String]) -> eyre::Result<Self> {
+        cfg.check(inputs)?;
+        let session = zenoh::open(cfg.zenoh()?)
+            .wait()
+            .map_err(|e| eyre!("cannot open the zenoh session: {e}"))?;
+        let mut arrow = BTreeMap::new();
+        for input in inputs {
+            let key = format!("neuspike/{}/{input}", cfg.graph);
+            let p = session
+                .declare_publisher(key.clone())
+                .wait()
+                .map_err(|e| eyre!("cannot publish on {key}: {e}"))?;
+            arrow.insert(input.clone(), p);
+        }
+        let mut ros = BTreeMap::new();
+        let mut node_token = None;
+        if !cfg.ros2.is_empty() {
+            let node = RosNode {
+                domain: cfg.ros_domain,
+                zid: session.zid().to_string(),
+                node_id: 0,
+                namespace: cfg.ros_namespace.clone(),
+                name: cfg.ros_node.clone(),
+            };
+            node_token = Some(
+                session
+                    .liveliness()
+                    .declare_token(node.node_token())
+                    .wait()
+                    .map_err(|e| eyre!("cannot declare the ROS 2 node: {e}"))?,
+            );
+            for (i, r) in cfg.ros2.iter().enumerate() {
+                let entity = u32::try_from(i + 1).unwrap_or(u32::MAX);
+                let key = node.data_key(&r.topic, IMAGE_TYPE, IMAGE_HASH);
+                let p = session
+                    .declare_publisher(key.clone())
+                    .wait()
+                    .map_err(|e| eyre!("cannot publish on {key}: {e}"))?;
+                let token = session
+                    .liveliness()
+                    .declare_token(node.publisher_token(entity, &r.topic, IMAGE_TYPE, IMAGE_HASH))
+                    .wait()
+                    .map_err(|e| eyre!("cannot declare the ROS 2 publisher of {}: {e}", r.topic))?;
+                let mut gid = [0u8; 16];
+                let zid = session.zid().to_le_bytes();
+                gid[..zid.len().min(12)].copy_from_slice(&zid[..zid.len().min(12)]);
+                gid[12..].copy_from_slice(&entity.to_le_bytes());
+                ros.insert(
+                    r.input.clone(),
+                    RosImages {
+                        key: p,
+                        encoding: r.encoding,
+                        gid,
+                        sent: 0,
+                        _token: token,
+                    },
+                );
+            }
+        }
+        Ok(Publisher {
+            graph: cfg.graph.clone(),
+            frame_id: cfg.frame_id.clone(),
+            session,
+            arrow,
+            ros,
+            _node_token: node_token,
+            published: 0,
+        })
+    }
+
+    /// The session's id (hex), as ROS 2 tools show it.
+    pub fn zid(&self) -> String {
+        self.session.zid().to_string()
+    }
+
+    /// Messages published so far (each key counts).
+    pub fn published(&self) -> u64 {
+        self.published
+    }
+
+    /// Publishes one message of `input` (of type `type_urn`): as Arrow IPC on its key, and as an
+    /// Image when it has a ROS 2 topic and is a frame (an end-of-stream marker goes on the
+    /// Arrow key only). `now_ns` stamps the attachment.
+    ///
+    /// # Errors
+    /// The message cannot be encoded, or zenoh refused it.
+    pub fn publish(
+        &mut self,
+        input: &str,
+        type_urn: &str,
+        meta: &Meta,
+        data: &ArrayRef,
+        now_ns: i64,
+    ) -> eyre::Result<()> {
+        if let Some(p) = self.arrow.get(input) {
+            let bytes = ipc::encode(type_urn, meta, data)
+                .wrap_err_with(|| format!("input `{input}`: cannot encode"))?;
+            p.put(bytes)
+                .wait()
+                .map_err(|e| eyre!("neuspike/{}/{input}: {e}", self.graph))?;
+            self.published += 1;
+        }
+        if is_end_of_stream(meta).is_some() {
+            return Ok(());
+        }
+        if let Some(r) = self.ros.get_mut(input) {
+            let frame = Frame::from_arrow(meta, data)
+                .wrap_err_with(|| format!("input `{input}`: a ROS 2 image needs a Frame"))?;
+            let stamp = frame.t_ref_ns;
+            let cdr = ros2::frame_image(&frame, stamp, &self.frame_id, r.encoding);
+            r.sent += 1;
+            let attachment = ros2::attachment(r.sent, now_ns, &r.gid);
+            r.key
+                .put(cdr)
+                .attachment(attachment.to_vec())
+                .wait()
+                .map_err(|e| eyre!("input `{input}`: ROS 2 publish: {e}"))?;
+            self.published += 1;
+        }
+        Ok(())
+    }
+}
+
+/// The message type of `Frame` inputs, for a node that cannot tell.
+pub const FRAME_URN: &str = Frame::TYPE_URN;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ros2_entries_parse_with_their_encoding_and_bad_ones_say_why() {
+        let r = parse_ros2("tfp=/neuspike/tfp:mono16").expect("entry");
+        assert_eq!(
+            (r.input.as_str(), r.topic.as_str(), r.encoding),
+            ("tfp", "/neuspike/tfp", Encoding::Mono16)
+        );
+        assert_eq!(parse_ros2("a=cam/x").expect("entry").topic, "/cam/x");
+        assert_eq!(
+            parse_ros2("a=/x:32FC1").expect("entry").encoding,
+            Encoding::Float32
+        );
+        for bad in ["tfp", "=x", "a=", "a=/x:rgb8", "a=/x y"] {
+            assert!(parse_ros2(bad).is_err(), "{bad}");
+        }
+        let cfg = PublishConfig {
+            graph: "g".into(),
+            ros2: vec![
+                parse_ros2("tfp=/a").expect("a"),
+                parse_ros2("tfi=/a").expect("b"),
+            ],
+            ros_domain: 0,
+            ros_node: "n".into(),
+            ros_namespace: "/".into(),
+            frame_id: "f".into(),
+            listen: vec![],
+            connect: vec![],
+            zenoh_config: None,
+        };
+        let inputs = ["tfp".to_string(), "tfi".to_string()];
+        let e = cfg.check(&inputs).expect_err("one topic twice").to_string();
+        assert!(e.contains("/a"), "{e}");
+        let e = cfg
+            .check(&inputs[..1])
+            .expect_err("no input tfi")
+            .to_string();
+        assert!(e.contains("no input `tfi`"), "{e}");
+    }
+
+    #[test]
+    fn the_default_session_is_a_peer_on_loopback_without_multicast() {
+        let cfg = PublishConfig {
+            graph: "g".into(),
+            ros2: vec![],
+            ros_domain: 0,
+            ros_node: "n".into(),
+            ros_namespace: "/".into(),
+            frame_id: "f".into(),
+            listen: vec![],
+            connect: vec![],
+            zenoh_config: None,
+        };
+        let c = cfg.zenoh().expect("config");
+        let get = |k: &str| c.get_json(k).expect(k);
+        assert_eq!(get("mode"), "\"peer\"");
+        assert_eq!(get("listen/endpoints"), "[\"tcp/127.0.0.1:0\"]");
+        assert_eq!(get("connect/endpoints"), "[\"tcp/127.0.0.1:7447\"]");
+        assert_eq!(get("scouting/multicast/enabled"), "false");
+    }
+}
