@@ -614,6 +614,20 @@ impl<W: Write> Evt3Writer<W> {
     }
 }
 
+/// The EVT 3.0 words of `batch` alone, without a file's `%` header: what an
+/// `event_camera_msgs/EventPacket` with encoding `evt3` carries. Each packet starts its own time
+/// and row words, so it decodes on its own.
+///
+/// # Errors
+/// An event the format cannot hold (see [`Evt3Writer`]).
+pub fn packet_words(batch: &EventBatch, resolution: Resolution) -> Result<Vec<u8>> {
+    let header = raw_header("3.0", "EVT3", resolution).len();
+    let mut w = Evt3Writer::new(Vec::new(), "an EVT 3.0 packet", resolution)?;
+    w.write_batch(batch)?;
+    let (bytes, _) = w.finish()?;
+    Ok(bytes.get(header..).map(<[u8]>::to_vec).unwrap_or_default())
+}
+
 /// The polarity bit of an `EVT_ADDR_X` or `VECT_BASE_X` payload for a (checked) polarity of ±1.
 fn polarity_bit(polarity: i8) -> u32 {
     if polarity > 0 { POLARITY_BIT } else { 0 }

@@ -364,3 +364,28 @@ fn evt3_writer_names_the_event_outside_the_sensor_inside_a_vector() {
         );
     }
 }
+
+/// An `evt3` event packet (the words without a file header) decodes on its own to the events,
+/// once a reader is given the header it lacks.
+#[test]
+fn an_evt3_packet_holds_its_events_without_the_file_header() {
+    let r = Resolution::new(346, 260);
+    let evs: Vec<Event> = (0..50)
+        .map(|i| Event {
+            t_ns: 1_000_000 + 7_000 * i,
+            x: (i * 7 % 346) as u16,
+            y: (i * 3 % 260) as u16,
+            polarity: if i % 3 == 0 { -1 } else { 1 },
+        })
+        .collect();
+    let words = neuspike_formats::evt3::packet_words(&batch(&evs, r), r).unwrap();
+    assert!(!words.starts_with(b"%"), "no header in a packet");
+    let mut file = Evt3Writer::new(Vec::new(), "mem", r).unwrap();
+    file.write_batch(&batch(&[], r)).unwrap();
+    let mut bytes = file.finish().unwrap().0;
+    bytes.extend_from_slice(&words);
+    let mut reader = RawReader::from_reader(&bytes[..], "mem", &ReadOptions::default()).unwrap();
+    let got = read_in_chunks(&mut reader, 16);
+    assert_eq!(got.len(), evs.len());
+    assert_same_events(&got, &evs);
+}

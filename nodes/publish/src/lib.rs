@@ -17,11 +17,14 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use eyre::{WrapErr, bail, eyre};
+use neuspike_formats::Resolution;
 use neuspike_schemas::arrow::array::ArrayRef;
-use neuspike_schemas::{Frame, Message, Meta, ipc, is_end_of_stream};
+use neuspike_schemas::{EventBatch, Frame, Message, Meta, ipc, is_end_of_stream};
 use zenoh::Wait;
 
-use crate::ros2::{Encoding, IMAGE_HASH, IMAGE_TYPE, RosNode};
+use crate::ros2::{
+    EVENT_PACKET_HASH, EVENT_PACKET_TYPE, Encoding, IMAGE_HASH, IMAGE_TYPE, RosNode,
+};
 
 /// The node's settings (the graph's `args:`).
 #[derive(Clone, Debug, clap::Args)]
@@ -34,6 +37,11 @@ pub struct PublishConfig {
     /// Repeatable.
     #[arg(long = "ros2", value_name = "INPUT=TOPIC[:ENCODING]", value_parser = parse_ros2)]
     pub ros2: Vec<RosTopic>,
+    /// Publish INPUT (an EventBatch input) as a ROS 2 `event_camera_msgs/msg/EventPacket` with
+    /// encoding `evt3` on TOPIC, as ROS 2 event-camera drivers do, e.g.
+    /// `--ros2-events events=/event_camera/events`. Repeatable.
+    #[arg(long = "ros2-events", value_name = "INPUT=TOPIC", value_parser = parse_ros2_events)]
+    pub ros2_events: Vec<RosTopic>,
     /// ROS domain id.
     #[arg(long, default_value_t = 0)]
     pub ros_domain: u32,
@@ -101,6 +109,15 @@ fn parse_ros2(s: &str) -> Result<RosTopic, String> {
     })
 }
 
+fn parse_ros2_events(s: &str) -> Result<RosTopic, String> {
+    if s.rsplit_once('=').is_some_and(|(_, t)| t.contains(':')) {
+        return Err(format!(
+            "`{s}`: event packets are EVT 3.0 (`evt3`); name no encoding"
+        ));
+    }
+    parse_ros2(s)
+}
+
 impl PublishConfig {
     /// The zenoh configuration: the file, or the safe defaults with the endpoints given.
     ///
@@ -145,7 +162,7 @@ impl PublishConfig {
     /// A `--ros2` entry names an input the node does not have, or two name one topic.
     pub fn check(&self, inputs: &[String]) -> eyre::Result<()> {
         let mut topics = BTreeMap::new();
-        for r in &self.ros2 {
+        for r in self.ros2.iter().chain(&self.ros2_events) {
             if !inputs.contains(&r.input) {
                 bail!(
                     "--ros2 {}={}: the node has no input `{}` (it has {})",
@@ -182,10 +199,19 @@ fn serde_json_list(v: &[String]) -> String {
     format!("[{}]", items.join(","))
 }
 
-/// A ROS 2 image publisher.
+/// What a ROS 2 topic carries.
+#[derive(Clone, Copy, Debug)]
+enum RosKind {
+    /// `sensor_msgs/msg/Image` of frames.
+    Image(Encoding),
+    /// `event_camera_msgs/msg/EventPacket` (`evt3`) of event batches.
+    Events,
+}
+
+/// A ROS 2 publisher.
 struct RosImages {
     key: zenoh::pubsub::Publisher<'static>,
-    encoding: Encoding,
+    kind: RosKind,
     gid: [u8; 16],
     sent: i64,
     _token: zenoh::liveliness::LivelinessToken,
@@ -223,7 +249,7 @@ impl Publisher {
         }
         let mut ros = BTreeMap::new();
         let mut node_token = None;
-        if !cfg.ros2.is_empty() {
+        if !cfg.ros2.is_empty() || !cfg.ros2_events.is_empty() {
             let node = RosNode {
                 domain: cfg.ros_domain,
                 zid: session.zid().to_string(),
@@ -238,16 +264,25 @@ impl Publisher {
                     .wait()
                     .map_err(|e| eyre!("cannot declare the ROS 2 node: {e}"))?,
             );
-            for (i, r) in cfg.ros2.iter().enumerate() {
+            let topics = cfg
+                .ros2
+                .iter()
+                .map(|r| (r, RosKind::Image(r.encoding), IMAGE_TYPE, IMAGE_HASH))
+                .chain(
+                    cfg.ros2_events
+                        .iter()
+                        .map(|r| (r, RosKind::Events, EVENT_PACKET_TYPE, EVENT_PACKET_HASH)),
+                );
+            for (i, (r, kind, dds_type, hash)) in topics.enumerate() {
                 let entity = u32::try_from(i + 1).unwrap_or(u32::MAX);
-                let key = node.data_key(&r.topic, IMAGE_TYPE, IMAGE_HASH);
+                let key = node.data_key(&r.topic, dds_type, hash);
                 let p = session
                     .declare_publisher(key.clone())
                     .wait()
                     .map_err(|e| eyre!("cannot publish on {key}: {e}"))?;
                 let token = session
                     .liveliness()
-                    .declare_token(node.publisher_token(entity, &r.topic, IMAGE_TYPE, IMAGE_HASH))
+                    .declare_token(node.publisher_token(entity, &r.topic, dds_type, hash))
                     .wait()
                     .map_err(|e| eyre!("cannot declare the ROS 2 publisher of {}: {e}", r.topic))?;
                 let mut gid = [0u8; 16];
@@ -258,7 +293,7 @@ impl Publisher {
                     r.input.clone(),
                     RosImages {
                         key: p,
-                        encoding: r.encoding,
+                        kind,
                         gid,
                         sent: 0,
                         _token: token,
@@ -313,10 +348,36 @@ impl Publisher {
             return Ok(());
         }
         if let Some(r) = self.ros.get_mut(input) {
-            let frame = Frame::from_arrow(meta, data)
-                .wrap_err_with(|| format!("input `{input}`: a ROS 2 image needs a Frame"))?;
-            let stamp = frame.t_ref_ns;
-            let cdr = ros2::frame_image(&frame, stamp, &self.frame_id, r.encoding);
+            let cdr = match r.kind {
+                RosKind::Image(encoding) => {
+                    let frame = Frame::from_arrow(meta, data).wrap_err_with(|| {
+                        format!("input `{input}`: a ROS 2 image needs a Frame")
+                    })?;
+                    ros2::frame_image(&frame, frame.t_ref_ns, &self.frame_id, encoding)
+                }
+                RosKind::Events => {
+                    let batch = EventBatch::from_arrow(meta, data).wrap_err_with(|| {
+                        format!("input `{input}`: a ROS 2 event packet needs an EventBatch")
+                    })?;
+                    let size = |v: usize| u16::try_from(v).unwrap_or(u16::MAX);
+                    let resolution = Resolution {
+                        width: size(batch.width),
+                        height: size(batch.height),
+                    };
+                    let words = neuspike_formats::evt3::packet_words(&batch, resolution)
+                        .wrap_err_with(|| format!("input `{input}`: cannot encode EVT 3.0"))?;
+                    ros2::event_packet_cdr(
+                        batch.t_start_ns,
+                        &self.frame_id,
+                        u32::from(resolution.height),
+                        u32::from(resolution.width),
+                        batch.seq,
+                        0,
+                        "evt3",
+                        &words,
+                    )
+                }
+            };
             r.sent += 1;
             let attachment = ros2::attachment(r.sent, now_ns, &r.gid);
             r.key
@@ -349,15 +410,14 @@ mod tests {
             parse_ros2("a=/x:32FC1").expect("entry").encoding,
             Encoding::Float32
         );
+        assert!(parse_ros2_events("ev=/event_camera/events:mono").is_err());
         for bad in ["tfp", "=x", "a=", "a=/x:rgb8", "a=/x y"] {
             assert!(parse_ros2(bad).is_err(), "{bad}");
         }
         let cfg = PublishConfig {
             graph: "g".into(),
-            ros2: vec![
-                parse_ros2("tfp=/a").expect("a"),
-                parse_ros2("tfi=/a").expect("b"),
-            ],
+            ros2: vec![parse_ros2("tfp=/a").expect("a")],
+            ros2_events: vec![parse_ros2_events("tfi=/a").expect("b")],
             ros_domain: 0,
             ros_node: "n".into(),
             ros_namespace: "/".into(),
@@ -381,6 +441,7 @@ mod tests {
         let cfg = PublishConfig {
             graph: "g".into(),
             ros2: vec![],
+            ros2_events: vec![],
             ros_domain: 0,
             ros_node: "n".into(),
             ros_namespace: "/".into(),

@@ -58,6 +58,7 @@ fn frames_reach_zenoh_as_arrow_and_ros2_images_with_their_attachment_and_tokens(
             topic: "/neuspike/tfp".into(),
             encoding: Encoding::Mono16,
         }],
+        ros2_events: vec![],
         ros_domain: 0,
         ros_node: "neuspike".into(),
         ros_namespace: "/".into(),

@@ -11,6 +11,14 @@ pub const IMAGE_TYPE: &str = "sensor_msgs::msg::dds_::Image_";
 /// Its type hash (RIHS01: sha256 of its type description), as Jazzy and later announce it.
 pub const IMAGE_HASH: &str =
     "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47";
+/// The DDS type name of `event_camera_msgs/msg/EventPacket`.
+pub const EVENT_PACKET_TYPE: &str = "event_camera_msgs::msg::dds_::EventPacket_";
+/// Its type hash, from its definition (`msg_ros2/EventPacket.msg` of event_camera_msgs: header,
+/// height, width, seq, time_base, encoding, `bool` is_bigendian, events), as rosbags 0.11
+/// computes it for Jazzy and later.
+pub const EVENT_PACKET_HASH: &str =
+    "RIHS01_d6fa176260b1f37e5a40845305315e150a0f18191241eb64f407442aa29844aa";
+
 /// QoS as rmw_zenoh writes it in a liveliness token: reliable, volatile, keep last 10.
 pub const QOS_RELIABLE_DEPTH_10: &str = "::,10:,:,:,,";
 
@@ -72,6 +80,11 @@ impl Cdr {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
 
+    fn u64(&mut self, v: u64) {
+        self.align(8);
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+
     fn u8(&mut self, v: u8) {
         self.0.push(v);
     }
@@ -122,6 +135,34 @@ pub fn image_cdr(
     c.u8(0); // is_bigendian: little-endian data
     c.u32(step);
     c.bytes(data);
+    c.0
+}
+
+/// An `event_camera_msgs/msg/EventPacket` in CDR: `events` in `encoding` (`evt3`: EVT 3.0 words,
+/// `time_base` unused), numbered `seq` so that a subscriber sees a lost packet.
+#[allow(clippy::too_many_arguments)]
+pub fn event_packet_cdr(
+    stamp_ns: i64,
+    frame_id: &str,
+    height: u32,
+    width: u32,
+    seq: u64,
+    time_base: u64,
+    encoding: &str,
+    events: &[u8],
+) -> Vec<u8> {
+    let mut c = Cdr::new(events.len() + frame_id.len() + encoding.len());
+    let (sec, nanosec) = stamp(stamp_ns);
+    c.i32(sec);
+    c.u32(nanosec);
+    c.string(frame_id);
+    c.u32(height);
+    c.u32(width);
+    c.u64(seq);
+    c.u64(time_base);
+    c.string(encoding);
+    c.u8(0); // is_bigendian: false
+    c.bytes(events);
     c.0
 }
 
@@ -275,6 +316,44 @@ mod tests {
         );
         assert_eq!(got, expected);
         assert_eq!(got.len(), 52);
+    }
+
+    #[test]
+    fn an_event_packet_in_cdr_is_byte_for_byte_what_rosbags_writes() {
+        // rosbags 0.11: stamp {1, 2}, frame_id "dvs", 260x346, seq 7, time_base 0, "evt3",
+        // events 11 22 33 44.
+        let hex = concat!(
+            "00010000",
+            "01000000",
+            "02000000",
+            "04000000",
+            "64767300",
+            "04010000",
+            "5a010000",
+            "0700000000000000",
+            "0000000000000000",
+            "05000000",
+            "6576743300",
+            "00",
+            "0000",
+            "04000000",
+            "11223344"
+        );
+        let expected: Vec<u8> = (0..hex.len() / 2)
+            .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).expect("hex"))
+            .collect();
+        let got = event_packet_cdr(
+            1_000_000_002,
+            "dvs",
+            260,
+            346,
+            7,
+            0,
+            "evt3",
+            &[0x11, 0x22, 0x33, 0x44],
+        );
+        assert_eq!(got, expected);
+        assert_eq!(got.len(), 64);
     }
 
     #[test]
