@@ -317,6 +317,17 @@ impl Publisher {
         self.session.zid().to_string()
     }
 
+    /// The endpoints the session listens on (`tcp/127.0.0.1:41234`).
+    pub fn locators(&self) -> Vec<String> {
+        self.session
+            .info()
+            .locators()
+            .wait()
+            .iter()
+            .map(ToString::to_string)
+            .collect()
+    }
+
     /// Messages published so far (each key counts).
     pub fn published(&self) -> u64 {
         self.published
