@@ -331,3 +331,34 @@ fn learned_graph_runs_the_network_and_beats_tfp_in_the_dark() {
     assert!(n >= 40, "only {n} frames");
     assert!(psnr["learned"] > psnr["tfp"] + 1.0, "{psnr:?}");
 }
+
+/// The example user node (`examples/rust-node`) in infer's place: every window becomes a scored
+/// frame of its own method, nothing lost.
+#[test]
+fn a_users_rust_node_takes_infers_place() {
+    let out = tempfile::tempdir().expect("tempdir");
+    let graph = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/rust-node/graph.yml");
+    let report = neuspike::graph::run(
+        &graph,
+        &[(
+            "sink".to_string(),
+            format!("--out {}", out.path().display()),
+        )],
+        true,
+        Some(Duration::from_secs(300)),
+        None,
+    )
+    .expect("graph ran");
+    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    let summary = std::fs::read_to_string(out.path().join("summary.md")).expect("summary");
+    assert!(
+        summary.contains("| gamma | 49 | 49 | 49 | 0 | yes |"),
+        "{summary}"
+    );
+    let csv = std::fs::read_to_string(out.path().join("metrics.csv")).expect("metrics");
+    let rows = csv
+        .lines()
+        .filter(|l| l.split(',').nth(2) == Some("gamma"))
+        .count();
+    assert_eq!(rows, 49, "{csv}");
+}
