@@ -178,6 +178,15 @@ fn free_port() -> eyre::Result<u16> {
     Ok(l.local_addr().wrap_err("cannot find a free port")?.port())
 }
 
+/// The dora CLI behind the command prefix `wrap` (`ip netns exec ns dora`; plain `dora` when
+/// empty).
+fn dora(wrap: &[String]) -> Command {
+    let mut words = wrap.iter().map(String::as_str).chain([DORA]);
+    let mut command = Command::new(words.next().unwrap_or(DORA));
+    command.args(words);
+    command
+}
+
 /// The processes of a cluster started here; killed when dropped.
 struct Processes {
     children: Vec<(String, Child, PathBuf)>,
@@ -198,10 +207,7 @@ impl Processes {
         let err = file
             .try_clone()
             .wrap_err_with(|| format!("cannot create {}", log.display()))?;
-        let mut words = wrap.iter().map(String::as_str).chain([DORA]);
-        let program = words.next().unwrap_or(DORA);
-        let child = Command::new(program)
-            .args(words)
+        let child = dora(wrap)
             .args(args)
             .current_dir(dir)
             .stdin(Stdio::null())
@@ -261,10 +267,7 @@ fn wait_for_daemons(
     let start = Instant::now();
     loop {
         procs.check_alive()?;
-        let mut words = wrap.iter().map(String::as_str).chain([DORA]);
-        let program = words.next().unwrap_or(DORA);
-        let out = Command::new(program)
-            .args(words)
+        let out = dora(wrap)
             .args(["cluster", "status"])
             .args(coordinator_args(addr, port))
             .stdin(Stdio::null())
@@ -297,10 +300,7 @@ fn start_and_attach(
     port: u16,
     dir: &Path,
 ) -> eyre::Result<(bool, Vec<(String, String)>)> {
-    let mut words = wrap.iter().map(String::as_str).chain([DORA]);
-    let program = words.next().unwrap_or(DORA);
-    let mut child = Command::new(program)
-        .args(words)
+    let mut child = dora(wrap)
         .arg("start")
         .arg(graph_path)
         .arg("--attach")

@@ -41,10 +41,18 @@ fn rss_kib(pid: u32) -> Option<u64> {
     line.split_whitespace().nth(1)?.parse().ok()
 }
 
-/// This process and its children whose name starts with `neuspike-` (the nodes), as (pid, name).
+/// This process and its node children, as (pid, name).
 fn processes() -> Vec<(u32, String)> {
+    let mut v = vec![(std::process::id(), "neuspike".to_string())];
+    v.extend(node_children());
+    v
+}
+
+/// The children of this process whose name starts with `neuspike-` (the nodes an embedded daemon
+/// spawned), as (pid, program name); empty where `/proc` cannot be read.
+pub fn node_children() -> Vec<(u32, String)> {
     let me = std::process::id();
-    let mut v = vec![(me, "neuspike".to_string())];
+    let mut v = Vec::new();
     let Ok(dir) = std::fs::read_dir("/proc") else {
         return v;
     };

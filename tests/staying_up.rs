@@ -15,19 +15,11 @@ fn graph(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// The child of this process whose command name starts with `comm` (the kernel keeps 15
-/// characters of it).
-fn child_named(comm: &str) -> Option<u32> {
-    let me = std::process::id();
-    std::fs::read_dir("/proc").ok()?.flatten().find_map(|e| {
-        let pid: u32 = e.file_name().to_str()?.parse().ok()?;
-        let stat = std::fs::read_to_string(e.path().join("stat")).ok()?;
-        // `pid (comm) state ppid ...`; comm may hold spaces, so split after its last ')'.
-        let (head, tail) = stat.rsplit_once(')')?;
-        let name = head.split_once('(')?.1;
-        let ppid: u32 = tail.split_whitespace().nth(1)?.parse().ok()?;
-        (ppid == me && comm.starts_with(name)).then_some(pid)
-    })
+/// The node `name` (`neuspike-represent`) among this process's children.
+fn child_named(name: &str) -> Option<u32> {
+    neuspike::soak::node_children()
+        .into_iter()
+        .find_map(|(pid, n)| (n == name).then_some(pid))
 }
 
 fn rows(csv: &Path) -> usize {

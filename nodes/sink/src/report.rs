@@ -359,15 +359,18 @@ impl LatencyTrack {
         self.window_max_ns = self.window_max_ns.max(ns);
     }
 
+    /// The figures of the window being filled, if it holds a frame.
+    fn current_window(&self) -> Option<LatencyWindow> {
+        let start = self.window_start_ns?;
+        Some(LatencyWindow {
+            start_s: (start.saturating_sub(self.first_ns) / 1_000_000_000) as u64,
+            latency: self.window.figures(self.window_max_ns)?,
+        })
+    }
+
     fn close_window(&mut self) {
-        if let (Some(start), Some(l)) = (
-            self.window_start_ns,
-            self.window.figures(self.window_max_ns),
-        ) {
-            self.windows.push(LatencyWindow {
-                start_s: (start.saturating_sub(self.first_ns) / 1_000_000_000) as u64,
-                latency: l,
-            });
+        if let Some(w) = self.current_window() {
+            self.windows.push(w);
         }
         self.window.0.reset();
         self.window_max_ns = i64::MIN;
@@ -381,15 +384,7 @@ impl LatencyTrack {
     /// Each minute's figures, the current one included, oldest first.
     pub fn windows(&self) -> Vec<LatencyWindow> {
         let mut v = self.windows.clone();
-        if let (Some(start), Some(l)) = (
-            self.window_start_ns,
-            self.window.figures(self.window_max_ns),
-        ) {
-            v.push(LatencyWindow {
-                start_s: (start.saturating_sub(self.first_ns) / 1_000_000_000) as u64,
-                latency: l,
-            });
-        }
+        v.extend(self.current_window());
         v
     }
 }
