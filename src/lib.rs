@@ -10,6 +10,7 @@ pub mod bench_model;
 pub mod cluster;
 pub mod dataset;
 pub mod graph;
+pub mod publish_file;
 pub mod reconstruct;
 pub mod record;
 pub mod soak;

@@ -173,6 +173,11 @@ enum Command {
         #[arg(long)]
         no_build: bool,
     },
+    /// Play a recording onto zenoh as a camera machine sends it (Arrow IPC SpikeChunks or
+    /// EventBatches, then the end-of-stream marker), for a graph elsewhere whose source reads
+    /// the key: `spike-source --from-zenoh KEY`, `event-source --from-zenoh KEY`. Waits for
+    /// that subscriber first.
+    PublishFile(neuspike::publish_file::PublishFile),
     /// Describe a recording: format, resolution, duration, counts, rates, first and last times.
     Info {
         /// A PKU spike .dat, or an event file (ECD text, Prophesee RAW or DAT).
@@ -404,6 +409,18 @@ fn run(cli: Cli) -> eyre::Result<()> {
             let report = neuspike::reconstruct::reconstruct(&opts)?;
             report.print();
             report.into_result()
+        }
+        Command::PublishFile(opts) => {
+            let p = neuspike::publish_file::run(&opts)?;
+            println!(
+                "published {} messages ({} {}) on {} in {:.2} s",
+                p.messages,
+                p.items,
+                if p.spikes { "planes" } else { "events" },
+                p.key,
+                p.elapsed.as_secs_f64()
+            );
+            Ok(())
         }
         Command::Info {
             file,

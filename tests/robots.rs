@@ -174,3 +174,153 @@ fn an_independent_ros2_subscriber_sees_every_frame_with_the_sinks_pixels() {
         );
     }
 }
+
+/// An independent ROS 2 event-camera driver (Python: rosbags' CDR, EVT 3.0 words made there,
+/// rmw_zenoh's attachment) feeds `graphs/ros2-events.yml`: the event source takes its 100
+/// packets over zenoh and the publish node hands the batches back as neuspike's EventBatches,
+/// which the driver's side checks event for event (time, place, polarity), in order, with the
+/// end-of-stream count.
+#[test]
+fn an_independent_ros2_event_driver_feeds_the_event_source_event_for_event() {
+    if !python_has("zenoh, rosbags, pyarrow, numpy") {
+        return;
+    }
+    let port = free_port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let peer = start_peer(
+        "tests/robots/ros2_event_publisher.py",
+        &["--listen".into(), endpoint.clone()],
+    );
+    let report = neuspike::graph::run(
+        &root().join("graphs/ros2-events.yml"),
+        &[
+            (
+                "event-source".into(),
+                format!("--connect {endpoint} --silence-s 2"),
+            ),
+            ("publish".into(), format!("--connect {endpoint}")),
+        ],
+        true,
+        Some(Duration::from_secs(300)),
+        None,
+    )
+    .expect("graph ran");
+    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    // The peer exits 0 only when every event matched.
+    wait(peer, Duration::from_secs(60));
+}
+
+/// `neuspike publish-file` on one side, `graphs/remote.yml` on the other: a simulated 10,000-plane
+/// recording crosses zenoh as SpikeChunks, as fast as the graph takes them, and the graph's frames
+/// are all there (none missing) and byte-identical to those of the same recording played from
+/// the file (`graphs/reconstruct-dat.yml`).
+#[test]
+fn a_recording_sent_over_zenoh_reconstructs_as_from_the_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = dir.path().join("rec");
+    let status = Command::new(env!("CARGO_BIN_EXE_neuspike"))
+        .args([
+            "simulate",
+            "bright-fast",
+            "--planes",
+            "10000",
+            "--no-events",
+            "--gt-every-planes",
+            "0",
+            "--out",
+        ])
+        .arg(&rec)
+        .status()
+        .expect("neuspike simulate");
+    assert!(status.success());
+    let dat = rec.join("spikes.dat");
+    let port = free_port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let config = dir.path().join("zenoh.json5");
+    std::fs::write(
+        &config,
+        format!(
+            "{{ mode: \"peer\", listen: {{ endpoints: [\"{endpoint}\"] }}, scouting: {{ multicast: {{ enabled: false }} }} }}"
+        ),
+    )
+    .expect("config");
+
+    let remote_out = dir.path().join("remote");
+    let graph = {
+        let remote_out = remote_out.clone();
+        let config = config.clone();
+        std::thread::spawn(move || {
+            neuspike::graph::run(
+                &root().join("graphs/remote.yml"),
+                &[
+                    (
+                        "spike-source".into(),
+                        format!("--zenoh-config {}", config.display()),
+                    ),
+                    ("sink".into(), format!("--out {}", remote_out.display())),
+                ],
+                true,
+                Some(Duration::from_secs(300)),
+                None,
+            )
+        })
+    };
+    let published = neuspike::publish_file::run(&neuspike::publish_file::PublishFile {
+        file: dat.clone(),
+        key: None,
+        args: String::new(),
+        pace: neuspike_runtime::Pace::Fast,
+        wait_s: 120,
+        zenoh: neuspike_net::ZenohArgs {
+            listen: vec![],
+            connect: vec![endpoint],
+            zenoh_config: None,
+        },
+    })
+    .expect("published");
+    assert_eq!((published.messages, published.items), (500, 10_000));
+    let report = graph.join().expect("graph thread").expect("graph ran");
+    assert!(report.failures.is_empty(), "{:?}", report.failures);
+
+    let local_out = dir.path().join("local");
+    let report = neuspike::graph::run(
+        &root().join("graphs/reconstruct-dat.yml"),
+        &[
+            ("spike-source".into(), format!("--file {}", dat.display())),
+            ("sink".into(), format!("--out {}", local_out.display())),
+        ],
+        true,
+        Some(Duration::from_secs(300)),
+        None,
+    )
+    .expect("graph ran");
+    assert!(report.failures.is_empty(), "{:?}", report.failures);
+
+    let summary = std::fs::read_to_string(remote_out.join("summary.md")).expect("summary");
+    let row = summary
+        .lines()
+        .find(|l| l.starts_with("| tfp |") && l.ends_with("| yes |"))
+        .unwrap_or_else(|| panic!("{summary}"));
+    let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    assert_eq!(cells[2], cells[3], "expected = received: {row}");
+    assert_eq!(cells[5], "0", "missing: {row}");
+    let frames = |d: &Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d.join("tfp"))
+            .expect("frames")
+            .map(|e| e.expect("entry").path())
+            .collect();
+        v.sort();
+        v
+    };
+    let (a, b) = (frames(&remote_out), frames(&local_out));
+    assert!(a.len() > 900, "{} frames", a.len());
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.file_name(), y.file_name());
+        assert!(
+            std::fs::read(x).expect("png") == std::fs::read(y).expect("png"),
+            "{} differs",
+            x.display()
+        );
+    }
+}

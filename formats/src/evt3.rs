@@ -390,6 +390,71 @@ impl Evt3Decoder {
 /// Pixels one `VECT_BASE_X, VECT_12, VECT_12, VECT_8` group covers.
 const VECTOR_SPAN: u16 = 32;
 
+/// EVT 3.0 words that arrive in packets (a ROS 2 `EventPacket`, a network buffer): the
+/// decoder's state (time, row, base column) carries from one packet to the next, as a camera's
+/// word stream continues across its buffers. Errors name `name` and the byte offset counted over
+/// every packet so far; after one, the stream is over.
+pub struct Evt3Stream {
+    decoder: Evt3Decoder,
+    sink: Sink,
+    offset: u64,
+}
+
+impl Evt3Stream {
+    /// A stream from a sensor of `resolution`, named `name` in errors.
+    pub fn new(
+        name: impl Into<std::path::PathBuf>,
+        resolution: Resolution,
+        opts: &crate::ReadOptions,
+    ) -> Self {
+        Evt3Stream {
+            decoder: Evt3Decoder::default(),
+            sink: Sink::new(name.into(), crate::events::Bounds::Sensor(resolution), opts),
+            offset: 0,
+        }
+    }
+
+    /// Decodes the whole words of `packet`, appending their events to `out`; returns how many.
+    ///
+    /// # Errors
+    /// A packet of an odd length, an event outside the sensor, time running backwards (under
+    /// the default [`crate::Disorder::Error`]), or an undefined word type (under the default
+    /// [`crate::UnknownWords::Error`]).
+    pub fn decode(&mut self, packet: &[u8], out: &mut EventBatch) -> Result<usize> {
+        if !packet.len().is_multiple_of(WORD_BYTES) {
+            return Err(crate::FormatError::Truncated {
+                path: self.sink.path.clone(),
+                offset: self.offset + packet.len() as u64 - 1,
+                what: format!("an EVT 3.0 packet of {} bytes (odd)", packet.len()),
+            });
+        }
+        let Evt3Stream {
+            decoder,
+            sink,
+            offset,
+        } = self;
+        let start = *offset;
+        let n = sink.read_with(out, usize::MAX, |sink, out| {
+            let mut pos = 0usize;
+            while pos < packet.len() {
+                let used = decoder.decode(&packet[pos..], start + pos as u64, sink, out)?;
+                if used == 0 {
+                    break;
+                }
+                pos += used;
+            }
+            Ok(())
+        })?;
+        *offset += packet.len() as u64;
+        Ok(n)
+    }
+
+    /// What was decoded and repaired so far.
+    pub fn stats(&self) -> &crate::ReadStats {
+        &self.sink.stats
+    }
+}
+
 /// Writes events as a Prophesee RAW EVT 3.0 file: a `%` header, then `TIME_HIGH`/`TIME_LOW`/
 /// `EVT_ADDR_Y` words when the time or row changes, and the events in as few words as this
 /// writer finds (the format's purpose is compactness). Consecutive events that share time, row
@@ -735,6 +800,42 @@ mod tests {
                 decode_all(&bytes, max, piece, &opts, |b, at, sink, out| d.decode_checked(b, at, sink, out));
             assert_same(&fast, &checked)?;
         }
+    }
+
+    #[test]
+    fn a_stream_in_packets_decodes_as_the_whole_and_keeps_its_state_across_them() {
+        let mut batch = EventBatch::empty(40, 30, 0, 10_000_000, 0);
+        for i in 0..300i64 {
+            batch.push(Event {
+                t_ns: 1_000 * (i * 7 + i % 5),
+                x: (i * 13 % 40) as u16,
+                y: (i * 7 % 30) as u16,
+                polarity: if i % 3 == 0 { 1 } else { -1 },
+            });
+        }
+        let words = packet_words(&batch, Resolution::new(40, 30)).expect("words");
+        // Cut into packets at arbitrary word boundaries: rows and times set in one packet
+        // serve the next.
+        let mut stream = Evt3Stream::new(
+            "ros2:/events",
+            Resolution::new(40, 30),
+            &crate::ReadOptions::default(),
+        );
+        let mut out = EventBatch::empty(40, 30, 0, 0, 0);
+        for piece in words.chunks(2 * 7) {
+            stream.decode(piece, &mut out).expect("packet");
+        }
+        assert_eq!(out.t_ns, batch.t_ns);
+        assert_eq!(
+            (out.x.clone(), out.y.clone()),
+            (batch.x.clone(), batch.y.clone())
+        );
+        assert_eq!(out.polarity, batch.polarity);
+        let e = stream
+            .decode(&[1, 2, 3], &mut out)
+            .expect_err("odd")
+            .to_string();
+        assert!(e.contains("ros2:/events") && e.contains("3 bytes"), "{e}");
     }
 
     #[test]

@@ -556,6 +556,55 @@ pub fn produce(
     result.and(ended)
 }
 
+/// What a relayed source took from elsewhere (a network camera): see [`relay`].
+#[derive(Debug)]
+pub enum Arrival<M> {
+    /// The next message, with the wall-clock time its camera data left its own source, when the
+    /// sender stamped it (latency then spans the network; otherwise it counts from arrival).
+    Message(M, Option<i64>),
+    /// The stream ended after `count` messages; `cut` when it was cut short where it was made.
+    End {
+        /// Messages the sender sent.
+        count: u64,
+        /// Cut short upstream.
+        cut: bool,
+    },
+    /// Nothing yet.
+    Idle,
+}
+
+/// How long a relayed source waits for its next message before it looks for a stop request.
+pub const RELAY_POLL: std::time::Duration = std::time::Duration::from_millis(200);
+
+/// Runs a source whose messages come from elsewhere: sends each message `next` takes on
+/// `output`, until the stream's end (whose count and `cut` flag pass on, so a loss on the way is
+/// announced downstream) or a stop request; then ends every output, whatever happened, as
+/// [`produce`] does. `next(wait)` waits at most `wait`.
+///
+/// # Errors
+/// The first error of `next` or of sending, else of ending the outputs.
+pub fn relay<M: Message>(
+    link: &mut Link,
+    output: &str,
+    mut next: impl FnMut(std::time::Duration) -> eyre::Result<Arrival<M>>,
+) -> eyre::Result<()> {
+    produce(link, |link| match next(RELAY_POLL)? {
+        Arrival::Message(msg, origin) => {
+            link.set_origin(origin.unwrap_or_else(unix_now_ns));
+            link.send(output, &msg)?;
+            Ok(Flow::Continue)
+        }
+        Arrival::End { count, cut } => {
+            link.at_least(output, count)?;
+            if cut {
+                link.mark_cut();
+            }
+            Ok(Flow::Stop)
+        }
+        Arrival::Idle => Ok(Flow::Continue),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -640,6 +640,7 @@ fn pixels_of(frame: &Array2<f32>) -> &[f32] {
 }
 
 pub mod playback;
+pub mod ros2;
 
 #[cfg(test)]
 mod tests {

@@ -11,10 +11,9 @@
 //!   Anything else (other endpoints, a router elsewhere, TLS) comes from a zenoh JSON5 file
 //!   (`--zenoh-config`).
 
-pub mod ros2;
+pub mod image;
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
 
 use eyre::{WrapErr, bail, eyre};
 use neuspike_formats::Resolution;
@@ -22,9 +21,12 @@ use neuspike_schemas::arrow::array::ArrayRef;
 use neuspike_schemas::{EventBatch, Frame, Message, Meta, ipc, is_end_of_stream};
 use zenoh::Wait;
 
-use crate::ros2::{
-    EVENT_PACKET_HASH, EVENT_PACKET_TYPE, Encoding, IMAGE_HASH, IMAGE_TYPE, RosNode,
+use neuspike_net::ZenohArgs;
+use neuspike_net::ros2::{
+    self, EVENT_PACKET_HASH, EVENT_PACKET_TYPE, IMAGE_HASH, IMAGE_TYPE, RosNode,
 };
+
+use crate::image::Encoding;
 
 /// The node's settings (the graph's `args:`).
 #[derive(Clone, Debug, clap::Args)]
@@ -54,17 +56,31 @@ pub struct PublishConfig {
     /// `header.frame_id` of the images.
     #[arg(long, default_value = "neuspike")]
     pub frame_id: String,
-    /// zenoh endpoints to listen on (default: an ephemeral port on loopback). Repeatable.
-    #[arg(long = "listen", value_name = "ENDPOINT")]
-    pub listen: Vec<String>,
-    /// zenoh endpoints to dial (default: `tcp/127.0.0.1:7447`, a local router such as
-    /// `rmw_zenohd`, if one runs). Repeatable.
-    #[arg(long = "connect", value_name = "ENDPOINT")]
-    pub connect: Vec<String>,
-    /// A zenoh JSON5 configuration file, used instead of the settings above (mode, endpoints,
-    /// TLS: see `docs/robots.md`).
-    #[arg(long)]
-    pub zenoh_config: Option<PathBuf>,
+    /// Send with zenoh's congestion control `block` (default: a slow subscriber holds the graph
+    /// back, nothing is lost) or `drop` (a live view that must never slow the graph).
+    #[arg(long, value_enum, default_value_t = Congestion::Block)]
+    pub congestion: Congestion,
+    /// The zenoh session.
+    #[command(flatten)]
+    pub zenoh: ZenohArgs,
+}
+
+/// What a publisher does when the link is full.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Congestion {
+    /// Wait: lossless, and a slow subscriber slows the graph (its credits hold it back).
+    Block,
+    /// Drop the sample: never slows the graph; a subscriber sees the gap in `seq`.
+    Drop,
+}
+
+impl Congestion {
+    fn zenoh(self) -> zenoh::qos::CongestionControl {
+        match self {
+            Congestion::Block => zenoh::qos::CongestionControl::Block,
+            Congestion::Drop => zenoh::qos::CongestionControl::Drop,
+        }
+    }
 }
 
 /// One `--ros2` entry.
@@ -119,43 +135,6 @@ fn parse_ros2_events(s: &str) -> Result<RosTopic, String> {
 }
 
 impl PublishConfig {
-    /// The zenoh configuration: the file, or the safe defaults with the endpoints given.
-    ///
-    /// # Errors
-    /// The file cannot be read or is not a zenoh configuration.
-    pub fn zenoh(&self) -> eyre::Result<zenoh::Config> {
-        if let Some(path) = &self.zenoh_config {
-            return zenoh::Config::from_file(path)
-                .map_err(|e| eyre!("{}: not a zenoh configuration: {e}", path.display()));
-        }
-        let list = |v: &[String], default: &str| -> String {
-            let v: Vec<String> = if v.is_empty() {
-                vec![default.to_string()]
-            } else {
-                v.to_vec()
-            };
-            serde_json_list(&v)
-        };
-        let mut c = zenoh::Config::default();
-        let set = |c: &mut zenoh::Config, k: &str, v: &str| {
-            c.insert_json5(k, v)
-                .map_err(|e| eyre!("zenoh setting {k} = {v}: {e}"))
-        };
-        set(&mut c, "mode", "\"peer\"")?;
-        set(
-            &mut c,
-            "listen/endpoints",
-            &list(&self.listen, "tcp/127.0.0.1:0"),
-        )?;
-        set(
-            &mut c,
-            "connect/endpoints",
-            &list(&self.connect, "tcp/127.0.0.1:7447"),
-        )?;
-        set(&mut c, "scouting/multicast/enabled", "false")?;
-        Ok(c)
-    }
-
     /// Checks the settings against the node's inputs: every `--ros2` input must be one.
     ///
     /// # Errors
@@ -188,15 +167,6 @@ impl PublishConfig {
         }
         Ok(())
     }
-}
-
-/// A JSON list of strings (endpoints hold no quotes or backslashes worth escaping beyond these).
-fn serde_json_list(v: &[String]) -> String {
-    let items: Vec<String> = v
-        .iter()
-        .map(|s| format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\"")))
-        .collect();
-    format!("[{}]", items.join(","))
 }
 
 /// What a ROS 2 topic carries.
@@ -235,14 +205,14 @@ impl Publisher {
     /// The session cannot open (an endpoint that cannot be bound), or a declaration fails.
     pub fn open(cfg: &PublishConfig, inputs: &[String]) -> eyre::Result<Self> {
         cfg.check(inputs)?;
-        let session = zenoh::open(cfg.zenoh()?)
-            .wait()
-            .map_err(|e| eyre!("cannot open the zenoh session: {e}"))?;
+        let session = cfg.zenoh.open()?;
         let mut arrow = BTreeMap::new();
         for input in inputs {
             let key = format!("neuspike/{}/{input}", cfg.graph);
             let p = session
                 .declare_publisher(key.clone())
+                .congestion_control(cfg.congestion.zenoh())
+                .reliability(zenoh::qos::Reliability::Reliable)
                 .wait()
                 .map_err(|e| eyre!("cannot publish on {key}: {e}"))?;
             arrow.insert(input.clone(), p);
@@ -319,13 +289,7 @@ impl Publisher {
 
     /// The endpoints the session listens on (`tcp/127.0.0.1:41234`).
     pub fn locators(&self) -> Vec<String> {
-        self.session
-            .info()
-            .locators()
-            .wait()
-            .iter()
-            .map(ToString::to_string)
-            .collect()
+        neuspike_net::session::locators(&self.session)
     }
 
     /// Messages published so far (each key counts).
@@ -364,7 +328,7 @@ impl Publisher {
                     let frame = Frame::from_arrow(meta, data).wrap_err_with(|| {
                         format!("input `{input}`: a ROS 2 image needs a Frame")
                     })?;
-                    ros2::frame_image(&frame, frame.t_ref_ns, &self.frame_id, encoding)
+                    image::frame_image(&frame, frame.t_ref_ns, &self.frame_id, encoding)
                 }
                 RosKind::Events => {
                     let batch = EventBatch::from_arrow(meta, data).wrap_err_with(|| {
@@ -433,9 +397,8 @@ mod tests {
             ros_node: "n".into(),
             ros_namespace: "/".into(),
             frame_id: "f".into(),
-            listen: vec![],
-            connect: vec![],
-            zenoh_config: None,
+            congestion: Congestion::Block,
+            zenoh: ZenohArgs::default(),
         };
         let inputs = ["tfp".to_string(), "tfi".to_string()];
         let e = cfg.check(&inputs).expect_err("one topic twice").to_string();
@@ -445,27 +408,5 @@ mod tests {
             .expect_err("no input tfi")
             .to_string();
         assert!(e.contains("no input `tfi`"), "{e}");
-    }
-
-    #[test]
-    fn the_default_session_is_a_peer_on_loopback_without_multicast() {
-        let cfg = PublishConfig {
-            graph: "g".into(),
-            ros2: vec![],
-            ros2_events: vec![],
-            ros_domain: 0,
-            ros_node: "n".into(),
-            ros_namespace: "/".into(),
-            frame_id: "f".into(),
-            listen: vec![],
-            connect: vec![],
-            zenoh_config: None,
-        };
-        let c = cfg.zenoh().expect("config");
-        let get = |k: &str| c.get_json(k).expect(k);
-        assert_eq!(get("mode"), "\"peer\"");
-        assert_eq!(get("listen/endpoints"), "[\"tcp/127.0.0.1:0\"]");
-        assert_eq!(get("connect/endpoints"), "[\"tcp/127.0.0.1:7447\"]");
-        assert_eq!(get("scouting/multicast/enabled"), "false");
     }
 }

@@ -5,7 +5,8 @@ use std::time::Duration;
 
 use super::*;
 use ndarray::Array2;
-use neuspike_publish::ros2::{self, Encoding, IMAGE_HASH, IMAGE_TYPE};
+use neuspike_net::ros2::{IMAGE_HASH, IMAGE_TYPE};
+use neuspike_publish::image::{self, Encoding};
 use neuspike_runtime::testing::CannedInputs;
 use neuspike_schemas::{Frame, FrameKind, Message, is_end_of_stream};
 use zenoh::Wait;
@@ -63,9 +64,12 @@ fn frames_reach_zenoh_as_arrow_and_ros2_images_with_their_attachment_and_tokens(
         ros_node: "neuspike".into(),
         ros_namespace: "/".into(),
         frame_id: "spike_camera".into(),
-        listen: vec!["tcp/127.0.0.1:0".into()],
-        connect: vec![format!("tcp/127.0.0.1:{port}")],
-        zenoh_config: None,
+        congestion: neuspike_publish::Congestion::Block,
+        zenoh: neuspike_net::ZenohArgs {
+            listen: vec!["tcp/127.0.0.1:0".into()],
+            connect: vec![format!("tcp/127.0.0.1:{port}")],
+            zenoh_config: None,
+        },
     };
     let inputs = vec!["tfp".to_string()];
     let publisher = Publisher::open(&cfg, &inputs).expect("publisher");
@@ -118,7 +122,7 @@ fn frames_reach_zenoh_as_arrow_and_ros2_images_with_their_attachment_and_tokens(
             .recv_timeout(Duration::from_secs(2))
             .expect("recv")
             .expect("an image");
-        let expected = ros2::frame_image(
+        let expected = image::frame_image(
             &frame(seq),
             frame(seq).t_ref_ns,
             "spike_camera",

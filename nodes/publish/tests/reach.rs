@@ -102,9 +102,8 @@ fn the_default_session_cannot_be_reached_from_another_host() {
         ros_node: "neuspike".into(),
         ros_namespace: "/".into(),
         frame_id: "f".into(),
-        listen: vec![],
-        connect: vec![],
-        zenoh_config: None,
+        congestion: neuspike_publish::Congestion::Block,
+        zenoh: neuspike_net::ZenohArgs::default(),
     };
     let publisher = Publisher::open(&cfg, &["tfp".to_string()]).expect("publisher");
     let locators = publisher.locators();

@@ -15,9 +15,12 @@
 //! planes it missed: its consumers count them as a gap. A fast source cannot tell where it
 //! stopped, and a restart of one fails with an error saying so.
 
+use std::time::Duration;
+
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_runtime::{Flow, Link, Pace, Pacer, Resume, produce};
-use neuspike_schemas::{Frame, SpikeChunk};
+use neuspike_net::{Remote, Taken, ZenohArgs};
+use neuspike_runtime::{Arrival, Flow, Link, Pace, Pacer, Resume, produce, relay};
+use neuspike_schemas::{Frame, Message, SpikeChunk};
 use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig};
 
 /// Node arguments (the graph's `args:`).
@@ -33,6 +36,17 @@ struct Args {
     /// `fast`: send as fast as possible; `realtime`: send at the plane rate `--rate-hz`.
     #[arg(long, value_enum, default_value_t = Pace::Fast)]
     pace: Pace,
+    /// Take the planes from this zenoh key instead of a scene or a file: SpikeChunk messages
+    /// (Arrow IPC) as another machine publishes them, e.g. `neuspike/camera/spikes`.
+    #[arg(long, value_name = "KEY", conflicts_with_all = ["file", "gt_every_planes"])]
+    from_zenoh: Option<String>,
+    /// Seconds without a message from `--from-zenoh` before the source gives up (before its
+    /// first message, or before the stream's end-of-stream marker).
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..))]
+    silence_s: u64,
+    /// The zenoh session of `--from-zenoh`.
+    #[command(flatten)]
+    zenoh: ZenohArgs,
 }
 
 /// Checks the arguments and opens the scene or the file, before any message is sent.
@@ -48,9 +62,50 @@ fn main() -> std::process::ExitCode {
 fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
     let args: Args = neuspike_runtime::parse_config("spike-source")?;
+    if let Some(key) = &args.from_zenoh {
+        if args.pace != Pace::Fast {
+            eyre::bail!(
+                "spike-source: --pace {:?} with --from-zenoh: the camera sets the pace",
+                args.pace
+            );
+        }
+        let (node, events) = neuspike_runtime::init_node()?;
+        return run_remote(node, events, key, &args);
+    }
     let source = open_source(&args)?;
     let (node, events) = neuspike_runtime::init_node()?;
     neuspike_runtime::run_on_rayon("spike-source", || run(node, events, source, &args))
+}
+
+/// Relays the planes another machine publishes on `key`, lost chunks counted by their sequence
+/// numbers (and seen downstream as gaps), until the stream's end-of-stream marker.
+fn run_remote(node: DoraNode, events: EventStream, key: &str, args: &Args) -> eyre::Result<()> {
+    let session = args.zenoh.open()?;
+    let mut out = Link::new(node, events)?;
+    out.declare::<SpikeChunk>("spikes");
+    let silence = Duration::from_secs(args.silence_s);
+    let mut remote = Remote::subscribe(&session, key, SpikeChunk::TYPE_URN, silence)?;
+    tracing::info!(key, "waiting for spike chunks");
+    let relayed = relay(&mut out, "spikes", |wait| {
+        Ok(match remote.next(wait)? {
+            Taken::Message(meta, data) => {
+                let origin = neuspike_net::remote::origin(&meta);
+                Arrival::Message(
+                    SpikeChunk::from_arrow(&meta, &data).map_err(|e| eyre::eyre!("{key}: {e}"))?,
+                    origin,
+                )
+            }
+            Taken::End { count, cut } => Arrival::End { count, cut },
+            Taken::Idle => Arrival::Idle,
+        })
+    });
+    tracing::info!(
+        key,
+        received = remote.received(),
+        lost = remote.missing(),
+        "the remote stream ended"
+    );
+    relayed
 }
 
 /// Sends every chunk and its ground truth, then the end-of-stream markers, whatever happened.

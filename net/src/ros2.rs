@@ -1,10 +1,7 @@
 //! What a ROS 2 system running rmw_zenoh (Jazzy and later) needs to see a topic: the data key,
 //! the liveliness tokens of the node and its publisher, the attachment every sample carries, and
-//! `sensor_msgs/msg/Image` in CDR. The conventions are rmw_zenoh's (`docs/design.md` and its
+//! `sensor_msgs/msg/Image` and `event_camera_msgs/msg/EventPacket` in CDR, written and read. The conventions are rmw_zenoh's (`docs/design.md` and its
 //! `liveliness_utils.cpp`, `attachment_helpers.cpp`): see `docs/robots.md`.
-
-use neuspike_schemas::Frame;
-use neuspike_sink::png_out::{BitDepth, grey_levels};
 
 /// The DDS type name of `sensor_msgs/msg/Image`.
 pub const IMAGE_TYPE: &str = "sensor_msgs::msg::dds_::Image_";
@@ -21,37 +18,6 @@ pub const EVENT_PACKET_HASH: &str =
 
 /// QoS as rmw_zenoh writes it in a liveliness token: reliable, volatile, keep last 10.
 pub const QOS_RELIABLE_DEPTH_10: &str = "::,10:,:,:,,";
-
-/// How a frame's pixels go into an Image.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Encoding {
-    /// 8-bit grey, `round(clamp(v) * 255)` as the sink's PNGs.
-    Mono8,
-    /// 16-bit grey (little-endian), `round(clamp(v) * 65535)`.
-    Mono16,
-    /// The luminance itself, 32-bit float (little-endian), not clamped.
-    #[value(name = "32FC1")]
-    Float32,
-}
-
-impl Encoding {
-    /// The `encoding` string of the Image.
-    pub fn name(self) -> &'static str {
-        match self {
-            Encoding::Mono8 => "mono8",
-            Encoding::Mono16 => "mono16",
-            Encoding::Float32 => "32FC1",
-        }
-    }
-
-    fn bytes_per_pixel(self) -> usize {
-        match self {
-            Encoding::Mono8 => 1,
-            Encoding::Mono16 => 2,
-            Encoding::Float32 => 4,
-        }
-    }
-}
 
 /// A CDR (little-endian, XCDR1) writer: each primitive aligned to its own size, counted from
 /// after the 4-byte encapsulation header.
@@ -166,32 +132,6 @@ pub fn event_packet_cdr(
     c.0
 }
 
-/// `frame` as an Image in CDR, stamped `stamp_ns`, in `encoding`.
-pub fn frame_image(frame: &Frame, stamp_ns: i64, frame_id: &str, encoding: Encoding) -> Vec<u8> {
-    let (h, w) = frame.data.dim();
-    let data: Vec<u8> = match encoding {
-        Encoding::Mono8 => grey_levels(frame.data.view(), BitDepth::Eight)
-            .into_iter()
-            .map(|v| v as u8)
-            .collect(),
-        Encoding::Mono16 => grey_levels(frame.data.view(), BitDepth::Sixteen)
-            .into_iter()
-            .flat_map(u16::to_le_bytes)
-            .collect(),
-        Encoding::Float32 => frame.data.iter().flat_map(|v| v.to_le_bytes()).collect(),
-    };
-    let step = w * encoding.bytes_per_pixel();
-    image_cdr(
-        stamp_ns,
-        frame_id,
-        u32::try_from(h).unwrap_or(u32::MAX),
-        u32::try_from(w).unwrap_or(u32::MAX),
-        encoding.name(),
-        u32::try_from(step).unwrap_or(u32::MAX),
-        &data,
-    )
-}
-
 /// The attachment rmw_zenoh requires on every sample (a subscriber drops a sample without it):
 /// the sequence number (from 1), the source time in ns since the epoch, then the publisher's GID
 /// as a 16-byte sequence (its length, 16, as one byte first).
@@ -202,6 +142,228 @@ pub fn attachment(seq: i64, source_ns: i64, gid: &[u8; 16]) -> [u8; 33] {
     a[16] = 16;
     a[17..].copy_from_slice(gid);
     a
+}
+
+/// An rmw_zenoh attachment read back: what [`attachment`] writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Attachment {
+    /// The publisher's sequence number, from 1.
+    pub seq: i64,
+    /// The source time, ns since the epoch.
+    pub source_ns: i64,
+    /// The publisher's GID.
+    pub gid: [u8; 16],
+}
+
+/// Reads an rmw_zenoh attachment (33 bytes: sequence number, source time, GID length 16, GID).
+///
+/// # Errors
+/// Another length, or a GID length byte other than 16.
+pub fn parse_attachment(bytes: &[u8]) -> Result<Attachment, CdrError> {
+    let Ok(a) = <&[u8; 33]>::try_from(bytes) else {
+        return Err(CdrError::new(
+            "attachment",
+            0,
+            format!("{} bytes, an rmw_zenoh attachment has 33", bytes.len()),
+        ));
+    };
+    if a[16] != 16 {
+        return Err(CdrError::new(
+            "attachment",
+            16,
+            format!("GID length {}, expected 16", a[16]),
+        ));
+    }
+    let word = |at: usize| {
+        let mut w = [0u8; 8];
+        w.copy_from_slice(&a[at..at + 8]);
+        i64::from_le_bytes(w)
+    };
+    let mut gid = [0u8; 16];
+    gid.copy_from_slice(&a[17..]);
+    Ok(Attachment {
+        seq: word(0),
+        source_ns: word(8),
+        gid,
+    })
+}
+
+/// Bytes that are not the CDR of the message expected: the message, the byte offset and what was
+/// wrong.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{message}: at byte {offset}: {what}")]
+pub struct CdrError {
+    /// The message type read.
+    pub message: &'static str,
+    /// Where in the bytes.
+    pub offset: usize,
+    /// What was wrong, with the value found.
+    pub what: String,
+}
+
+impl CdrError {
+    fn new(message: &'static str, offset: usize, what: String) -> Self {
+        CdrError {
+            message,
+            offset,
+            what,
+        }
+    }
+}
+
+/// A CDR reader (little-endian XCDR1, as [`Cdr`] writes): every length is checked against the
+/// bytes left before anything is taken, so no claim in the bytes makes it allocate.
+struct CdrReader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+    message: &'static str,
+}
+
+impl<'a> CdrReader<'a> {
+    fn new(message: &'static str, bytes: &'a [u8]) -> Result<Self, CdrError> {
+        match bytes.get(..4) {
+            Some([0x00, 0x01, _, _]) => Ok(CdrReader {
+                bytes,
+                at: 4,
+                message,
+            }),
+            Some(h) => Err(CdrError::new(
+                message,
+                0,
+                format!(
+                    "encapsulation {:02x} {:02x}, expected 00 01 (CDR, little-endian)",
+                    h[0], h[1]
+                ),
+            )),
+            None => Err(CdrError::new(
+                message,
+                0,
+                format!("{} bytes, shorter than the CDR header", bytes.len()),
+            )),
+        }
+    }
+
+    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8], CdrError> {
+        let left = self.bytes.len() - self.at;
+        if n > left {
+            return Err(CdrError::new(
+                self.message,
+                self.at,
+                format!("{what} needs {n} bytes, {left} left"),
+            ));
+        }
+        let s = &self.bytes[self.at..self.at + n];
+        self.at += n;
+        Ok(s)
+    }
+
+    fn align(&mut self, n: usize, what: &str) -> Result<(), CdrError> {
+        let pad = (n - (self.at - 4) % n) % n;
+        self.take(pad, what).map(|_| ())
+    }
+
+    fn u8(&mut self, what: &str) -> Result<u8, CdrError> {
+        Ok(self.take(1, what)?[0])
+    }
+
+    fn u32(&mut self, what: &str) -> Result<u32, CdrError> {
+        self.align(4, what)?;
+        let b = self.take(4, what)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+
+    fn i32(&mut self, what: &str) -> Result<i32, CdrError> {
+        self.u32(what).map(|v| v as i32)
+    }
+
+    fn u64(&mut self, what: &str) -> Result<u64, CdrError> {
+        self.align(8, what)?;
+        let b = self.take(8, what)?;
+        let mut w = [0u8; 8];
+        w.copy_from_slice(b);
+        Ok(u64::from_le_bytes(w))
+    }
+
+    fn string(&mut self, what: &str) -> Result<String, CdrError> {
+        let at = self.at;
+        let n = self.u32(what)? as usize;
+        let b = self.take(n, what)?;
+        match b.split_last() {
+            Some((0, text)) => std::str::from_utf8(text)
+                .map(str::to_string)
+                .map_err(|_| CdrError::new(self.message, at, format!("{what} is not UTF-8"))),
+            _ => Err(CdrError::new(
+                self.message,
+                at,
+                format!("{what} of {n} bytes does not end with NUL"),
+            )),
+        }
+    }
+
+    fn bytes(&mut self, what: &str) -> Result<&'a [u8], CdrError> {
+        let n = self.u32(what)? as usize;
+        self.take(n, what)
+    }
+}
+
+/// An `event_camera_msgs/msg/EventPacket` read from CDR.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EventPacket {
+    /// `header.stamp`, ns since the epoch.
+    pub stamp_ns: i64,
+    /// `header.frame_id`.
+    pub frame_id: String,
+    /// Sensor height.
+    pub height: u32,
+    /// Sensor width.
+    pub width: u32,
+    /// The driver's packet counter (a gap is packets lost).
+    pub seq: u64,
+    /// The time base of encodings that use one (`mono`: ns).
+    pub time_base: u64,
+    /// `evt3`, `mono`, ...
+    pub encoding: String,
+    /// Whether `events` is big-endian.
+    pub is_bigendian: bool,
+    /// The encoded events.
+    pub events: Vec<u8>,
+}
+
+/// Reads an `event_camera_msgs/msg/EventPacket` from its CDR bytes.
+///
+/// # Errors
+/// The bytes end early, a length claims more than is left, a string is not NUL-terminated UTF-8,
+/// or bytes follow the message (beyond alignment padding).
+pub fn parse_event_packet(bytes: &[u8]) -> Result<EventPacket, CdrError> {
+    let mut r = CdrReader::new("EventPacket", bytes)?;
+    let sec = r.i32("header.stamp.sec")?;
+    let nanosec = r.u32("header.stamp.nanosec")?;
+    let frame_id = r.string("header.frame_id")?;
+    let height = r.u32("height")?;
+    let width = r.u32("width")?;
+    let seq = r.u64("seq")?;
+    let time_base = r.u64("time_base")?;
+    let encoding = r.string("encoding")?;
+    let is_bigendian = r.u8("is_bigendian")? != 0;
+    let events = r.bytes("events")?.to_vec();
+    if bytes.len() - r.at > 3 {
+        return Err(CdrError::new(
+            "EventPacket",
+            r.at,
+            format!("{} bytes after the message", bytes.len() - r.at),
+        ));
+    }
+    Ok(EventPacket {
+        stamp_ns: i64::from(sec) * 1_000_000_000 + i64::from(nanosec.min(999_999_999)),
+        frame_id,
+        height,
+        width,
+        seq,
+        time_base,
+        encoding,
+        is_bigendian,
+        events,
+    })
 }
 
 /// A name as a liveliness token holds it: every `/` becomes `%`; empty is `%`.
@@ -258,6 +420,18 @@ impl RosNode {
         )
     }
 
+    /// The liveliness token of subscription `entity_id` on `topic` (`ros2 topic info` counts
+    /// these).
+    pub fn subscriber_token(
+        &self,
+        entity_id: u32,
+        topic: &str,
+        dds_type: &str,
+        hash: &str,
+    ) -> String {
+        self.entity_token("MS", entity_id, topic, dds_type, hash)
+    }
+
     /// The liveliness token of publisher `entity_id` on `topic` (`ros2 topic list` reads these).
     pub fn publisher_token(
         &self,
@@ -266,8 +440,19 @@ impl RosNode {
         dds_type: &str,
         hash: &str,
     ) -> String {
+        self.entity_token("MP", entity_id, topic, dds_type, hash)
+    }
+
+    fn entity_token(
+        &self,
+        kind: &str,
+        entity_id: u32,
+        topic: &str,
+        dds_type: &str,
+        hash: &str,
+    ) -> String {
         format!(
-            "@ros2_lv/{}/{}/{}/{}/MP/%/{}/{}/{}/{}/{}/{}",
+            "@ros2_lv/{}/{}/{}/{}/{kind}/%/{}/{}/{}/{}/{}/{}",
             self.domain,
             self.zid,
             self.node_id,
@@ -285,7 +470,6 @@ impl RosNode {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use neuspike_schemas::FrameKind;
 
     #[test]
     fn an_image_in_cdr_is_byte_for_byte_what_rosbags_writes() {
@@ -357,26 +541,51 @@ mod tests {
     }
 
     #[test]
-    fn frames_go_into_images_in_each_encoding() {
-        let frame = Frame {
-            kind: FrameKind::Reconstruction,
-            method: "tfp".into(),
-            t_ref_ns: 0,
-            compute_ns: 0,
-            seq: 0,
-            data: ndarray::array![[0.0f32, 1.0, 0.5], [2.0, -1.0, f32::NAN]],
-        };
-        let tail = |b: &[u8], n: usize| b[b.len() - n..].to_vec();
-        let m8 = frame_image(&frame, 0, "f", Encoding::Mono8);
-        assert_eq!(tail(&m8, 6), [0, 255, 128, 255, 0, 0]);
-        let m16 = frame_image(&frame, 0, "f", Encoding::Mono16);
-        assert_eq!(tail(&m16, 6), [0xff, 0xff, 0, 0, 0, 0]);
-        let f32s = frame_image(&frame, 0, "f", Encoding::Float32);
-        assert_eq!(tail(&f32s, 4), f32::NAN.to_le_bytes());
-        // step, then the data length, just before the data.
-        let n = f32s.len();
-        assert_eq!(f32s[n - 24 - 8..n - 24 - 4], 12u32.to_le_bytes());
-        assert_eq!(f32s[n - 24 - 4..n - 24], 24u32.to_le_bytes());
+    fn event_packets_read_back_and_damage_is_named() {
+        let bytes = event_packet_cdr(
+            1_000_000_002,
+            "dvs",
+            260,
+            346,
+            7,
+            99,
+            "evt3",
+            &[0x11, 0x22, 0x33, 0x44],
+        );
+        let p = parse_event_packet(&bytes).expect("packet");
+        assert_eq!(
+            p,
+            EventPacket {
+                stamp_ns: 1_000_000_002,
+                frame_id: "dvs".into(),
+                height: 260,
+                width: 346,
+                seq: 7,
+                time_base: 99,
+                encoding: "evt3".into(),
+                is_bigendian: false,
+                events: vec![0x11, 0x22, 0x33, 0x44],
+            }
+        );
+        // Every cut is an error, never a panic.
+        for cut in 0..bytes.len() {
+            assert!(parse_event_packet(&bytes[..cut]).is_err(), "cut at {cut}");
+        }
+        // A sequence claiming 4 GiB is refused before anything is allocated for it.
+        let mut huge = bytes.clone();
+        let n = huge.len();
+        huge[n - 8..n - 4].copy_from_slice(&u32::MAX.to_le_bytes());
+        let e = parse_event_packet(&huge).expect_err("huge").to_string();
+        assert!(e.contains("events needs 4294967295 bytes, 4 left"), "{e}");
+        let mut big_endian = bytes.clone();
+        big_endian[1] = 0x00;
+        let e = parse_event_packet(&big_endian)
+            .expect_err("header")
+            .to_string();
+        assert!(e.contains("encapsulation 00 00"), "{e}");
+        let a = parse_attachment(&attachment(5, 6, &[9; 16])).expect("attachment");
+        assert_eq!((a.seq, a.source_ns, a.gid), (5, 6, [9; 16]));
+        assert!(parse_attachment(&[0; 32]).is_err());
     }
 
     #[test]
@@ -404,6 +613,17 @@ mod tests {
             node.publisher_token(1, "/neuspike/frame", IMAGE_TYPE, IMAGE_HASH),
             format!(
                 "@ros2_lv/0/ab12/0/1/MP/%/%/neuspike/%neuspike%frame/{IMAGE_TYPE}/{IMAGE_HASH}/::,10:,:,:,,"
+            )
+        );
+        assert_eq!(
+            node.subscriber_token(
+                2,
+                "/event_camera/events",
+                EVENT_PACKET_TYPE,
+                EVENT_PACKET_HASH
+            ),
+            format!(
+                "@ros2_lv/0/ab12/0/2/MS/%/%/neuspike/%event_camera%events/{EVENT_PACKET_TYPE}/{EVENT_PACKET_HASH}/::,10:,:,:,,"
             )
         );
         assert_eq!(mangle("/a/b"), "%a%b");

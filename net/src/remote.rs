@@ -1,0 +1,253 @@
+//! neuspike's messages from a zenoh key: a camera on another machine, as its `neuspike
+//! publish-file` or a graph's publish node sends it.
+//!
+//! Every sample is one message as Arrow IPC ([`neuspike_schemas::ipc`]). [`Remote`] checks its
+//! type, follows its sequence numbers (a gap is messages lost on the way: logged and counted,
+//! never silent; a duplicate is dropped), and ends at the stream's end-of-stream marker. A key
+//! on which nothing arrives for the silence limit is an error that names it, so a source whose
+//! camera vanished ends instead of waiting forever.
+//!
+//! The subscriber's queue is bounded ([`QUEUE`] samples); when it is full zenoh stops reading
+//! the link, so a publisher that sends with congestion control `block` (neuspike's do) is held
+//! back rather than losing messages.
+
+use std::time::{Duration, Instant};
+
+use neuspike_schemas::arrow::array::ArrayRef;
+use neuspike_schemas::ipc::{self, IpcError};
+use neuspike_schemas::{Meta, MetaExt, SeqStatus, SeqTracker, is_end_of_stream};
+use zenoh::Wait;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::Sample;
+
+/// Samples the subscriber holds before zenoh stops reading the link.
+pub const QUEUE: usize = 64;
+
+/// What [`Remote::next`] took.
+#[derive(Debug)]
+pub enum Taken {
+    /// The next message, in order: its header and payload.
+    Message(Meta, ArrayRef),
+    /// The stream's end: the messages its publisher sent, and whether its stream was cut short
+    /// upstream.
+    End {
+        /// Messages before the marker.
+        count: u64,
+        /// The stream was cut short where it was made.
+        cut: bool,
+    },
+    /// Nothing yet (the wait was up); ask again.
+    Idle,
+}
+
+/// Why a remote stream failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RemoteError {
+    /// The subscription could not be made.
+    #[error("cannot subscribe to {key}: {reason}")]
+    Subscribe {
+        /// The key.
+        key: String,
+        /// zenoh's reason.
+        reason: String,
+    },
+    /// Nothing arrived for too long.
+    #[error(
+        "{key}: nothing arrived for {secs} s ({received} messages received before): the publisher is gone or cannot reach this node (see --connect/--listen)"
+    )]
+    Silent {
+        /// The key.
+        key: String,
+        /// The limit, seconds.
+        secs: u64,
+        /// Messages received before the silence.
+        received: u64,
+    },
+    /// A sample is not one of neuspike's messages.
+    #[error("{key}: sample {n} is not a neuspike message: {source}")]
+    Decode {
+        /// The key.
+        key: String,
+        /// The sample's place in what arrived (from 0).
+        n: u64,
+        /// Why.
+        source: IpcError,
+    },
+    /// A message of another type.
+    #[error("{key}: sample {n} is a {found}, this source takes {expected}")]
+    Type {
+        /// The key.
+        key: String,
+        /// The sample's place in what arrived (from 0).
+        n: u64,
+        /// The type taken.
+        expected: &'static str,
+        /// The type found.
+        found: String,
+    },
+    /// A message without a sequence number.
+    #[error("{key}: sample {n}: {reason}")]
+    Header {
+        /// The key.
+        key: String,
+        /// The sample's place in what arrived (from 0).
+        n: u64,
+        /// Why.
+        reason: String,
+    },
+    /// The session closed under the subscriber.
+    #[error("{key}: the zenoh session closed")]
+    Closed {
+        /// The key.
+        key: String,
+    },
+}
+
+/// The wall-clock time a message's newest camera data left its source, as the sending graph
+/// stamped it (`origin_unix_ns`), if it did.
+pub fn origin(meta: &Meta) -> Option<i64> {
+    match meta.get(neuspike_schemas::meta::ORIGIN_UNIX_NS) {
+        Some(neuspike_schemas::Parameter::Integer(t)) => Some(*t),
+        _ => None,
+    }
+}
+
+/// A stream of neuspike messages of one type on one zenoh key.
+pub struct Remote {
+    key: String,
+    expected: &'static str,
+    sub: Subscriber<FifoChannelHandler<Sample>>,
+    seq: SeqTracker,
+    arrived: u64,
+    silence: Duration,
+    last: Instant,
+    /// Set once the first message came.
+    started: bool,
+}
+
+impl Remote {
+    /// Subscribes to `key` on `session`, for messages of type `expected` (a `TYPE_URN`); the
+    /// stream fails after `silence` without a sample (before the first one too).
+    ///
+    /// # Errors
+    /// zenoh refused the subscription (a malformed key).
+    pub fn subscribe(
+        session: &zenoh::Session,
+        key: &str,
+        expected: &'static str,
+        silence: Duration,
+    ) -> Result<Self, RemoteError> {
+        let sub = session
+            .declare_subscriber(key.to_string())
+            .with(zenoh::handlers::FifoChannel::new(QUEUE))
+            .wait()
+            .map_err(|e| RemoteError::Subscribe {
+                key: key.to_string(),
+                reason: e.to_string(),
+            })?;
+        Ok(Remote {
+            key: key.to_string(),
+            expected,
+            sub,
+            seq: SeqTracker::default(),
+            arrived: 0,
+            silence,
+            last: Instant::now(),
+            started: false,
+        })
+    }
+
+    /// The key.
+    pub fn key(&self) -> &str {
+        &self.key
+    }
+
+    /// Messages lost on the way so far (gaps in the sequence numbers, the tail included once
+    /// the marker came).
+    pub fn missing(&self) -> u64 {
+        self.seq.missing()
+    }
+
+    /// Messages received (duplicates not counted).
+    pub fn received(&self) -> u64 {
+        self.seq.received()
+    }
+
+    /// Waits up to `wait` for the next message.
+    ///
+    /// # Errors
+    /// A sample that is not a message of the expected type, a message without a sequence
+    /// number, silence beyond the limit, or the session closed.
+    pub fn next(&mut self, wait: Duration) -> Result<Taken, RemoteError> {
+        loop {
+            let sample = match self.sub.recv_timeout(wait) {
+                Ok(Some(s)) => s,
+                Ok(None) => {
+                    if self.last.elapsed() >= self.silence {
+                        return Err(RemoteError::Silent {
+                            key: self.key.clone(),
+                            secs: self.silence.as_secs(),
+                            received: self.seq.received(),
+                        });
+                    }
+                    return Ok(Taken::Idle);
+                }
+                Err(_) => {
+                    return Err(RemoteError::Closed {
+                        key: self.key.clone(),
+                    });
+                }
+            };
+            self.last = Instant::now();
+            let n = self.arrived;
+            self.arrived += 1;
+            let bytes = sample.payload().to_bytes();
+            let (urn, meta, data) = ipc::decode(&bytes).map_err(|source| RemoteError::Decode {
+                key: self.key.clone(),
+                n,
+                source,
+            })?;
+            if urn != self.expected {
+                return Err(RemoteError::Type {
+                    key: self.key.clone(),
+                    n,
+                    expected: self.expected,
+                    found: urn,
+                });
+            }
+            if let Some(count) = is_end_of_stream(&meta) {
+                let lost = self.seq.end(count);
+                if lost > 0 {
+                    tracing::error!(key = %self.key, lost, "messages lost on the network at the end of the stream");
+                }
+                return Ok(Taken::End {
+                    count,
+                    cut: meta.flag(neuspike_schemas::meta::CUT),
+                });
+            }
+            let seq = meta
+                .uint("message", neuspike_schemas::meta::SEQ)
+                .map_err(|e| RemoteError::Header {
+                    key: self.key.clone(),
+                    n,
+                    reason: e.to_string(),
+                })?;
+            match self.seq.observe(seq) {
+                SeqStatus::InOrder => {}
+                SeqStatus::Gap { missing } => {
+                    tracing::error!(key = %self.key, seq, missing, "messages lost on the network before this one");
+                }
+                SeqStatus::Stale => {
+                    tracing::warn!(key = %self.key, seq, "a message at or before one already taken: dropped");
+                    continue;
+                }
+            }
+            if !self.started {
+                self.started = true;
+                tracing::info!(key = %self.key, seq, "the remote stream started");
+            }
+            return Ok(Taken::Message(meta, data));
+        }
+    }
+}

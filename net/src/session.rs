@@ -1,0 +1,141 @@
+//! The zenoh session of a neuspike node, safe by default.
+
+use std::path::PathBuf;
+
+use zenoh::Wait;
+
+/// The zenoh settings of a node (flattened into its `args:`).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct ZenohArgs {
+    /// zenoh endpoints to listen on (default: an ephemeral port on loopback). Repeatable.
+    #[arg(long = "listen", value_name = "ENDPOINT")]
+    pub listen: Vec<String>,
+    /// zenoh endpoints to dial (default: `tcp/127.0.0.1:7447`, a local router such as
+    /// `rmw_zenohd`, if one runs). Repeatable.
+    #[arg(long = "connect", value_name = "ENDPOINT")]
+    pub connect: Vec<String>,
+    /// A zenoh JSON5 configuration file, used instead of the settings above (mode, endpoints,
+    /// TLS: see `docs/robots.md`).
+    #[arg(long)]
+    pub zenoh_config: Option<PathBuf>,
+}
+
+/// The session could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    /// The configuration file cannot be read or is not zenoh's.
+    #[error("{path}: not a zenoh configuration: {reason}")]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// zenoh's reason.
+        reason: String,
+    },
+    /// A setting was refused.
+    #[error("zenoh setting {key} = {value}: {reason}")]
+    Setting {
+        /// The key.
+        key: String,
+        /// The value.
+        value: String,
+        /// zenoh's reason.
+        reason: String,
+    },
+    /// The session did not open (an endpoint that cannot be bound).
+    #[error("cannot open the zenoh session: {0}")]
+    Open(String),
+}
+
+/// A JSON list of strings.
+fn json_list(v: &[String]) -> String {
+    let items: Vec<String> = v
+        .iter()
+        .map(|s| format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\"")))
+        .collect();
+    format!("[{}]", items.join(","))
+}
+
+impl ZenohArgs {
+    /// The zenoh configuration: the file, or the safe defaults with the endpoints given.
+    ///
+    /// # Errors
+    /// The file cannot be read or is not a zenoh configuration; an endpoint is malformed.
+    pub fn config(&self) -> Result<zenoh::Config, SessionError> {
+        if let Some(path) = &self.zenoh_config {
+            return zenoh::Config::from_file(path).map_err(|e| SessionError::File {
+                path: path.clone(),
+                reason: e.to_string(),
+            });
+        }
+        let list = |v: &[String], default: &str| -> String {
+            if v.is_empty() {
+                json_list(&[default.to_string()])
+            } else {
+                json_list(v)
+            }
+        };
+        let mut c = zenoh::Config::default();
+        let mut set = |k: &str, v: &str| {
+            c.insert_json5(k, v).map_err(|e| SessionError::Setting {
+                key: k.to_string(),
+                value: v.to_string(),
+                reason: e.to_string(),
+            })
+        };
+        set("mode", "\"peer\"")?;
+        set("listen/endpoints", &list(&self.listen, "tcp/127.0.0.1:0"))?;
+        set(
+            "connect/endpoints",
+            &list(&self.connect, "tcp/127.0.0.1:7447"),
+        )?;
+        set("scouting/multicast/enabled", "false")?;
+        Ok(c)
+    }
+
+    /// Opens the session.
+    ///
+    /// # Errors
+    /// As [`ZenohArgs::config`], or the session could not open.
+    pub fn open(&self) -> Result<zenoh::Session, SessionError> {
+        zenoh::open(self.config()?)
+            .wait()
+            .map_err(|e| SessionError::Open(e.to_string()))
+    }
+}
+
+/// The endpoints `session` listens on (`tcp/127.0.0.1:41234`).
+pub fn locators(session: &zenoh::Session) -> Vec<String> {
+    session
+        .info()
+        .locators()
+        .wait()
+        .iter()
+        .map(ToString::to_string)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_session_is_a_peer_on_loopback_without_multicast() {
+        let c = ZenohArgs::default().config().expect("config");
+        let get = |k: &str| c.get_json(k).expect(k);
+        assert_eq!(get("mode"), "\"peer\"");
+        assert_eq!(get("listen/endpoints"), "[\"tcp/127.0.0.1:0\"]");
+        assert_eq!(get("connect/endpoints"), "[\"tcp/127.0.0.1:7447\"]");
+        assert_eq!(get("scouting/multicast/enabled"), "false");
+        let e = ZenohArgs {
+            zenoh_config: Some("/nonexistent/z.json5".into()),
+            ..ZenohArgs::default()
+        }
+        .config()
+        .expect_err("no file")
+        .to_string();
+        assert!(
+            e.starts_with("/nonexistent/z.json5: not a zenoh configuration"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,541 @@
+//! A ROS 2 event camera as the source: `event_camera_msgs/msg/EventPacket` messages, as ROS 2
+//! event-camera drivers (metavision_driver, libcaer_driver) publish them, taken over rmw_zenoh.
+//!
+//! - [`PacketDecoder`] (no network): each packet becomes one [`EventBatch`]. Encodings: `evt3`
+//!   (Prophesee EVT 3.0 words, decoded by `neuspike_formats::evt3::Evt3Stream`, whose state
+//!   carries from packet to packet as the driver's word stream does) and `mono` (64 bits an
+//!   event: polarity bit 63, row bits 48-62, column bits 32-47, ns after `time_base` bits 0-31).
+//!   The packets' `seq` numbers a lost packet: it is logged, counted, and a gap in the batches'
+//!   sequence numbers, so the sink's summary counts it too. Batches tile time: each starts where
+//!   the one before ended and ends at its packet's last event time, whose events wait for the
+//!   next batch (the next packet may hold more at that time); the stream's end flushes them.
+//! - [`RosEvents`]: the subscription on rmw_zenoh's key for the topic (any type hash), with the
+//!   node's and the subscription's liveliness tokens, so that `ros2 topic info` counts it.
+
+use std::time::{Duration, Instant};
+
+use neuspike_formats::evt3::Evt3Stream;
+use neuspike_formats::{EventBatch, ReadOptions, Resolution};
+use neuspike_net::ros2::{
+    self, EVENT_PACKET_HASH, EVENT_PACKET_TYPE, EventPacket, RosNode, parse_attachment,
+    parse_event_packet,
+};
+use neuspike_schemas::Event;
+use zenoh::Wait;
+use zenoh::handlers::FifoChannelHandler;
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::Sample;
+
+/// Why a ROS 2 event stream failed. Each names the topic and the packet.
+#[derive(Debug, thiserror::Error)]
+pub enum RosError {
+    /// The subscription or its tokens could not be declared.
+    #[error("{topic}: cannot subscribe: {reason}")]
+    Subscribe {
+        /// The topic.
+        topic: String,
+        /// zenoh's reason.
+        reason: String,
+    },
+    /// Nothing arrived before the silence limit.
+    #[error(
+        "{topic}: no event packet arrived in {secs} s: no driver publishes it, or it cannot reach this node (see --connect/--listen)"
+    )]
+    Silent {
+        /// The topic.
+        topic: String,
+        /// The limit, seconds.
+        secs: u64,
+    },
+    /// A packet could not be read or decoded.
+    #[error("{topic}: packet {n} (seq {seq}): {reason}")]
+    Packet {
+        /// The topic.
+        topic: String,
+        /// The packet's place in what arrived (from 0).
+        n: u64,
+        /// The packet's own `seq` (0 when unknown).
+        seq: u64,
+        /// What was wrong, with the value.
+        reason: String,
+    },
+    /// The session closed under the subscriber.
+    #[error("{topic}: the zenoh session closed")]
+    Closed {
+        /// The topic.
+        topic: String,
+    },
+}
+
+enum Encoding {
+    Evt3(Box<Evt3Stream>),
+    Mono,
+}
+
+/// Packets in, batches out (see the module's documentation).
+pub struct PacketDecoder {
+    topic: String,
+    size: Option<(u16, u16)>,
+    encoding: Option<Encoding>,
+    next_packet_seq: Option<u64>,
+    lost_packets: u64,
+    packets: u64,
+    batches: u64,
+    t_end_ns: Option<i64>,
+    /// Events at the last time seen, held for the next batch.
+    carry: EventBatch,
+}
+
+impl PacketDecoder {
+    /// A decoder for the packets of `topic` (the name errors give).
+    pub fn new(topic: &str) -> Self {
+        PacketDecoder {
+            topic: topic.to_string(),
+            size: None,
+            encoding: None,
+            next_packet_seq: None,
+            lost_packets: 0,
+            packets: 0,
+            batches: 0,
+            t_end_ns: None,
+            carry: EventBatch::default(),
+        }
+    }
+
+    /// Packets lost so far (gaps in their `seq`).
+    pub fn lost_packets(&self) -> u64 {
+        self.lost_packets
+    }
+
+    /// Packets taken so far.
+    pub fn packets(&self) -> u64 {
+        self.packets
+    }
+
+    fn error(&self, p: &EventPacket, reason: String) -> RosError {
+        RosError::Packet {
+            topic: self.topic.clone(),
+            n: self.packets,
+            seq: p.seq,
+            reason,
+        }
+    }
+
+    /// The batch of packet `p`, numbered after the batches before it.
+    ///
+    /// # Errors
+    /// A sensor size that changed or does not fit 16 bits, an encoding other than `evt3` and
+    /// `mono` (or one that changed), big-endian data, or events the encoding's decoder refuses
+    /// (outside the sensor, time running backwards, damaged words).
+    pub fn packet(&mut self, p: &EventPacket) -> Result<EventBatch, RosError> {
+        let size = match (u16::try_from(p.width), u16::try_from(p.height)) {
+            (Ok(w), Ok(h)) if w > 0 && h > 0 => (w, h),
+            _ => {
+                return Err(self.error(
+                    p,
+                    format!("sensor {}x{}: not a size in 1..=65535", p.width, p.height),
+                ));
+            }
+        };
+        if let Some(s) = self.size
+            && s != size
+        {
+            return Err(self.error(
+                p,
+                format!(
+                    "sensor {}x{}, earlier packets said {}x{}",
+                    size.0, size.1, s.0, s.1
+                ),
+            ));
+        }
+        if p.is_bigendian {
+            return Err(self.error(p, "big-endian events are not supported".into()));
+        }
+        let mut encoding = match (self.encoding.take(), p.encoding.as_str()) {
+            (Some(e @ Encoding::Evt3(_)), "evt3") => e,
+            (Some(Encoding::Mono), "mono") => Encoding::Mono,
+            (None, "evt3") => Encoding::Evt3(Box::new(Evt3Stream::new(
+                format!("ros2:{}", self.topic),
+                Resolution::new(size.0, size.1),
+                &ReadOptions::default(),
+            ))),
+            (None, "mono") => Encoding::Mono,
+            (previous, other) => {
+                self.encoding = previous;
+                return Err(self.error(
+                    p,
+                    format!(
+                        "encoding {other:?}: this source reads `evt3` and `mono`, and the stream's first packet sets it"
+                    ),
+                ));
+            }
+        };
+        self.size = Some(size);
+        let mut out = EventBatch::empty(usize::from(size.0), usize::from(size.1), 0, 0, 0);
+        self.carry.width = out.width;
+        self.carry.height = out.height;
+        let decoded = match &mut encoding {
+            Encoding::Evt3(stream) => stream
+                .decode(&p.events, &mut out)
+                .map(|_| ())
+                .map_err(|e| e.to_string()),
+            Encoding::Mono => decode_mono(p, size, &mut out),
+        };
+        self.encoding = Some(encoding);
+        decoded.map_err(|e| self.error(p, e))?;
+
+        if let Some(next) = self.next_packet_seq
+            && p.seq != next
+        {
+            if p.seq > next {
+                let lost = p.seq - next;
+                self.lost_packets += lost;
+                tracing::error!(topic = %self.topic, seq = p.seq, lost, "event packets lost before this one");
+            } else {
+                tracing::warn!(topic = %self.topic, seq = p.seq, expected = next, "the driver's packet numbers went back");
+            }
+        }
+        self.next_packet_seq = Some(p.seq.wrapping_add(1));
+        self.packets += 1;
+
+        // The interval: from where the last batch ended (or the first event, or the packet's
+        // stamp) to this packet's last event time, exclusive. Events at that time wait for the
+        // next batch: the next packet may hold more of them.
+        let first = self.carry.t_ns.first().or(out.t_ns.first()).copied();
+        let start = self.t_end_ns.or(first).unwrap_or(p.stamp_ns);
+        if let (Some(t), Some(floor)) = (out.t_ns.first().copied(), self.t_end_ns)
+            && t < floor
+        {
+            return Err(self.error(
+                p,
+                format!(
+                    "its first event at t_ns {t} is earlier than the previous packet's last, at {floor}"
+                ),
+            ));
+        }
+        let mut events = std::mem::replace(
+            &mut self.carry,
+            EventBatch::empty(out.width, out.height, 0, 0, 0),
+        );
+        for i in 0..out.len() {
+            events.push(out.get(i));
+        }
+        let end = events.t_ns.last().copied().unwrap_or(start).max(start);
+        let keep = events.t_ns.partition_point(|&t| t < end);
+        for i in keep..events.len() {
+            self.carry.push(events.get(i));
+        }
+        events.truncate(keep);
+        Ok(self.numbered(events, start, end))
+    }
+
+    /// The events held back at the last time seen, as the stream's final batch (`None` when
+    /// none are).
+    pub fn flush(&mut self) -> Option<EventBatch> {
+        let last = self.carry.t_ns.last().copied()?;
+        let start = self.t_end_ns.unwrap_or(last);
+        let empty = EventBatch::empty(self.carry.width, self.carry.height, 0, 0, 0);
+        let events = std::mem::replace(&mut self.carry, empty);
+        Some(self.numbered(events, start, last.saturating_add(1)))
+    }
+
+    fn numbered(&mut self, mut batch: EventBatch, start: i64, end: i64) -> EventBatch {
+        batch.t_start_ns = start;
+        batch.t_end_ns = end;
+        // Numbered so that a lost packet is a gap downstream too.
+        batch.seq = self.batches + self.lost_packets;
+        self.batches += 1;
+        self.t_end_ns = Some(end);
+        batch
+    }
+}
+
+/// The `mono` encoding: 8 bytes an event, little-endian; polarity bit 63, row bits 48-62, column
+/// bits 32-47, ns after `time_base` bits 0-31.
+fn decode_mono(p: &EventPacket, size: (u16, u16), out: &mut EventBatch) -> Result<(), String> {
+    if !p.events.len().is_multiple_of(8) {
+        return Err(format!(
+            "`mono` events of {} bytes, not a multiple of 8",
+            p.events.len()
+        ));
+    }
+    let base = i64::try_from(p.time_base)
+        .map_err(|_| format!("time_base {} does not fit a time in ns", p.time_base))?;
+    let mut last = i64::MIN;
+    for (i, w) in p.events.chunks_exact(8).enumerate() {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(w);
+        let v = u64::from_le_bytes(b);
+        let on = v >> 63 == 1;
+        let y = ((v >> 48) & 0x7FFF) as u32;
+        let x = ((v >> 32) & 0xFFFF) as u32;
+        let t = base.saturating_add((v & 0xFFFF_FFFF) as i64);
+        if x >= u32::from(size.0) || y >= u32::from(size.1) {
+            return Err(format!(
+                "event {i} at ({x}, {y}) is outside the {}x{} sensor",
+                size.0, size.1
+            ));
+        }
+        if t < last {
+            return Err(format!(
+                "event {i} at t_ns {t} is earlier than event {} at {last}",
+                i - 1
+            ));
+        }
+        last = t;
+        out.push(Event {
+            t_ns: t,
+            x: x as u16,
+            y: y as u16,
+            polarity: if on { 1 } else { -1 },
+        });
+    }
+    Ok(())
+}
+
+/// What [`RosEvents::next`] took.
+#[derive(Debug)]
+pub enum RosTaken {
+    /// A packet's batch, with the time the driver published it (from its attachment), ns since
+    /// the epoch.
+    Batch(EventBatch, Option<i64>),
+    /// The driver went quiet for the silence limit after sending: the stream ends.
+    End,
+    /// Nothing yet.
+    Idle,
+}
+
+/// A ROS 2 event topic, subscribed over rmw_zenoh.
+pub struct RosEvents {
+    topic: String,
+    sub: Subscriber<FifoChannelHandler<Sample>>,
+    decoder: PacketDecoder,
+    silence: Duration,
+    last: Instant,
+    _tokens: [zenoh::liveliness::LivelinessToken; 2],
+}
+
+impl RosEvents {
+    /// Subscribes to `topic` in ROS domain `domain` on `session` as node `node`. Before the
+    /// first packet, `silence` without one is an error; after it, the end of the stream.
+    ///
+    /// # Errors
+    /// zenoh refused the subscription or a token.
+    pub fn subscribe(
+        session: &zenoh::Session,
+        topic: &str,
+        domain: u32,
+        node: &str,
+        silence: Duration,
+    ) -> Result<Self, RosError> {
+        let err = |e: zenoh::Error| RosError::Subscribe {
+            topic: topic.to_string(),
+            reason: e.to_string(),
+        };
+        let ros = RosNode {
+            domain,
+            zid: session.zid().to_string(),
+            node_id: 0,
+            namespace: "/".into(),
+            name: node.to_string(),
+        };
+        // Any type hash: drivers built against other message versions are still read, and a
+        // packet that is not an EventPacket fails to parse with its packet named.
+        let key = format!(
+            "{domain}/{}/{EVENT_PACKET_TYPE}/*",
+            ros2::strip_topic(topic)
+        );
+        let sub = session
+            .declare_subscriber(key)
+            .with(zenoh::handlers::FifoChannel::new(256))
+            .wait()
+            .map_err(err)?;
+        let node_token = session
+            .liveliness()
+            .declare_token(ros.node_token())
+            .wait()
+            .map_err(err)?;
+        let sub_token = session
+            .liveliness()
+            .declare_token(ros.subscriber_token(1, topic, EVENT_PACKET_TYPE, EVENT_PACKET_HASH))
+            .wait()
+            .map_err(err)?;
+        Ok(RosEvents {
+            topic: topic.to_string(),
+            sub,
+            decoder: PacketDecoder::new(topic),
+            silence,
+            last: Instant::now(),
+            _tokens: [node_token, sub_token],
+        })
+    }
+
+    /// The packets' decoder (its counts).
+    pub fn decoder(&self) -> &PacketDecoder {
+        &self.decoder
+    }
+
+    /// Waits up to `wait` for the next packet.
+    ///
+    /// # Errors
+    /// Silence before the first packet, a packet that cannot be read or decoded, or the session
+    /// closed.
+    pub fn next(&mut self, wait: Duration) -> Result<RosTaken, RosError> {
+        let sample = match self.sub.recv_timeout(wait) {
+            Ok(Some(s)) => s,
+            Ok(None) if self.last.elapsed() < self.silence => return Ok(RosTaken::Idle),
+            Ok(None) if self.decoder.packets() > 0 => {
+                if let Some(last) = self.decoder.flush() {
+                    return Ok(RosTaken::Batch(last, None));
+                }
+                tracing::info!(topic = %self.topic, packets = self.decoder.packets(), lost = self.decoder.lost_packets(), "no packet for {} s: the stream ends", self.silence.as_secs());
+                return Ok(RosTaken::End);
+            }
+            Ok(None) => {
+                return Err(RosError::Silent {
+                    topic: self.topic.clone(),
+                    secs: self.silence.as_secs(),
+                });
+            }
+            Err(_) => {
+                return Err(RosError::Closed {
+                    topic: self.topic.clone(),
+                });
+            }
+        };
+        self.last = Instant::now();
+        let n = self.decoder.packets();
+        let origin = sample
+            .attachment()
+            .and_then(|a| parse_attachment(&a.to_bytes()).ok())
+            .map(|a| a.source_ns);
+        let packet =
+            parse_event_packet(&sample.payload().to_bytes()).map_err(|e| RosError::Packet {
+                topic: self.topic.clone(),
+                n,
+                seq: 0,
+                reason: e.to_string(),
+            })?;
+        let batch = self.decoder.packet(&packet)?;
+        Ok(RosTaken::Batch(batch, origin))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn packet(seq: u64, encoding: &str, events: Vec<u8>) -> EventPacket {
+        EventPacket {
+            stamp_ns: 0,
+            frame_id: "dvs".into(),
+            height: 30,
+            width: 40,
+            seq,
+            time_base: 1_000_000,
+            encoding: encoding.into(),
+            is_bigendian: false,
+            events,
+        }
+    }
+
+    fn mono(t: u32, x: u16, y: u16, on: bool) -> [u8; 8] {
+        (u64::from(on) << 63 | u64::from(y) << 48 | u64::from(x) << 32 | u64::from(t)).to_le_bytes()
+    }
+
+    #[test]
+    fn mono_packets_become_batches_that_tile_time_and_lost_packets_are_counted() {
+        let mut d = PacketDecoder::new("/dvs/events");
+        let b = d
+            .packet(&packet(
+                5,
+                "mono",
+                [mono(10, 1, 2, true), mono(20, 39, 29, false)].concat(),
+            ))
+            .expect("packet");
+        // The last time's events wait: the next packet may hold more at that time.
+        assert_eq!(b.t_ns, [1_000_010]);
+        assert_eq!(
+            (b.x.clone(), b.y.clone(), b.polarity.clone()),
+            (vec![1], vec![2], vec![1])
+        );
+        assert_eq!((b.t_start_ns, b.t_end_ns, b.seq), (1_000_010, 1_000_020, 0));
+        // Packet 6 lost; 7 is empty and still moves nothing back.
+        let b = d.packet(&packet(7, "mono", vec![])).expect("empty");
+        assert_eq!(
+            (b.t_start_ns, b.t_end_ns, b.seq, b.len()),
+            (1_000_020, 1_000_020, 2, 0),
+            "seq 1 lost"
+        );
+        assert_eq!(d.lost_packets(), 1);
+        let b = d
+            .packet(&packet(8, "mono", mono(20, 3, 4, false).to_vec()))
+            .expect("same time");
+        assert_eq!(b.len(), 0, "both events at 1_000_020 still wait");
+        let last = d.flush().expect("the held events");
+        assert_eq!(last.t_ns, [1_000_020, 1_000_020]);
+        assert_eq!(
+            (last.x.clone(), last.polarity.clone()),
+            (vec![39, 3], vec![-1, -1])
+        );
+        assert_eq!(
+            (last.t_start_ns, last.t_end_ns, last.seq),
+            (1_000_020, 1_000_021, 4)
+        );
+        assert!(d.flush().is_none());
+        let e = d
+            .packet(&packet(9, "mono", mono(50, 40, 0, true).to_vec()))
+            .expect_err("outside")
+            .to_string();
+        assert!(
+            e.contains("/dvs/events") && e.contains("(40, 0) is outside the 40x30"),
+            "{e}"
+        );
+        let e = d
+            .packet(&packet(10, "evt3", vec![]))
+            .expect_err("encoding changed")
+            .to_string();
+        assert!(e.contains("\"evt3\""), "{e}");
+        let mut big = packet(11, "mono", vec![]);
+        big.width = 41;
+        assert!(
+            d.packet(&big)
+                .expect_err("size changed")
+                .to_string()
+                .contains("earlier packets said 40x30")
+        );
+    }
+
+    #[test]
+    fn evt3_packets_carry_the_decoders_state_from_one_to_the_next() {
+        let mut whole = EventBatch::empty(40, 30, 0, 1_000_000_000, 0);
+        for i in 0..200i64 {
+            whole.push(Event {
+                t_ns: 1_000 * (3 * i),
+                x: (i % 40) as u16,
+                y: (i % 30) as u16,
+                polarity: if i % 2 == 0 { 1 } else { -1 },
+            });
+        }
+        let words =
+            neuspike_formats::evt3::packet_words(&whole, Resolution::new(40, 30)).expect("words");
+        let mut d = PacketDecoder::new("/events");
+        let mut got = Vec::new();
+        let mut last_end = None;
+        for (i, piece) in words.chunks(64).enumerate() {
+            let b = d
+                .packet(&packet(i as u64, "evt3", piece.to_vec()))
+                .expect("packet");
+            if let Some(e) = last_end {
+                assert_eq!(b.t_start_ns, e, "batches tile time");
+            }
+            last_end = Some(b.t_end_ns);
+            got.extend_from_slice(&b.t_ns);
+        }
+        let last = d.flush().expect("the last time's events");
+        assert_eq!(last.t_start_ns, last_end.expect("batches"));
+        got.extend_from_slice(&last.t_ns);
+        assert_eq!(got, whole.t_ns);
+        assert_eq!(d.lost_packets(), 0);
+    }
+}
