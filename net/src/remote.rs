@@ -60,7 +60,7 @@ pub enum RemoteError {
         /// The key.
         key: String,
         /// The limit, seconds.
-        secs: u64,
+        secs: f64,
         /// Messages received before the silence.
         received: u64,
     },
@@ -187,7 +187,7 @@ impl Remote {
                     if self.last.elapsed() >= self.silence {
                         return Err(RemoteError::Silent {
                             key: self.key.clone(),
-                            secs: self.silence.as_secs(),
+                            secs: self.silence.as_secs_f64(),
                             received: self.seq.received(),
                         });
                     }
@@ -249,5 +249,162 @@ impl Remote {
             }
             return Ok(Taken::Message(meta, data));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neuspike_schemas::arrow::array::{Array, UInt8Array};
+    use neuspike_schemas::{Message, Parameter, SpikeChunk, end_of_stream};
+    use std::sync::Arc;
+
+    fn session(listen: &str, connect: &str) -> zenoh::Session {
+        let mut c = zenoh::Config::default();
+        c.insert_json5("mode", "\"peer\"").expect("mode");
+        c.insert_json5("listen/endpoints", &format!("[\"{listen}\"]"))
+            .expect("listen");
+        c.insert_json5("connect/endpoints", &format!("[{connect}]"))
+            .expect("connect");
+        c.insert_json5("scouting/multicast/enabled", "false")
+            .expect("scouting");
+        zenoh::open(c).wait().expect("session")
+    }
+
+    fn chunk(seq: u64) -> (Meta, ArrayRef) {
+        let c = SpikeChunk {
+            width: 8,
+            height: 1,
+            first_plane: seq,
+            n_planes: 1,
+            t_first_ns: 0,
+            plane_period_ns: 50_000,
+            seq,
+            bits: vec![seq as u8],
+            lum_per_rate: None,
+        };
+        c.to_arrow()
+    }
+
+    fn next_taken(r: &mut Remote) -> Taken {
+        for _ in 0..50 {
+            match r.next(Duration::from_millis(100)).expect("next") {
+                Taken::Idle => {}
+                t => return t,
+            }
+        }
+        panic!("nothing arrived");
+    }
+
+    #[test]
+    fn gaps_are_counted_duplicates_dropped_and_the_end_says_how_many_were_sent() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("port")
+            .port();
+        let a = session(&format!("tcp/127.0.0.1:{port}"), "");
+        let b = session("tcp/127.0.0.1:0", &format!("\"tcp/127.0.0.1:{port}\""));
+        let mut remote = Remote::subscribe(
+            &a,
+            "test/spikes",
+            SpikeChunk::TYPE_URN,
+            Duration::from_secs(10),
+        )
+        .expect("subscribe");
+        let publisher = b
+            .declare_publisher("test/spikes")
+            .wait()
+            .expect("publisher");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !publisher
+            .matching_status()
+            .wait()
+            .expect("status")
+            .matching()
+        {
+            assert!(Instant::now() < deadline, "the subscriber never matched");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let put = |urn: &str, (m, d): (Meta, ArrayRef)| {
+            publisher
+                .put(ipc::encode(urn, &m, &d).expect("encode"))
+                .wait()
+                .expect("put");
+        };
+        for seq in [0, 1, 3, 3] {
+            put(SpikeChunk::TYPE_URN, chunk(seq));
+        }
+        let (mut eos, d) = end_of_stream::<SpikeChunk>(5);
+        eos.insert("cut".into(), Parameter::Bool(true));
+        put(SpikeChunk::TYPE_URN, (eos, d));
+        let mut seqs = Vec::new();
+        loop {
+            match next_taken(&mut remote) {
+                Taken::Message(m, d) => {
+                    seqs.push(SpikeChunk::from_arrow(&m, &d).expect("chunk").seq);
+                }
+                Taken::End { count, cut } => {
+                    assert_eq!((count, cut), (5, true));
+                    break;
+                }
+                Taken::Idle => unreachable!(),
+            }
+        }
+        assert_eq!(seqs, [0, 1, 3], "the duplicate is dropped");
+        assert_eq!(
+            (remote.received(), remote.missing()),
+            (3, 2),
+            "seq 2 and seq 4"
+        );
+
+        // Another type, or bytes that are not a message, are errors naming the key.
+        let bytes: ArrayRef = Arc::new(UInt8Array::from(vec![1u8]));
+        let mut m = Meta::new();
+        m.insert("seq".into(), Parameter::Integer(9));
+        put("neuspike/messages/v1/Frame", (m, bytes.clone()));
+        let e = loop {
+            match remote.next(Duration::from_millis(100)) {
+                Ok(Taken::Idle) => {}
+                Ok(other) => panic!("{other:?}"),
+                Err(e) => break e.to_string(),
+            }
+        };
+        assert!(
+            e.contains("test/spikes") && e.contains("is a neuspike/messages/v1/Frame"),
+            "{e}"
+        );
+        assert_eq!(bytes.len(), 1);
+        publisher.put(b"not arrow".to_vec()).wait().expect("put");
+        let e = loop {
+            match remote.next(Duration::from_millis(100)) {
+                Ok(Taken::Idle) => {}
+                Ok(other) => panic!("{other:?}"),
+                Err(e) => break e.to_string(),
+            }
+        };
+        assert!(e.contains("is not a neuspike message"), "{e}");
+    }
+
+    #[test]
+    fn a_silent_key_is_an_error_naming_it() {
+        let a = session("tcp/127.0.0.1:0", "");
+        let mut remote = Remote::subscribe(
+            &a,
+            "test/nobody",
+            SpikeChunk::TYPE_URN,
+            Duration::from_millis(300),
+        )
+        .expect("subscribe");
+        let e = loop {
+            match remote.next(Duration::from_millis(100)) {
+                Ok(Taken::Idle) => {}
+                Ok(other) => panic!("{other:?}"),
+                Err(e) => break e.to_string(),
+            }
+        };
+        assert!(
+            e.starts_with("test/nobody: nothing arrived for 0.3 s"),
+            "{e}"
+        );
     }
 }
