@@ -455,3 +455,60 @@ fn a_users_python_node_takes_infers_place_and_agrees_with_the_rust_node() {
     }
     assert!(worst <= 1, "frames differ by {worst} 16-bit levels");
 }
+
+/// `graphs/view.yml`: the rerun viewer node, one entry in the live graph, records the frames (here
+/// to a file, `--save`) while the sink still gets every frame: the viewer never holds the graph.
+#[test]
+fn the_rerun_viewer_node_shows_the_frames_without_holding_the_graph() {
+    if !python_has("pyarrow, numpy, dora, rerun") {
+        return;
+    }
+    let out = tempfile::tempdir().expect("tempdir");
+    let rrd = out.path().join("run.rrd");
+    let report = neuspike::graph::run(
+        &root().join("graphs/view.yml"),
+        &[
+            ("spike-source".into(), "--max-planes 20000".into()),
+            (
+                "sink".into(),
+                format!("--out {}", out.path().join("sink").display()),
+            ),
+            ("view".into(), format!("--save {}", rrd.display())),
+        ],
+        true,
+        Some(Duration::from_secs(300)),
+        None,
+    )
+    .expect("graph ran");
+    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    let summary = std::fs::read_to_string(out.path().join("sink/summary.md")).expect("summary");
+    assert!(summary.contains("| tfp | 199 | 199 |"), "{summary}");
+    let printed = Command::new("python3")
+        .args(["-m", "rerun", "rrd", "print"])
+        .arg(&rrd)
+        .output()
+        .expect("rerun rrd print");
+    assert!(printed.status.success(), "{printed:?}");
+    let text = String::from_utf8_lossy(&printed.stdout);
+    let mut chunks: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("Chunk(") && l.contains("/frames/tfp"))
+        .collect();
+    chunks.sort_unstable();
+    chunks.dedup();
+    let rows: usize = chunks
+        .iter()
+        .filter_map(|l| {
+            l.split(" with ")
+                .nth(1)?
+                .split(" rows")
+                .next()?
+                .parse::<usize>()
+                .ok()
+        })
+        .sum();
+    assert!(
+        rows > 0 && rows <= 199,
+        "{rows} frames in the recording:\n{text}"
+    );
+}

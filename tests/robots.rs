@@ -85,7 +85,8 @@ fn read_png8(path: &Path) -> Vec<u8> {
 /// `graphs/publish.yml`, one second of a 20 kHz camera at 200 frames/s, heard by an independent
 /// ROS 2 subscriber: every frame arrives as a `sensor_msgs/msg/Image` (mono8) with its
 /// attachment, numbered 1, 2, 3, ... without a gap, stamped with the frame's instant, and its
-/// pixels are exactly those of the PNG the sink wrote for the same frame.
+/// pixels are exactly those of the PNG the sink wrote for the same frame. The publish node records
+/// the run as a ROS 2 bag (MCAP) too, and the MCAP library reads the same images back from it.
 #[test]
 fn an_independent_ros2_subscriber_sees_every_frame_with_the_sinks_pixels() {
     if !python_has("zenoh, rosbags, pyarrow, numpy") {
@@ -112,7 +113,13 @@ fn an_independent_ros2_subscriber_sees_every_frame_with_the_sinks_pixels() {
                 "sink".into(),
                 format!("--out {} --write-every 1", sink_out.display()),
             ),
-            ("publish".into(), format!("--connect tcp/127.0.0.1:{port}")),
+            (
+                "publish".into(),
+                format!(
+                    "--connect tcp/127.0.0.1:{port} --mcap {}",
+                    out.path().join("run.mcap").display()
+                ),
+            ),
         ],
         true,
         Some(Duration::from_secs(300)),
@@ -151,7 +158,38 @@ fn an_independent_ros2_subscriber_sees_every_frame_with_the_sinks_pixels() {
         "{report}"
     );
 
-    let read = |name: &str| std::fs::read(heard.join(name)).expect("the peer's arrays");
+    check_images(&heard, &frames, &sink_out, true);
+
+    // The same run, recorded as a ROS 2 bag by the publish node, read by the MCAP library.
+    if python_has("mcap") {
+        let bag = out.path().join("bag");
+        let read = Command::new("python3")
+            .arg(root().join("tests/robots/read_bag.py"))
+            .arg(out.path().join("run.mcap"))
+            .arg("--out")
+            .arg(&bag)
+            .output()
+            .expect("python3 runs");
+        assert!(
+            read.status.success(),
+            "the bag is not a ROS 2 bag of the frames: {}{}",
+            String::from_utf8_lossy(&read.stdout),
+            String::from_utf8_lossy(&read.stderr)
+        );
+        let report = std::fs::read_to_string(bag.join("report.json")).expect("report");
+        assert!(
+            report.contains(&format!("\"arrow_messages\": {}", frames.len() + 1)),
+            "every neuspike message and the end-of-stream marker: {report}"
+        );
+        check_images(&bag, &frames, &sink_out, false);
+    }
+}
+
+/// The images a peer wrote into `dir` (`images.bin`, `stamps.bin`, and with `numbered`
+/// `seqs.bin`) against the sink's frames `(seq, t_ref_ns, file)`: the same count and order,
+/// stamps equal to the frames' instants, pixels equal to the PNGs'.
+fn check_images(dir: &Path, frames: &[(u64, i64, String)], sink_out: &Path, numbered: bool) {
+    let read = |name: &str| std::fs::read(dir.join(name)).expect("the peer's arrays");
     let pixels = read("images.bin");
     let int64 = |bytes: Vec<u8>| -> Vec<i64> {
         bytes
@@ -160,9 +198,12 @@ fn an_independent_ros2_subscriber_sees_every_frame_with_the_sinks_pixels() {
             .collect()
     };
     let stamps = int64(read("stamps.bin"));
-    let seqs = int64(read("seqs.bin"));
-    let expected_seqs: Vec<i64> = (1..=frames.len() as i64).collect();
-    assert_eq!(seqs, expected_seqs, "attachment sequence numbers");
+    assert_eq!(stamps.len(), frames.len(), "{}", dir.display());
+    if numbered {
+        let seqs = int64(read("seqs.bin"));
+        let expected_seqs: Vec<i64> = (1..=frames.len() as i64).collect();
+        assert_eq!(seqs, expected_seqs, "attachment sequence numbers");
+    }
     let size = pixels.len() / frames.len();
     for (i, (_, t_ref_ns, file)) in frames.iter().enumerate() {
         assert_eq!(stamps[i], *t_ref_ns, "image {i}: header.stamp");

@@ -69,9 +69,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def main() -> int:
     args = parse_args()
-    from dora import Node
-
-    node = Node()
+    node = neuspike.link.init_node()
     try:
         run(Link(node), args.gamma)
     except (neuspike.SchemaError, ValueError, RuntimeError) as e:

@@ -366,6 +366,74 @@ pub fn parse_event_packet(bytes: &[u8]) -> Result<EventPacket, CdrError> {
     })
 }
 
+/// A `sensor_msgs/msg/Image` read from CDR.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Image {
+    /// `header.stamp`, ns since the epoch.
+    pub stamp_ns: i64,
+    /// `header.frame_id`.
+    pub frame_id: String,
+    /// Rows.
+    pub height: u32,
+    /// Columns.
+    pub width: u32,
+    /// `mono8`, `mono16`, `32FC1`, ...
+    pub encoding: String,
+    /// Whether multi-byte pixels are big-endian.
+    pub is_bigendian: bool,
+    /// Bytes per row.
+    pub step: u32,
+    /// `height` rows of `step` bytes.
+    pub data: Vec<u8>,
+}
+
+/// Reads a `sensor_msgs/msg/Image` from its CDR bytes and checks that `data` holds `height`
+/// rows of `step` bytes.
+///
+/// # Errors
+/// As [`parse_event_packet`], or `data` disagrees with `height x step`.
+pub fn parse_image(bytes: &[u8]) -> Result<Image, CdrError> {
+    let mut r = CdrReader::new("Image", bytes)?;
+    let sec = r.i32("header.stamp.sec")?;
+    let nanosec = r.u32("header.stamp.nanosec")?;
+    let frame_id = r.string("header.frame_id")?;
+    let height = r.u32("height")?;
+    let width = r.u32("width")?;
+    let encoding = r.string("encoding")?;
+    let is_bigendian = r.u8("is_bigendian")? != 0;
+    let step = r.u32("step")?;
+    let at = r.at;
+    let data = r.bytes("data")?.to_vec();
+    if u64::from(height) * u64::from(step) != data.len() as u64 {
+        return Err(CdrError::new(
+            "Image",
+            at,
+            format!(
+                "data of {} bytes, {height} rows of {step} bytes need {}",
+                data.len(),
+                u64::from(height) * u64::from(step)
+            ),
+        ));
+    }
+    if bytes.len() - r.at > 3 {
+        return Err(CdrError::new(
+            "Image",
+            r.at,
+            format!("{} bytes after the message", bytes.len() - r.at),
+        ));
+    }
+    Ok(Image {
+        stamp_ns: i64::from(sec) * 1_000_000_000 + i64::from(nanosec.min(999_999_999)),
+        frame_id,
+        height,
+        width,
+        encoding,
+        is_bigendian,
+        step,
+        data,
+    })
+}
+
 /// A name as a liveliness token holds it: every `/` becomes `%`; empty is `%`.
 pub fn mangle(name: &str) -> String {
     if name.is_empty() {
@@ -586,6 +654,35 @@ mod tests {
         let a = parse_attachment(&attachment(5, 6, &[9; 16])).expect("attachment");
         assert_eq!((a.seq, a.source_ns, a.gid), (5, 6, [9; 16]));
         assert!(parse_attachment(&[0; 32]).is_err());
+    }
+
+    #[test]
+    fn images_read_back_and_damage_is_named() {
+        let bytes = image_cdr(-1, "cam", 2, 3, "mono8", 3, &[1, 2, 3, 4, 5, 6]);
+        let img = parse_image(&bytes).expect("image");
+        assert_eq!(
+            (
+                img.stamp_ns,
+                img.frame_id.as_str(),
+                img.height,
+                img.width,
+                img.step
+            ),
+            (-1, "cam", 2, 3, 3)
+        );
+        assert_eq!(
+            (img.encoding.as_str(), img.data.clone()),
+            ("mono8", vec![1, 2, 3, 4, 5, 6])
+        );
+        for cut in 0..bytes.len() {
+            assert!(parse_image(&bytes[..cut]).is_err(), "cut at {cut}");
+        }
+        let short = image_cdr(0, "cam", 2, 3, "mono8", 4, &[1, 2, 3, 4, 5, 6]);
+        let e = parse_image(&short).expect_err("2 rows of 4").to_string();
+        assert!(
+            e.contains("data of 6 bytes, 2 rows of 4 bytes need 8"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -11,6 +11,7 @@
 //!   Anything else (other endpoints, a router elsewhere, TLS) comes from a zenoh JSON5 file
 //!   (`--zenoh-config`).
 
+pub mod bag;
 pub mod image;
 
 use std::collections::BTreeMap;
@@ -60,6 +61,11 @@ pub struct PublishConfig {
     /// back, nothing is lost) or `drop` (a live view that must never slow the graph).
     #[arg(long, value_enum, default_value_t = Congestion::Block)]
     pub congestion: Congestion,
+    /// Also record the run into this MCAP file, as a ROS 2 bag (`ros2 bag play` reads it):
+    /// every ROS 2 topic the node publishes, and neuspike's own messages under their keys. A
+    /// relative path is relative to the graph's folder.
+    #[arg(long)]
+    pub mcap: Option<std::path::PathBuf>,
     /// The zenoh session.
     #[command(flatten)]
     pub zenoh: ZenohArgs,
@@ -181,6 +187,7 @@ enum RosKind {
 /// A ROS 2 publisher.
 struct RosImages {
     key: zenoh::pubsub::Publisher<'static>,
+    topic: String,
     kind: RosKind,
     gid: [u8; 16],
     sent: i64,
@@ -196,6 +203,7 @@ pub struct Publisher {
     ros: BTreeMap<String, RosImages>,
     _node_token: Option<zenoh::liveliness::LivelinessToken>,
     published: u64,
+    bag: Option<bag::Bag>,
 }
 
 impl Publisher {
@@ -263,6 +271,7 @@ impl Publisher {
                     r.input.clone(),
                     RosImages {
                         key: p,
+                        topic: r.topic.clone(),
                         kind,
                         gid,
                         sent: 0,
@@ -279,6 +288,7 @@ impl Publisher {
             ros,
             _node_token: node_token,
             published: 0,
+            bag: cfg.mcap.as_deref().map(bag::Bag::create).transpose()?,
         })
     }
 
@@ -314,6 +324,9 @@ impl Publisher {
         if let Some(p) = self.arrow.get(input) {
             let bytes = ipc::encode(type_urn, meta, data)
                 .wrap_err_with(|| format!("input `{input}`: cannot encode"))?;
+            if let Some(bag) = &mut self.bag {
+                bag.neuspike(&format!("neuspike/{}/{input}", self.graph), &bytes, now_ns)?;
+            }
             p.put(bytes)
                 .wait()
                 .map_err(|e| eyre!("neuspike/{}/{input}: {e}", self.graph))?;
@@ -354,6 +367,28 @@ impl Publisher {
                 }
             };
             r.sent += 1;
+            if let Some(bag) = &mut self.bag {
+                let (type_name, definition, stamp_ns) = match r.kind {
+                    RosKind::Image(_) => (
+                        "sensor_msgs/msg/Image",
+                        bag::image_definition(),
+                        stamp_of(meta, neuspike_schemas::meta::T_REF_NS),
+                    ),
+                    RosKind::Events => (
+                        "event_camera_msgs/msg/EventPacket",
+                        bag::event_packet_definition(),
+                        stamp_of(meta, neuspike_schemas::meta::T_START_NS),
+                    ),
+                };
+                bag.ros2(
+                    &r.topic,
+                    type_name,
+                    &definition,
+                    &cdr,
+                    now_ns,
+                    stamp_ns.unwrap_or(now_ns),
+                )?;
+            }
             let attachment = ros2::attachment(r.sent, now_ns, &r.gid);
             r.key
                 .put(cdr)
@@ -363,6 +398,28 @@ impl Publisher {
             self.published += 1;
         }
         Ok(())
+    }
+}
+
+impl Publisher {
+    /// Finishes the bag, if the run is recorded: its summary and index.
+    ///
+    /// # Errors
+    /// The bag could not be written.
+    pub fn finish(&mut self) -> eyre::Result<()> {
+        if let Some(bag) = self.bag.take() {
+            let n = bag.messages();
+            let path = bag.finish()?;
+            tracing::info!(path = %path.display(), messages = n, "bag written");
+        }
+        Ok(())
+    }
+}
+
+fn stamp_of(meta: &Meta, key: &'static str) -> Option<i64> {
+    match meta.get(key) {
+        Some(neuspike_schemas::Parameter::Integer(t)) => Some(*t),
+        _ => None,
     }
 }
 
@@ -398,6 +455,7 @@ mod tests {
             ros_namespace: "/".into(),
             frame_id: "f".into(),
             congestion: Congestion::Block,
+            mcap: None,
             zenoh: ZenohArgs::default(),
         };
         let inputs = ["tfp".to_string(), "tfi".to_string()];

@@ -66,7 +66,7 @@ fn run(
     let types = input_types(&node, inputs);
     let mut streams = Inputs::new(inputs);
     let mut link = Link::new(node, events)?;
-    receive(&mut link, &mut streams, |_, msg| {
+    let received = receive(&mut link, &mut streams, |_, msg| {
         match msg {
             Received::Message { input, meta, data } => {
                 let urn = types.get(input).map_or("unknown", String::as_str);
@@ -80,7 +80,11 @@ fn run(
             }
         }
         Ok(Flow::Continue)
-    })?;
+    });
+    // The bag is finished whatever happened: what was recorded stays readable.
+    let finished = publisher.finish();
+    received?;
+    finished?;
     tracing::info!(
         published = publisher.published(),
         lost = streams.missing(),

@@ -14,6 +14,10 @@
 //! its camera is now, on its first start's clock, and numbers its chunks as if it had sent the
 //! planes it missed: its consumers count them as a gap. A fast source cannot tell where it
 //! stopped, and a restart of one fails with an error saying so.
+//!
+//! Or the camera is on another machine: `--from-zenoh KEY` relays the SpikeChunks it publishes
+//! (`neuspike publish-file`, a graph's publish node), a chunk lost on the way counted by its
+//! sequence number and passed on as a gap.
 
 use std::time::Duration;
 
