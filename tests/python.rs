@@ -10,10 +10,12 @@
 //! Each test skips with a printed notice where Python lacks pyarrow and numpy (or dora-rs, for
 //! the graph); CI installs them.
 
+mod common;
+use common::{python_has, root, run_graph};
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Arc;
-use std::time::Duration;
 
 use ndarray::{Array2, Array3};
 use neuspike_schemas::arrow::array::{ArrayRef, Float32Array, Int32Array, UInt8Array};
@@ -21,24 +23,6 @@ use neuspike_schemas::{
     Credit, EventBatch, Frame, FrameKind, Message, Meta, MetaExt, Parameter, Representation,
     RepresentationKind, SpikeChunk, end_of_stream, ipc,
 };
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// Whether `python3` imports every module of `modules`; prints why not.
-fn python_has(modules: &str) -> bool {
-    let ok = Command::new("python3")
-        .args(["-c", &format!("import {modules}")])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !ok {
-        eprintln!(
-            "notice: skipped: python3 cannot import {modules} (pip install pyarrow numpy dora-rs==1.1.0)"
-        );
-    }
-    ok
-}
 
 fn python(args: &[&str], env: &[(&str, &Path)]) {
     let mut cmd = Command::new("python3");
@@ -416,18 +400,10 @@ fn a_users_python_node_takes_infers_place_and_agrees_with_the_rust_node() {
     }
     let run = |graph: &str| {
         let out = tempfile::tempdir().expect("tempdir");
-        let report = neuspike::graph::run(
-            &root().join(graph),
-            &[(
-                "sink".to_string(),
-                format!("--out {}", out.path().display()),
-            )],
-            true,
-            Some(Duration::from_secs(300)),
-            None,
-        )
-        .expect("graph ran");
-        assert!(report.failures.is_empty(), "{graph}: {:?}", report.failures);
+        run_graph(
+            graph,
+            &[("sink", format!("--out {}", out.path().display()))],
+        );
         out
     };
     let py = run("examples/python-node/graph.yml");
@@ -465,22 +441,17 @@ fn the_rerun_viewer_node_shows_the_frames_without_holding_the_graph() {
     }
     let out = tempfile::tempdir().expect("tempdir");
     let rrd = out.path().join("run.rrd");
-    let report = neuspike::graph::run(
-        &root().join("graphs/view.yml"),
+    run_graph(
+        "graphs/view.yml",
         &[
-            ("spike-source".into(), "--max-planes 20000".into()),
+            ("spike-source", "--max-planes 20000".into()),
             (
-                "sink".into(),
+                "sink",
                 format!("--out {}", out.path().join("sink").display()),
             ),
-            ("view".into(), format!("--save {}", rrd.display())),
+            ("view", format!("--save {}", rrd.display())),
         ],
-        true,
-        Some(Duration::from_secs(300)),
-        None,
-    )
-    .expect("graph ran");
-    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    );
     let summary = std::fs::read_to_string(out.path().join("sink/summary.md")).expect("summary");
     assert!(summary.contains("| tfp | 199 | 199 |"), "{summary}");
     let printed = Command::new("python3")

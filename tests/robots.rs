@@ -3,29 +3,13 @@
 //!
 //! Each test skips with a printed notice where Python lacks a package; CI installs them.
 
+mod common;
+use common::{python_has, root, run_graph};
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-/// Whether `python3` imports every module of `modules`; prints why not.
-fn python_has(modules: &str) -> bool {
-    let ok = Command::new("python3")
-        .args(["-c", &format!("import {modules}")])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !ok {
-        eprintln!(
-            "notice: skipped: python3 cannot import {modules} \
-             (pip install eclipse-zenoh==1.10.2 rosbags pyarrow numpy)"
-        );
-    }
-    ok
-}
 
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
@@ -105,28 +89,23 @@ fn an_independent_ros2_subscriber_sees_every_frame_with_the_sinks_pixels() {
         ],
     );
     let sink_out = out.path().join("sink");
-    let report = neuspike::graph::run(
-        &root().join("graphs/publish.yml"),
+    run_graph(
+        "graphs/publish.yml",
         &[
-            ("spike-source".into(), "--max-planes 20000".into()),
+            ("spike-source", "--max-planes 20000".into()),
             (
-                "sink".into(),
+                "sink",
                 format!("--out {} --write-every 1", sink_out.display()),
             ),
             (
-                "publish".into(),
+                "publish",
                 format!(
                     "--connect tcp/127.0.0.1:{port} --mcap {}",
                     out.path().join("run.mcap").display()
                 ),
             ),
         ],
-        true,
-        Some(Duration::from_secs(300)),
-        None,
-    )
-    .expect("graph ran");
-    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    );
     wait(peer, Duration::from_secs(60));
 
     let report = std::fs::read_to_string(heard.join("report.json")).expect("report");
@@ -232,21 +211,16 @@ fn an_independent_ros2_event_driver_feeds_the_event_source_event_for_event() {
         "tests/robots/ros2_event_publisher.py",
         &["--listen".into(), endpoint.clone()],
     );
-    let report = neuspike::graph::run(
-        &root().join("graphs/ros2-events.yml"),
+    run_graph(
+        "graphs/ros2-events.yml",
         &[
             (
-                "event-source".into(),
+                "event-source",
                 format!("--connect {endpoint} --silence-s 2"),
             ),
-            ("publish".into(), format!("--connect {endpoint}")),
+            ("publish", format!("--connect {endpoint}")),
         ],
-        true,
-        Some(Duration::from_secs(300)),
-        None,
-    )
-    .expect("graph ran");
-    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    );
     // The peer exits 0 only when every event matched.
     wait(peer, Duration::from_secs(60));
 }
@@ -291,18 +265,15 @@ fn a_recording_sent_over_zenoh_reconstructs_as_from_the_file() {
         let remote_out = remote_out.clone();
         let config = config.clone();
         std::thread::spawn(move || {
-            neuspike::graph::run(
-                &root().join("graphs/remote.yml"),
+            run_graph(
+                "graphs/remote.yml",
                 &[
                     (
-                        "spike-source".into(),
+                        "spike-source",
                         format!("--zenoh-config {}", config.display()),
                     ),
-                    ("sink".into(), format!("--out {}", remote_out.display())),
+                    ("sink", format!("--out {}", remote_out.display())),
                 ],
-                true,
-                Some(Duration::from_secs(300)),
-                None,
             )
         })
     };
@@ -320,22 +291,16 @@ fn a_recording_sent_over_zenoh_reconstructs_as_from_the_file() {
     })
     .expect("published");
     assert_eq!((published.messages, published.items), (500, 10_000));
-    let report = graph.join().expect("graph thread").expect("graph ran");
-    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    graph.join().expect("the remote graph ran");
 
     let local_out = dir.path().join("local");
-    let report = neuspike::graph::run(
-        &root().join("graphs/reconstruct-dat.yml"),
+    run_graph(
+        "graphs/reconstruct-dat.yml",
         &[
-            ("spike-source".into(), format!("--file {}", dat.display())),
-            ("sink".into(), format!("--out {}", local_out.display())),
+            ("spike-source", format!("--file {}", dat.display())),
+            ("sink", format!("--out {}", local_out.display())),
         ],
-        true,
-        Some(Duration::from_secs(300)),
-        None,
-    )
-    .expect("graph ran");
-    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    );
 
     let summary = std::fs::read_to_string(remote_out.join("summary.md")).expect("summary");
     let row = summary

@@ -286,6 +286,17 @@ mod tests {
         c.to_arrow()
     }
 
+    /// The error the stream ends with (it must end with one).
+    fn next_error(r: &mut Remote) -> String {
+        loop {
+            match r.next(Duration::from_millis(100)) {
+                Ok(Taken::Idle) => {}
+                Ok(other) => panic!("{other:?}"),
+                Err(e) => return e.to_string(),
+            }
+        }
+    }
+
     fn next_taken(r: &mut Remote) -> Taken {
         for _ in 0..50 {
             match r.next(Duration::from_millis(100)).expect("next") {
@@ -362,26 +373,14 @@ mod tests {
         let mut m = Meta::new();
         m.insert("seq".into(), Parameter::Integer(9));
         put("neuspike/messages/v1/Frame", (m, bytes.clone()));
-        let e = loop {
-            match remote.next(Duration::from_millis(100)) {
-                Ok(Taken::Idle) => {}
-                Ok(other) => panic!("{other:?}"),
-                Err(e) => break e.to_string(),
-            }
-        };
+        let e = next_error(&mut remote);
         assert!(
             e.contains("test/spikes") && e.contains("is a neuspike/messages/v1/Frame"),
             "{e}"
         );
         assert_eq!(bytes.len(), 1);
         publisher.put(b"not arrow".to_vec()).wait().expect("put");
-        let e = loop {
-            match remote.next(Duration::from_millis(100)) {
-                Ok(Taken::Idle) => {}
-                Ok(other) => panic!("{other:?}"),
-                Err(e) => break e.to_string(),
-            }
-        };
+        let e = next_error(&mut remote);
         assert!(e.contains("is not a neuspike message"), "{e}");
     }
 
@@ -395,13 +394,7 @@ mod tests {
             Duration::from_millis(300),
         )
         .expect("subscribe");
-        let e = loop {
-            match remote.next(Duration::from_millis(100)) {
-                Ok(Taken::Idle) => {}
-                Ok(other) => panic!("{other:?}"),
-                Err(e) => break e.to_string(),
-            }
-        };
+        let e = next_error(&mut remote);
         assert!(
             e.starts_with("test/nobody: nothing arrived for 0.3 s"),
             "{e}"

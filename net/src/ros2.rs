@@ -304,6 +304,30 @@ impl<'a> CdrReader<'a> {
         let n = self.u32(what)? as usize;
         self.take(n, what)
     }
+
+    /// A `std_msgs/Header`: the stamp in ns since the epoch, and the frame id.
+    fn header(&mut self) -> Result<(i64, String), CdrError> {
+        let sec = self.i32("header.stamp.sec")?;
+        let nanosec = self.u32("header.stamp.nanosec")?;
+        let frame_id = self.string("header.frame_id")?;
+        Ok((
+            i64::from(sec) * 1_000_000_000 + i64::from(nanosec.min(999_999_999)),
+            frame_id,
+        ))
+    }
+
+    /// The message ends here: at most the 3 bytes of padding a writer may align its end to.
+    fn end(&self) -> Result<(), CdrError> {
+        let left = self.bytes.len() - self.at;
+        if left > 3 {
+            return Err(CdrError::new(
+                self.message,
+                self.at,
+                format!("{left} bytes after the message"),
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// An `event_camera_msgs/msg/EventPacket` read from CDR.
@@ -336,9 +360,7 @@ pub struct EventPacket {
 /// or bytes follow the message (beyond alignment padding).
 pub fn parse_event_packet(bytes: &[u8]) -> Result<EventPacket, CdrError> {
     let mut r = CdrReader::new("EventPacket", bytes)?;
-    let sec = r.i32("header.stamp.sec")?;
-    let nanosec = r.u32("header.stamp.nanosec")?;
-    let frame_id = r.string("header.frame_id")?;
+    let (stamp_ns, frame_id) = r.header()?;
     let height = r.u32("height")?;
     let width = r.u32("width")?;
     let seq = r.u64("seq")?;
@@ -346,15 +368,9 @@ pub fn parse_event_packet(bytes: &[u8]) -> Result<EventPacket, CdrError> {
     let encoding = r.string("encoding")?;
     let is_bigendian = r.u8("is_bigendian")? != 0;
     let events = r.bytes("events")?.to_vec();
-    if bytes.len() - r.at > 3 {
-        return Err(CdrError::new(
-            "EventPacket",
-            r.at,
-            format!("{} bytes after the message", bytes.len() - r.at),
-        ));
-    }
+    r.end()?;
     Ok(EventPacket {
-        stamp_ns: i64::from(sec) * 1_000_000_000 + i64::from(nanosec.min(999_999_999)),
+        stamp_ns,
         frame_id,
         height,
         width,
@@ -394,9 +410,7 @@ pub struct Image {
 /// As [`parse_event_packet`], or `data` disagrees with `height x step`.
 pub fn parse_image(bytes: &[u8]) -> Result<Image, CdrError> {
     let mut r = CdrReader::new("Image", bytes)?;
-    let sec = r.i32("header.stamp.sec")?;
-    let nanosec = r.u32("header.stamp.nanosec")?;
-    let frame_id = r.string("header.frame_id")?;
+    let (stamp_ns, frame_id) = r.header()?;
     let height = r.u32("height")?;
     let width = r.u32("width")?;
     let encoding = r.string("encoding")?;
@@ -415,15 +429,9 @@ pub fn parse_image(bytes: &[u8]) -> Result<Image, CdrError> {
             ),
         ));
     }
-    if bytes.len() - r.at > 3 {
-        return Err(CdrError::new(
-            "Image",
-            r.at,
-            format!("{} bytes after the message", bytes.len() - r.at),
-        ));
-    }
+    r.end()?;
     Ok(Image {
-        stamp_ns: i64::from(sec) * 1_000_000_000 + i64::from(nanosec.min(999_999_999)),
+        stamp_ns,
         frame_id,
         height,
         width,

@@ -29,7 +29,7 @@ mod resume;
 pub mod testing;
 
 pub use inputs::{Flow, InputState, Inputs, Received, receive};
-pub use link::{Arrival, Link, RELAY_POLL, produce, relay, unix_now_ns};
+pub use link::{Arrival, Link, RELAY_POLL, produce, relay, relay_remote, unix_now_ns};
 pub use metadata::{meta_from_dora, meta_to_dora};
 pub use resume::Resume;
 

@@ -605,6 +605,39 @@ pub fn relay<M: Message>(
     })
 }
 
+/// Relays neuspike's messages of type `M` that arrive on a zenoh key (a camera on another
+/// machine) on `output`, as [`relay`] does: each keeps its sender's origin stamp, and the end's
+/// count and `cut` flag pass on. A message that is not an `M` ends the stream with an error
+/// naming the key.
+///
+/// # Errors
+/// As [`relay`]; the remote stream's errors (silence, a sample that is not a message).
+pub fn relay_remote<M: Message>(
+    link: &mut Link,
+    output: &str,
+    remote: &mut neuspike_net::Remote,
+) -> eyre::Result<()> {
+    use neuspike_net::Taken;
+    let key = remote.key().to_string();
+    let relayed = relay(link, output, |wait| {
+        Ok(match remote.next(wait)? {
+            Taken::Message(meta, data) => Arrival::Message(
+                M::from_arrow(&meta, &data).map_err(|e| eyre::eyre!("{key}: {e}"))?,
+                neuspike_net::remote::origin(&meta),
+            ),
+            Taken::End { count, cut } => Arrival::End { count, cut },
+            Taken::Idle => Arrival::Idle,
+        })
+    });
+    tracing::info!(
+        key,
+        received = remote.received(),
+        lost = remote.missing(),
+        "the remote stream ended"
+    );
+    relayed
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

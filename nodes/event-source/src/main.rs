@@ -20,8 +20,8 @@ use std::time::Duration;
 
 use neuspike_event_source::playback::{EventSource, EventSourceConfig};
 use neuspike_event_source::ros2::{RosEvents, RosTaken};
-use neuspike_net::{Remote, Taken, ZenohArgs};
-use neuspike_runtime::{Arrival, Flow, Link, Pace, Pacer, produce, relay};
+use neuspike_net::{Remote, ZenohArgs};
+use neuspike_runtime::{Arrival, Flow, Link, Pace, Pacer, produce, relay, relay_remote};
 use neuspike_schemas::{EventBatch, Message};
 
 /// Node arguments (the graph's `args:`).
@@ -95,27 +95,7 @@ fn run_network(node: DoraNode, events: EventStream, args: &Args) -> eyre::Result
     if let Some(key) = &args.from_zenoh {
         let mut remote = Remote::subscribe(&session, key, EventBatch::TYPE_URN, silence)?;
         tracing::info!(key, "waiting for event batches");
-        let relayed = relay(&mut out, "events", |wait| {
-            Ok(match remote.next(wait)? {
-                Taken::Message(meta, data) => {
-                    let origin = neuspike_net::remote::origin(&meta);
-                    Arrival::Message(
-                        EventBatch::from_arrow(&meta, &data)
-                            .map_err(|e| eyre::eyre!("{key}: {e}"))?,
-                        origin,
-                    )
-                }
-                Taken::End { count, cut } => Arrival::End { count, cut },
-                Taken::Idle => Arrival::Idle,
-            })
-        });
-        tracing::info!(
-            key,
-            received = remote.received(),
-            lost = remote.missing(),
-            "the remote stream ended"
-        );
-        return relayed;
+        return relay_remote::<EventBatch>(&mut out, "events", &mut remote);
     }
     let topic = args.from_ros2.as_deref().unwrap_or_default();
     let mut ros =

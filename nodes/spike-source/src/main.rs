@@ -22,8 +22,8 @@
 use std::time::Duration;
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_net::{Remote, Taken, ZenohArgs};
-use neuspike_runtime::{Arrival, Flow, Link, Pace, Pacer, Resume, produce, relay};
+use neuspike_net::{Remote, ZenohArgs};
+use neuspike_runtime::{Flow, Link, Pace, Pacer, Resume, produce, relay_remote};
 use neuspike_schemas::{Frame, Message, SpikeChunk};
 use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig};
 
@@ -90,26 +90,7 @@ fn run_remote(node: DoraNode, events: EventStream, key: &str, args: &Args) -> ey
     let silence = Duration::from_secs(args.silence_s);
     let mut remote = Remote::subscribe(&session, key, SpikeChunk::TYPE_URN, silence)?;
     tracing::info!(key, "waiting for spike chunks");
-    let relayed = relay(&mut out, "spikes", |wait| {
-        Ok(match remote.next(wait)? {
-            Taken::Message(meta, data) => {
-                let origin = neuspike_net::remote::origin(&meta);
-                Arrival::Message(
-                    SpikeChunk::from_arrow(&meta, &data).map_err(|e| eyre::eyre!("{key}: {e}"))?,
-                    origin,
-                )
-            }
-            Taken::End { count, cut } => Arrival::End { count, cut },
-            Taken::Idle => Arrival::Idle,
-        })
-    });
-    tracing::info!(
-        key,
-        received = remote.received(),
-        lost = remote.missing(),
-        "the remote stream ended"
-    );
-    relayed
+    relay_remote::<SpikeChunk>(&mut out, "spikes", &mut remote)
 }
 
 /// Sends every chunk and its ground truth, then the end-of-stream markers, whatever happened.
