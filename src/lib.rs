@@ -10,9 +10,11 @@ pub mod bench_model;
 pub mod cluster;
 pub mod dataset;
 pub mod graph;
+pub mod memory;
 pub mod publish_file;
 pub mod reconstruct;
 pub mod record;
 pub mod soak;
+pub mod trade;
 
 pub mod demo;

@@ -98,6 +98,11 @@ enum Command {
         #[arg(long)]
         no_build: bool,
     },
+    /// The speed-accuracy trade: every reconstruction method over a grid of simulated scenes
+    /// (5 light scales x 5 speeds at 400x250, and the extreme corners), several held-out textures
+    /// each; PSNR, SSIM, 2D entropy and the cost of a frame on 1 and 2 threads; bench.csv
+    /// (resumable), summary.md, pareto.png and winners.png in --out.
+    Bench(neuspike::trade::BenchOptions),
     /// Time a learned model (ONNX) under tract at a frame size, on 1 and 2 threads (as the infer
     /// node runs it: shapes pinned, optimised once, padded to the network's stride).
     BenchModel {
@@ -218,10 +223,11 @@ fn settings<P: Parser>(what: &str, args: &str) -> eyre::Result<P> {
     P::try_parse_from(args.split_whitespace()).map_err(|e| eyre::eyre!("{what}: {e}"))
 }
 
-/// The infer node's allocator (see nodes/infer/src/main.rs), so that `bench-model` times the
-/// network as the node runs it.
+/// The infer node's allocator (see nodes/infer/src/main.rs), so that `bench-model` and `bench`
+/// time the network as the node runs it; counted, for `bench`'s peak memory.
 #[global_allocator]
-static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+static ALLOCATOR: neuspike::memory::Counting<mimalloc::MiMalloc> =
+    neuspike::memory::Counting(mimalloc::MiMalloc);
 
 /// The log filter when `RUST_LOG` is unset: warnings, the program's own progress, and not the
 /// embedded daemon's transport chatter (zenoh's scouting).
@@ -323,6 +329,17 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 rec.spikes,
                 rec.events,
                 rec.ground_truth
+            );
+            Ok(())
+        }
+        Command::Bench(opts) => {
+            let r = neuspike::trade::run(&opts, true)?;
+            println!(
+                "{}: {} rows ({} new, {} already there): bench.csv, summary.md, pareto.png, winners.png",
+                r.out.display(),
+                r.rows,
+                r.new_rows,
+                r.skipped
             );
             Ok(())
         }

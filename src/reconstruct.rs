@@ -362,6 +362,11 @@ fn plane_period_ns(source_args: &str) -> i64 {
 /// Writes the graph into the output folder and runs it.
 pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     let m = opts.method.as_str();
+    if opts.method == Method::Auto {
+        eyre::bail!(
+            "--method auto chooses per window from align's windows: run graphs/auto.yml (its spike-source takes --file)"
+        );
+    }
     let learned = match (opts.method, &opts.model) {
         (Method::Learned, Some(path)) => Some(Learned::load(path)?),
         (Method::Learned, None) => eyre::bail!(

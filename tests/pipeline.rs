@@ -362,3 +362,42 @@ fn a_users_rust_node_takes_infers_place() {
         .count();
     assert_eq!(rows, 49, "{csv}");
 }
+
+/// `graphs/auto.yml`: the infer node chooses each window's method from the shipped policy. On the
+/// dark scene it takes a network and beats what TFP gives there; under a 5 ms budget no network
+/// fits, it falls back to spike methods, and the sink's summary reports the mix, the compute saved
+/// and the frames late. Nothing is lost either way.
+#[test]
+fn the_auto_graph_chooses_per_window_and_keeps_a_budget() {
+    let scene = [
+        ("spike-source", "--scene dark-slow"),
+        (
+            "event-source",
+            "--scene dark-slow --theta-on 0.35 --theta-off 0.35",
+        ),
+    ];
+    let out = tempfile::tempdir().expect("tempdir");
+    run("auto.yml", out.path(), &scene);
+    let rows = read_metrics(out.path());
+    let (n, psnr, _) = per_method_means(&rows);
+    // dark-slow: 50 ms = 1,000 planes; 256-plane windows every 20 planes from plane 140 to 860.
+    assert_eq!(n, 37, "{rows:?}");
+    let md = std::fs::read_to_string(out.path().join("summary.md")).expect("summary");
+    assert!(md.contains("| auto | 37 | 37 | 37 | 0 | yes |"), "{md}");
+    assert!(
+        md.contains("`auto`: the methods chosen") && md.contains("| neuspike-"),
+        "{md}"
+    );
+    assert!(md.contains("saved"), "{md}");
+    // TFP over 33 planes scores about 12.7 dB on this scene (README); a network far more.
+    assert!(psnr["auto"] > 22.0, "{psnr:?}");
+
+    let budget = tempfile::tempdir().expect("tempdir");
+    let mut extra = scene.to_vec();
+    extra.push(("infer-auto", "--budget-ms 5"));
+    run("auto.yml", budget.path(), &extra);
+    let md = std::fs::read_to_string(budget.path().join("summary.md")).expect("summary");
+    assert!(md.contains("| auto | 37 | 37 | 37 | 0 | yes |"), "{md}");
+    assert!(!md.contains("| neuspike-"), "a network in 5 ms? {md}");
+    assert!(md.contains("Budget 5.000 ms a frame:"), "{md}");
+}

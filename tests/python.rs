@@ -52,6 +52,8 @@ fn frame() -> Frame {
         method: "tfp".into(),
         t_ref_ns: -5,
         compute_ns: 7,
+        chosen: None,
+        budget_ns: None,
         seq: 3,
         data: Array2::from_shape_fn((2, 3), |(y, x)| (y * 3 + x) as f32 / 8.0),
     }

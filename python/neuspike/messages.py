@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from decimal import Decimal
+from typing import Optional
 
 import numpy as np
 import pyarrow as pa
@@ -34,6 +35,8 @@ KIND = "kind"
 CHANNELS = "channels"
 METHOD = "method"
 COMPUTE_NS = "compute_ns"
+CHOSEN = "chosen"
+BUDGET_NS = "budget_ns"
 PARAM_PREFIX = "param."
 LUM_PER_RATE = "lum_per_rate"
 EOS = "eos"
@@ -257,6 +260,8 @@ class Frame:
     compute_ns: int
     seq: int
     data: np.ndarray  # float32 [H, W]
+    chosen: Optional[str] = None  # the method `auto` chose; absent otherwise
+    budget_ns: Optional[int] = None  # `auto`'s deadline in budget mode; absent otherwise
 
     def to_arrow(self):
         h, w = self.data.shape
@@ -269,6 +274,10 @@ class Frame:
             COMPUTE_NS: int(self.compute_ns),
             SEQ: int(self.seq),
         }
+        if self.chosen is not None:
+            meta[CHOSEN] = self.chosen
+        if self.budget_ns is not None:
+            meta[BUDGET_NS] = int(self.budget_ns)
         return meta, _f32_payload(self.data)
 
     @classmethod
@@ -290,6 +299,8 @@ class Frame:
             compute_ns=meta_int(m, name, COMPUTE_NS),
             seq=meta_uint(m, name, SEQ),
             data=values.reshape(h, w),
+            chosen=meta_string(m, name, CHOSEN) if CHOSEN in m else None,
+            budget_ns=meta_int(m, name, BUDGET_NS) if BUDGET_NS in m else None,
         )
 
 

@@ -433,6 +433,8 @@ pub(crate) mod tests {
             method: "tfp".into(),
             t_ref_ns: seq as i64,
             compute_ns: 0,
+            chosen: None,
+            budget_ns: None,
             seq,
             data: ndarray::Array2::zeros((1, 2)),
         }

@@ -23,6 +23,7 @@
 //!   vy_px_s: 0.0
 //!   rotation_deg_s: 0.0 # about the view centre
 //!   zoom_per_s: 0.0     # content scaled by s(t) = exp(zoom_per_s * t) about the view centre
+//!   start_ns: 0         # the view holds still until then; the rates apply to t - start_ns
 //! light:
 //!   gain_map:           # optional
 //!     kind: horizontal  # horizontal (log-linear ramp, left dim) | radial (bright centre)
@@ -42,7 +43,8 @@
 //! pixel at zoom 1, and the view's top-left corner shows the texture's top-left corner at `t = 0`.
 //!
 //! Geometry: view point `p` at time `t` shows texture point `R(-theta(t)) (p - c) / s(t) + c - v t`
-//! where `c` is the view centre, `theta(t) = rotation_deg_s * t`, `s(t) = exp(zoom_per_s * t)`.
+//! where `c` is the view centre, `theta(t) = rotation_deg_s * t`, `s(t) = exp(zoom_per_s * t)`,
+//! and `t` counts from `motion.start_ns` (0 before it).
 //! The gain map is fixed to the view (a static lighting gradient the content moves under).
 //!
 //! ```

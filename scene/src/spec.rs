@@ -152,6 +152,15 @@ pub struct MotionSpec {
     /// Zoom rate: the content is scaled by `s(t) = exp(zoom_per_s * t)` about the view centre.
     #[serde(default)]
     pub zoom_per_s: f64,
+    /// The instant the motion starts, nanoseconds: before it the view holds still at its
+    /// starting position; from it on, every rate applies to `t - start_ns` (a scene that turns
+    /// from static to moving).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub start_ns: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 /// Lighting beyond the texture.

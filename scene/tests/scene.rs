@@ -118,6 +118,23 @@ fn one_pixel_translation_shifts_the_image_by_one_pixel() {
 }
 
 #[test]
+fn motion_that_starts_late_holds_still_then_moves_from_its_start() {
+    // Still until 2 ms, then 1000 px/s: at 3 ms the view is where a scene starting at 0 is at
+    // 1 ms.
+    let late = scene("texture: { kind: noise }\nmotion: { vx_px_s: 1000, start_ns: 2000000 }");
+    let now = scene("texture: { kind: noise }\nmotion: { vx_px_s: 1000 }");
+    let still = late.render(0, 250, 400);
+    assert_eq!(late.render(2_000_000, 250, 400), still);
+    assert_eq!(late.render(-5, 250, 400), still);
+    assert_eq!(
+        late.render(3_000_000, 250, 400),
+        now.render(1_000_000, 250, 400)
+    );
+    assert!(max_abs_diff(&late.render(3_000_000, 250, 400), &still) > 0.01);
+    assert!(!late.is_static());
+}
+
+#[test]
 fn moving_by_a_texture_period_returns_the_same_image() {
     // Texture period 64 px: 640 px/s for 100 ms and -1280 px/s for 100 ms are whole periods.
     let s = scene(

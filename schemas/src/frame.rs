@@ -179,6 +179,11 @@ pub struct Frame {
     pub t_ref_ns: i64,
     /// Wall-clock time spent computing it, nanoseconds.
     pub compute_ns: i64,
+    /// The method `auto` chose for this frame (`tfp-256`, `neuspike-fused-8`, ...); `None` (the
+    /// key absent) for every other method.
+    pub chosen: Option<String>,
+    /// The deadline `auto` ran under in budget mode, nanoseconds; `None` (absent) otherwise.
+    pub budget_ns: Option<i64>,
     /// Sequence number on its output.
     pub seq: u64,
     /// Luminance in [0, 1].
@@ -201,6 +206,12 @@ impl Message for Frame {
         m.set_int(meta::HEIGHT, int_of(h));
         m.set_int(meta::T_REF_NS, self.t_ref_ns);
         m.set_int(meta::COMPUTE_NS, self.compute_ns);
+        if let Some(c) = &self.chosen {
+            m.set_string(meta::CHOSEN, c);
+        }
+        if let Some(b) = self.budget_ns {
+            m.set_int(meta::BUDGET_NS, b);
+        }
         m.set_int(meta::SEQ, self.seq as i64);
         let values: Vec<f32> = match self.data.as_slice() {
             Some(s) => s.to_vec(),
@@ -244,6 +255,14 @@ impl Message for Frame {
             method: m.string(NAME, meta::METHOD)?,
             t_ref_ns: m.int(NAME, meta::T_REF_NS)?,
             compute_ns: m.int(NAME, meta::COMPUTE_NS)?,
+            chosen: match m.contains_key(meta::CHOSEN) {
+                true => Some(m.string(NAME, meta::CHOSEN)?),
+                false => None,
+            },
+            budget_ns: match m.contains_key(meta::BUDGET_NS) {
+                true => Some(m.int(NAME, meta::BUDGET_NS)?),
+                false => None,
+            },
             seq: m.uint(NAME, meta::SEQ)?,
             data,
         })
@@ -277,11 +296,26 @@ mod tests {
             method: "ground-truth".into(),
             t_ref_ns: 9,
             compute_ns: 0,
+            chosen: None,
+            budget_ns: None,
             seq: 2,
             data: Array2::from_shape_fn((2, 3), |(y, x)| (y * 3 + x) as f32 / 6.0),
         };
         let (m, a) = f.to_arrow();
         assert_eq!(Frame::from_arrow(&m, &a).unwrap(), f);
+        assert!(!m.contains_key(meta::CHOSEN) && !m.contains_key(meta::BUDGET_NS));
+        // auto's keys, present only when set, round-trip; a wrong type is named.
+        let auto = Frame {
+            method: "auto".into(),
+            chosen: Some("tfp-256".into()),
+            budget_ns: Some(5_000_000),
+            ..f.clone()
+        };
+        let (mut m, a) = auto.to_arrow();
+        assert_eq!(Frame::from_arrow(&m, &a).unwrap(), auto);
+        m.set_int(meta::CHOSEN, 3);
+        let e = Frame::from_arrow(&m, &a).unwrap_err().to_string();
+        assert!(e.contains("chosen"), "{e}");
         let mut g = f.clone();
         g.data[[1, 2]] = f32::NAN;
         let (m, a) = g.to_arrow();

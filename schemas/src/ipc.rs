@@ -229,6 +229,8 @@ mod tests {
             method: "tfp".into(),
             t_ref_ns: -5,
             compute_ns: 7,
+            chosen: None,
+            budget_ns: None,
             seq: 3,
             data: ndarray::Array2::from_shape_fn((2, 3), |(r, c)| (r * 3 + c) as f32 / 8.0),
         };
@@ -268,6 +270,8 @@ mod tests {
             method: "tfp".into(),
             t_ref_ns: 0,
             compute_ns: 0,
+            chosen: None,
+            budget_ns: None,
             seq: 0,
             data: ndarray::Array2::zeros((4, 4)),
         };

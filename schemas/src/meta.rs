@@ -54,6 +54,10 @@ pub const CHANNELS: &str = "channels";
 pub const METHOD: &str = "method";
 /// Wall-clock compute time of a frame, in nanoseconds.
 pub const COMPUTE_NS: &str = "compute_ns";
+/// Frame (optional): the method `auto` chose.
+pub const CHOSEN: &str = "chosen";
+/// Frame (optional): `auto`'s budget per frame, nanoseconds.
+pub const BUDGET_NS: &str = "budget_ns";
 /// Prefix of the numeric parameters of a representation (`param.window`, `param.tau_ns`).
 pub const PARAM_PREFIX: &str = "param.";
 /// Luminance per unit firing rate (per tick), a float, when the spike source knows it.

@@ -53,6 +53,15 @@ impl SpikeChunk {
             .saturating_add(int_of(i).saturating_mul(self.plane_period_ns))
     }
 
+    /// The chunk's header with no planes (`n_planes` kept, `bits` empty): for building a chunk
+    /// of other planes with the same geometry, clock, sequence number and calibration.
+    pub fn header_only(&self) -> SpikeChunk {
+        SpikeChunk {
+            bits: Vec::new(),
+            ..*self
+        }
+    }
+
     /// The packed bytes of plane `i`.
     pub fn plane_bits(&self, i: usize) -> &[u8] {
         let b = bytes_per_plane(self.width, self.height);

@@ -41,6 +41,48 @@ impl AlignedWindow {
         (self.ref_plane - self.spikes.first_plane) as usize
     }
 
+    /// The window of `n` planes around the same reference plane, as align cuts a window of `n`
+    /// planes (`ref - n/2 ..= ref + n - 1 - n/2`, the events of `[t_first - T, t_last)`); `None`
+    /// when this window does not hold those planes (or `n` is 0).
+    pub fn crop(&self, n: usize) -> Option<AlignedWindow> {
+        let s = &self.spikes;
+        let c = self.ref_index();
+        if n == 0 || c < n / 2 || c + (n - 1 - n / 2) >= s.n_planes {
+            return None;
+        }
+        let first = c - n / 2;
+        let per = bytes_per_plane(s.width, s.height);
+        let bits = s.bits.get(first * per..(first + n) * per)?.to_vec();
+        let t_first = s.plane_time_ns(first);
+        let (t_start, t_end) = (
+            t_first.saturating_sub(s.plane_period_ns),
+            s.plane_time_ns(first + n - 1),
+        );
+        let ev = &self.events;
+        let lo = ev.t_ns.partition_point(|&t| t < t_start);
+        let hi = ev.t_ns.partition_point(|&t| t < t_end);
+        Some(AlignedWindow {
+            t_ref_ns: self.t_ref_ns,
+            ref_plane: self.ref_plane,
+            spikes: SpikeChunk {
+                first_plane: s.first_plane + first as u64,
+                n_planes: n,
+                t_first_ns: t_first,
+                bits,
+                ..s.header_only()
+            },
+            events: EventBatch {
+                t_start_ns: t_start.max(ev.t_start_ns),
+                t_end_ns: t_end.min(ev.t_end_ns),
+                t_ns: ev.t_ns[lo..hi].to_vec(),
+                x: ev.x[lo..hi].to_vec(),
+                y: ev.y[lo..hi].to_vec(),
+                polarity: ev.polarity[lo..hi].to_vec(),
+                ..EventBatch::empty(ev.width, ev.height, 0, 0, ev.seq)
+            },
+        })
+    }
+
     fn fields() -> Fields {
         Fields::from(vec![
             Field::new("spikes", DataType::LargeBinary, false),
@@ -212,5 +254,51 @@ mod tests {
                 .to_string()
                 .contains("ref_plane 13")
         );
+    }
+
+    #[test]
+    fn a_crop_is_the_window_align_cuts_around_the_same_reference() {
+        // 8 planes of 8 pixels (one byte each), plane k's byte = k; reference plane 4 of 8.
+        let spikes = SpikeChunk {
+            width: 8,
+            height: 1,
+            first_plane: 100,
+            n_planes: 8,
+            t_first_ns: 1_000,
+            plane_period_ns: 10,
+            seq: 3,
+            bits: (0..8).collect(),
+            lum_per_rate: Some(2.0),
+        };
+        let mut events = EventBatch::empty(8, 1, 990, 1_070, 3);
+        for t in [990, 1_005, 1_019, 1_020, 1_045, 1_050, 1_069] {
+            events.push(Event {
+                t_ns: t,
+                x: 0,
+                y: 0,
+                polarity: 1,
+            });
+        }
+        let w = AlignedWindow {
+            t_ref_ns: 1_040,
+            ref_plane: 104,
+            spikes,
+            events,
+        };
+        // 3 planes: 103..=105, events of [1_020, 1_050).
+        let c = w.crop(3).expect("fits");
+        assert_eq!((c.spikes.first_plane, c.spikes.n_planes), (103, 3));
+        assert_eq!(c.spikes.bits, [3, 4, 5]);
+        assert_eq!(c.spikes.t_first_ns, 1_030);
+        assert_eq!((c.ref_plane, c.ref_index(), c.t_ref_ns), (104, 1, 1_040));
+        assert_eq!((c.events.t_start_ns, c.events.t_end_ns), (1_020, 1_050));
+        assert_eq!(c.events.t_ns, [1_020, 1_045]);
+        assert_eq!(c.spikes.lum_per_rate, Some(2.0));
+        // 4 planes: 102..=105 (an even window has one more plane before).
+        assert_eq!(w.crop(4).expect("fits").spikes.bits, [2, 3, 4, 5]);
+        // The whole window is itself; more planes than it holds, or none, is no window.
+        assert_eq!(w.crop(8).expect("whole"), w);
+        assert_eq!(w.crop(9), None);
+        assert_eq!(w.crop(0), None);
     }
 }

@@ -57,6 +57,8 @@ pub fn tone_map(rep: &Representation, gamma: f32) -> eyre::Result<Frame> {
         method: "gamma".into(),
         t_ref_ns: rep.t_ref_ns,
         compute_ns: i64::try_from(start.elapsed().as_nanos()).unwrap_or(i64::MAX),
+        chosen: None,
+        budget_ns: None,
         seq: rep.seq,
         data,
     })

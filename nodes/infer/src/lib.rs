@@ -32,6 +32,7 @@ use std::str::FromStr;
 
 use ndarray::{ArrayView2, ArrayViewMut2, Zip};
 
+pub mod auto;
 mod filter;
 mod fusion;
 pub mod learned;
@@ -55,7 +56,7 @@ pub use fusion::{
 /// The events the filters and the fusion take, as `neuspike-represent` defines them.
 pub use neuspike_represent::EventSlice;
 pub use online::{MethodInputs, Online, OnlineParams, OnlineStats, SpikeInput, Window};
-pub use reconstructor::{EVENTS, InferConfig, REPRESENTATION, Reconstructor};
+pub use reconstructor::{EVENTS, InferConfig, REPRESENTATION, Reconstructor, WINDOWS};
 
 /// Pixels below which the kernels stay on the calling thread. These maps are memory-bound (tens
 /// of microseconds for a 400x250 frame on one core); in a graph every node shares the cores, and
@@ -148,7 +149,7 @@ pub enum InferError {
 // ---------------------------------------------------------------------------------------------
 
 /// A reconstruction method, named as in the graph YAML (`tfp`, `tfi`, `tfstp`, `hf`, `cf`,
-/// `fusion`, `learned`).
+/// `fusion`, `learned`, `auto`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
     /// Texture from playback: luminance from the firing rate over a window.
@@ -168,11 +169,14 @@ pub enum Method {
     /// A NeuSpike-Net exported to ONNX ([`learned::LearnedModel`]), reading the representations
     /// its model names.
     Learned,
+    /// Per window, the method the scene needs ([`auto::Auto`]): reads align's windows and
+    /// computes only what the chosen method reads.
+    Auto,
 }
 
 impl Method {
     /// Every method, in the order their names are listed in errors.
-    pub const ALL: [Method; 7] = [
+    pub const ALL: [Method; 8] = [
         Method::Tfp,
         Method::Tfi,
         Method::Tfstp,
@@ -180,10 +184,11 @@ impl Method {
         Method::Cf,
         Method::Fusion,
         Method::Learned,
+        Method::Auto,
     ];
 
     /// The accepted names, as listed in errors.
-    const ACCEPTED: &'static str = "tfp, tfi, tfstp, hf, cf, fusion, learned";
+    const ACCEPTED: &'static str = "tfp, tfi, tfstp, hf, cf, fusion, learned, auto";
 
     /// The method's name in graph YAML.
     pub fn as_str(&self) -> &'static str {
@@ -195,6 +200,7 @@ impl Method {
             Method::Cf => "cf",
             Method::Fusion => "fusion",
             Method::Learned => "learned",
+            Method::Auto => "auto",
         }
     }
 }
@@ -520,7 +526,7 @@ mod tests {
         let e = "TFP".parse::<Method>().expect_err("case");
         assert_eq!(
             e.to_string(),
-            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi, tfstp, hf, cf, fusion, learned"
+            "unknown reconstruction method \"TFP\"; accepted: tfp, tfi, tfstp, hf, cf, fusion, learned, auto"
         );
         assert!("".parse::<Method>().is_err());
     }

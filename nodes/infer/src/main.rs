@@ -4,15 +4,18 @@
 //! one window carry the window's sequence number; a window is reconstructed when both have
 //! arrived, in order (`neuspike_infer::Reconstructor`).
 //!
+//! `--method auto` reads align's windows on its input `windows` and chooses the method of each
+//! window from `--policy` (`neuspike_infer::auto`): its frames say which in their `chosen` key.
+//!
 //! `--method learned --model FILE` runs a NeuSpike-Net exported to ONNX (`neuspike_infer::learned`)
 //! on the representations it reads, each its own input named as the represent output that makes
 //! it: `spike_repr` and/or `event_integration`. The model is loaded, checked against the graph's
 //! inputs and planned before the first message is read.
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_infer::{EVENTS, InferConfig, Reconstructor};
+use neuspike_infer::{EVENTS, InferConfig, Reconstructor, WINDOWS};
 use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, receive};
-use neuspike_schemas::{EventBatch, Frame, Message, Representation};
+use neuspike_schemas::{AlignedWindow, EventBatch, Frame, Message, Representation};
 
 /// tract allocates every intermediate tensor afresh on each run; with the system allocator those
 /// megabytes went back to the kernel and came back as page faults on every frame (measured with
@@ -63,6 +66,11 @@ fn run(node: DoraNode, events: EventStream, mut stage: Reconstructor) -> eyre::R
                 meta,
                 data,
             } => stage.push_events(EventBatch::from_arrow(meta, data)?),
+            Received::Message {
+                input: WINDOWS,
+                meta,
+                data,
+            } => stage.push_window(AlignedWindow::from_arrow(meta, data)?),
             Received::Message { input, meta, data } => {
                 stage.push_representation(input, Representation::from_arrow(meta, data)?)
             }

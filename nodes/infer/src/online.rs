@@ -162,7 +162,7 @@ impl Method {
             Method::Hf => (&[], true),
             Method::Cf => (&[Tfp, Isi], true),
             Method::Fusion => (&[Isi], true),
-            Method::Learned => (&[], false),
+            Method::Learned | Method::Auto => (&[], false),
         };
         MethodInputs {
             representations,
@@ -180,7 +180,7 @@ impl Method {
             Method::Tfp => Some(RepresentationKind::Tfp),
             Method::Tfstp => Some(RepresentationKind::Stp),
             Method::Tfi | Method::Cf | Method::Fusion => Some(RepresentationKind::Isi),
-            Method::Hf | Method::Learned => None,
+            Method::Hf | Method::Learned | Method::Auto => None,
         }
     }
 }
@@ -211,6 +211,11 @@ impl Online {
         }
         if method == Method::Learned {
             return Err(InferError::NeedsModel);
+        }
+        if method == Method::Auto {
+            return Err(InferError::Wiring(
+                "method `auto` chooses per window: the infer stage runs it (`InferConfig::reconstructor`)".into(),
+            ));
         }
         if params.anchor_every == 0 {
             return bad("anchor-every", 0.0, "must be >= 1");
@@ -362,7 +367,7 @@ impl Online {
         let p = self.params;
         self.state = Some(match self.method {
             Method::Tfp | Method::Tfi | Method::Tfstp => State::Direct,
-            Method::Learned => return Err(InferError::NeedsModel),
+            Method::Learned | Method::Auto => return Err(InferError::NeedsModel),
             Method::Hf => State::Hf(HighPassFilter::new(h, w, p.hf_cutoff_rad_s, t0)?),
             Method::Cf => State::Cf(
                 ComplementaryFilter::new(h, w, p.cf_gain_rad_s, t0)?,

@@ -7,7 +7,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use ndarray::{Array2, Array3, Axis};
-use neuspike_schemas::{EventBatch, Frame, FrameKind, Representation, RepresentationKind};
+use neuspike_schemas::{
+    AlignedWindow, EventBatch, Frame, FrameKind, Representation, RepresentationKind,
+};
+
+use crate::auto::Auto;
 
 use crate::learned::{ConvPath, LearnedModel, LearnedOutput};
 use crate::{
@@ -50,6 +54,16 @@ pub struct InferConfig {
     /// between.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub anchor_every: u32,
+    /// auto: the policy (`neuspike bench --fit-policy`).
+    #[arg(long, default_value = "models/policy.yml")]
+    pub policy: PathBuf,
+    /// auto: the folder of the networks the policy names (`<name>.onnx`).
+    #[arg(long, default_value = "models")]
+    pub models: PathBuf,
+    /// auto: a deadline per frame, milliseconds: the most accurate method whose cost, measured
+    /// on this machine as it runs, fits; cheaper ones under load.
+    #[arg(long)]
+    pub budget_ms: Option<f64>,
 }
 
 impl Default for InferConfig {
@@ -66,6 +80,9 @@ impl Default for InferConfig {
             theta_mode: p.theta_mode,
             theta_init: p.theta_init,
             anchor_every: p.anchor_every,
+            policy: PathBuf::from("models/policy.yml"),
+            models: PathBuf::from("models"),
+            budget_ms: None,
         }
     }
 }
@@ -74,6 +91,8 @@ impl Default for InferConfig {
 pub const REPRESENTATION: &str = "representation";
 /// The input that carries align's event stream.
 pub const EVENTS: &str = "events";
+/// The input that carries align's windows (`auto`).
+pub const WINDOWS: &str = "windows";
 
 impl InferConfig {
     /// The settings of the classical methods.
@@ -103,6 +122,23 @@ impl InferConfig {
             });
         }
         let has = |id: &str| inputs.iter().any(|i| i == id);
+        if self.method == Method::Auto {
+            if !has(WINDOWS) {
+                return Err(InferError::Wiring(format!(
+                    "method `auto` needs an input `{WINDOWS}` (the align node's `windows` output)"
+                )));
+            }
+            let auto = Auto::new(
+                &self.policy,
+                &self.models,
+                self.budget_ms,
+                self.lum_per_rate,
+                self.conv,
+            )?;
+            let mut r = Reconstructor::new(Engine::Auto(Box::new(auto)), self, vec![], false);
+            r.wants_window = true;
+            return Ok(r);
+        }
         if self.method == Method::Learned {
             let model = self.load_model(&has)?;
             let rep_ids = model.inputs().iter().map(|i| i.input_id()).collect();
@@ -179,6 +215,7 @@ impl InferConfig {
 struct Pending {
     reps: BTreeMap<usize, Representation>,
     events: Option<EventBatch>,
+    window: Option<AlignedWindow>,
 }
 
 /// What makes the frames. A node holds one, so the variants' sizes do not matter.
@@ -186,6 +223,7 @@ struct Pending {
 enum Engine {
     Online(Online),
     Learned(Box<LearnedModel>),
+    Auto(Box<Auto>),
 }
 
 impl std::fmt::Debug for Reconstructor {
@@ -208,6 +246,7 @@ pub struct Reconstructor {
     /// The input ids that carry representations, one slot each.
     rep_ids: Vec<&'static str>,
     wants_events: bool,
+    wants_window: bool,
     pending: BTreeMap<u64, Pending>,
     frames: u64,
     incomplete: u64,
@@ -226,6 +265,7 @@ impl Reconstructor {
             lum_per_rate: cfg.lum_per_rate,
             rep_ids,
             wants_events,
+            wants_window: false,
             pending: BTreeMap::new(),
             frames: 0,
             incomplete: 0,
@@ -238,7 +278,24 @@ impl Reconstructor {
         if self.wants_events {
             ids.push(EVENTS);
         }
+        if self.wants_window {
+            ids.push(WINDOWS);
+        }
         ids
+    }
+
+    /// Takes an aligned window (`auto`).
+    pub fn push_window(&mut self, window: AlignedWindow) {
+        let seq = window.seq();
+        self.pending.entry(seq).or_default().window = Some(window);
+    }
+
+    /// `auto`'s stage, when the method is `auto`.
+    pub fn auto(&self) -> Option<&Auto> {
+        match &self.engine {
+            Engine::Auto(a) => Some(a),
+            _ => None,
+        }
     }
 
     /// Takes a representation that came on `input`.
@@ -259,7 +316,9 @@ impl Reconstructor {
     }
 
     fn complete(&self, p: &Pending) -> bool {
-        p.reps.len() == self.rep_ids.len() && (!self.wants_events || p.events.is_some())
+        p.reps.len() == self.rep_ids.len()
+            && (!self.wants_events || p.events.is_some())
+            && (!self.wants_window || p.window.is_some())
     }
 
     /// The frames of every window whose inputs are all in, in order; with `flush` (no more input
@@ -297,6 +356,24 @@ impl Reconstructor {
         let (t_ref_ns, data) = match &mut self.engine {
             Engine::Online(online) => classical(online, self.method, self.lum_per_rate, seq, p)?,
             Engine::Learned(model) => learned(model, self.lum_per_rate, seq, p)?,
+            Engine::Auto(auto) => {
+                let w = p
+                    .window
+                    .as_ref()
+                    .ok_or_else(|| window_error(seq, "no window"))?;
+                let f = auto.frame(w)?;
+                self.frames = seq + 1;
+                return Ok(Frame {
+                    kind: FrameKind::Reconstruction,
+                    method: self.method.to_string(),
+                    t_ref_ns: w.t_ref_ns,
+                    compute_ns: f.compute_ns,
+                    chosen: Some(f.method),
+                    budget_ns: auto.budget_ns(),
+                    seq,
+                    data: f.data,
+                });
+            }
         };
         self.frames = seq + 1;
         Ok(Frame {
@@ -304,6 +381,8 @@ impl Reconstructor {
             method: self.method.to_string(),
             t_ref_ns,
             compute_ns: i64::try_from(start.elapsed().as_nanos()).unwrap_or(i64::MAX),
+            chosen: None,
+            budget_ns: None,
             seq,
             data,
         })
@@ -313,7 +392,7 @@ impl Reconstructor {
     pub fn model(&self) -> Option<&LearnedModel> {
         match &self.engine {
             Engine::Learned(m) => Some(m),
-            Engine::Online(_) => None,
+            Engine::Online(_) | Engine::Auto(_) => None,
         }
     }
 
@@ -348,6 +427,19 @@ impl Reconstructor {
                 conv = %model.conv_path_in_use().unwrap_or_default(),
                 "infer finished"
             ),
+            Engine::Auto(auto) => {
+                let s = auto.stats();
+                let mix: Vec<String> = s.frames.iter().map(|(m, n)| format!("{m} x{n}")).collect();
+                tracing::info!(
+                    frames = self.frames,
+                    announced,
+                    incomplete = self.incomplete,
+                    lost,
+                    late = s.late,
+                    mix = %mix.join(" "),
+                    "infer finished"
+                );
+            }
         }
     }
 }

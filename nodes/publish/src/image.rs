@@ -74,6 +74,8 @@ mod tests {
             method: "tfp".into(),
             t_ref_ns: 0,
             compute_ns: 0,
+            chosen: None,
+            budget_ns: None,
             seq: 0,
             data: ndarray::array![[0.0f32, 1.0, 0.5], [2.0, -1.0, f32::NAN]],
         };

@@ -17,6 +17,8 @@ fn frame(seq: u64) -> Frame {
         method: "tfp".into(),
         t_ref_ns: 1_000_000 * seq as i64,
         compute_ns: 5,
+        chosen: None,
+        budget_ns: None,
         seq,
         data: Array2::from_shape_fn((6, 8), |(y, x)| (x + 8 * y) as f32 / 47.0),
     }

@@ -41,7 +41,45 @@ fn bench(c: &mut Criterion) {
         .build()
         .expect("pool");
     spike(c, &pool);
+    stats(c);
     events(c, &pool);
+}
+
+/// `auto`'s window statistics over the same 33-plane window (with no events), against the
+/// scalar reference and TFP from the packed planes.
+fn stats(c: &mut Criterion) {
+    let mut next = xorshift(11);
+    let threshold = (0.37 * u64::MAX as f64) as u64;
+    let planes = Array3::from_shape_fn((N, H, W), |_| u8::from(next() < threshold));
+    let window = neuspike_schemas::AlignedWindow {
+        t_ref_ns: 0,
+        ref_plane: C as u64,
+        spikes: neuspike_schemas::SpikeChunk {
+            width: W,
+            height: H,
+            first_plane: 0,
+            n_planes: N,
+            t_first_ns: 0,
+            plane_period_ns: 50_000,
+            seq: 0,
+            bits: pack_planes(planes.view()),
+            lum_per_rate: None,
+        },
+        events: neuspike_schemas::EventBatch::empty(W, H, 0, 1, 0),
+    };
+    let mut g = c.benchmark_group("window_stats_400x250_33_planes");
+    g.throughput(Throughput::Elements(1));
+    let mut dst = Array2::<f32>::zeros((H, W));
+    g.bench_function("baseline_tfp_packed", |b| {
+        b.iter(|| tfp_packed_into(black_box(&window.spikes.bits), 0..N, dst.view_mut()))
+    });
+    g.bench_function("window_stats_reference", |b| {
+        b.iter(|| neuspike_represent::window_stats_reference(black_box(&window)))
+    });
+    g.bench_function("window_stats", |b| {
+        b.iter(|| neuspike_represent::window_stats(black_box(&window)))
+    });
+    g.finish();
 }
 
 fn spike(c: &mut Criterion, one: &rayon::ThreadPool) {

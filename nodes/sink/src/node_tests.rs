@@ -16,6 +16,8 @@ fn frame(kind: FrameKind, method: &str, seq: u64, value: f32) -> Frame {
         method: method.into(),
         t_ref_ns: 1_000 * seq as i64,
         compute_ns: 5,
+        chosen: None,
+        budget_ns: None,
         seq,
         data: Array2::from_shape_fn((16, 16), |(y, x)| value * (x + y) as f32 / 30.0),
     }

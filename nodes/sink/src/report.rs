@@ -272,6 +272,18 @@ pub struct Summary {
     sampling: Option<(u64, u64)>,
     /// Latency by input.
     latency: BTreeMap<String, LatencyTrack>,
+    /// `auto`'s choices, by method then chosen method.
+    auto: BTreeMap<String, BTreeMap<String, Chosen>>,
+    /// `auto`'s budget and late frames, by method.
+    budget: BTreeMap<String, (i64, u64, u64)>,
+}
+
+/// Frames one method of `auto` made.
+#[derive(Clone, Debug, Default)]
+struct Chosen {
+    frames: u64,
+    compute_ns: u128,
+    psnr: Mean,
 }
 
 /// Length of one window of [`LatencyTrack::windows`]: a minute of wall time.
@@ -421,6 +433,79 @@ impl Summary {
     /// Adds one frame's figures to its method.
     pub fn add(&mut self, row: &FrameMetrics) {
         self.methods.entry(row.method.clone()).or_default().add(row);
+    }
+
+    /// Records which method `auto` chose for a frame (its `chosen` key), and in budget mode
+    /// whether the frame took longer than `budget_ns`.
+    pub fn add_chosen(&mut self, row: &FrameMetrics, chosen: &str, budget_ns: Option<i64>) {
+        let c = self
+            .auto
+            .entry(row.method.clone())
+            .or_default()
+            .entry(chosen.to_string())
+            .or_default();
+        c.frames += 1;
+        c.compute_ns += u128::from(row.compute_ns.max(0).unsigned_abs());
+        if let Some(p) = row.psnr_db.filter(|p| p.is_finite()) {
+            c.psnr.add(p);
+        }
+        if let Some(b) = budget_ns {
+            let e = self.budget.entry(row.method.clone()).or_insert((b, 0, 0));
+            e.0 = b;
+            e.1 += 1;
+            e.2 += u64::from(row.compute_ns > b);
+        }
+    }
+
+    /// `auto`'s mix as Markdown: per chosen method its frames, share, mean cost and PSNR; the
+    /// compute saved against running the costliest chosen method on every frame; the frames
+    /// late in budget mode. Empty without `auto` frames.
+    pub fn to_markdown_auto(&self) -> String {
+        let mut out = String::new();
+        for (method, mix) in &self.auto {
+            let total: u64 = mix.values().map(|c| c.frames).sum();
+            let spent: u128 = mix.values().map(|c| c.compute_ns).sum();
+            let mean_ms = |c: &Chosen| c.compute_ns as f64 / c.frames.max(1) as f64 / 1e6;
+            let _ = writeln!(
+                out,
+                "\n## `{method}`: the methods chosen\n\n| chosen | frames | share | mean ms | PSNR dB |\n|---|---:|---:|---:|---:|"
+            );
+            for (name, c) in mix {
+                let _ = writeln!(
+                    out,
+                    "| {} | {} | {:.1}% | {:.3} | {} |",
+                    name.replace('|', "\\|"),
+                    c.frames,
+                    100.0 * c.frames as f64 / total.max(1) as f64,
+                    mean_ms(c),
+                    c.psnr.get().map_or("-".to_string(), |p| format!("{p:.2}"))
+                );
+            }
+            // Against the costliest method it chose, run on every frame at its mean cost here.
+            if let Some((name, c)) = mix
+                .iter()
+                .max_by(|a, b| mean_ms(a.1).total_cmp(&mean_ms(b.1)))
+            {
+                let always = mean_ms(c) * total as f64;
+                let spent_ms = spent as f64 / 1e6;
+                if always > 0.0 {
+                    let _ = writeln!(
+                        out,
+                        "\nCompute: {spent_ms:.1} ms for {total} frames; always `{name}` would have taken about {always:.1} ms: {:.1}% saved.",
+                        100.0 * (1.0 - spent_ms / always)
+                    );
+                }
+            }
+            if let Some((b, n, late)) = self.budget.get(method) {
+                let _ = writeln!(
+                    out,
+                    "\nBudget {:.3} ms a frame: {late} of {n} frames late ({:.2}%).",
+                    *b as f64 / 1e6,
+                    100.0 * *late as f64 / (*n).max(1) as f64
+                );
+            }
+        }
+        out
     }
 
     /// Records how many frames an input was expected to carry, received, written and missed, and
@@ -586,8 +671,9 @@ impl Summary {
             "# neuspike run summary\n\n## Metrics per method\n\n{}\n\
              PSNR dB: mean over frames with a finite PSNR; exact: frames with MSE 0 (PSNR inf), \
              counted, never averaged. PSNR after gain: least-squares gain, clipped to [0, 1]. \
-             NaN: figures that were NaN, left out of the means.\n\n## Frames per input\n\n{}{sampling}{latency}",
+             NaN: figures that were NaN, left out of the means.\n{}\n## Frames per input\n\n{}{sampling}{latency}",
             self.to_markdown_table(),
+            self.to_markdown_auto(),
             self.to_markdown_counts(),
         )
     }
@@ -676,6 +762,48 @@ mod tests {
             entropy_2d: 7.5,
             file: format!("frames/{method}_{seq:06}.png"),
         }
+    }
+
+    #[test]
+    fn autos_mix_compute_saved_and_late_frames_are_summarised() {
+        let mut s = Summary::new();
+        let row = |seq: u64, ms: i64, psnr: f64| FrameMetrics {
+            seq,
+            t_ref_ns: 0,
+            method: "auto".into(),
+            compute_ns: ms * 1_000_000,
+            psnr_db: Some(psnr),
+            psnr_gain_db: None,
+            ssim: None,
+            entropy_2d: 1.0,
+            file: String::new(),
+        };
+        // Three cheap frames (1 ms) and one network frame (10 ms, over a 5 ms budget).
+        for (seq, (ms, method)) in [(1, "tfp-33"), (1, "tfp-33"), (1, "tfp-33"), (10, "net")]
+            .into_iter()
+            .enumerate()
+        {
+            let r = row(seq as u64, ms, 30.0 + seq as f64);
+            s.add(&r);
+            s.add_chosen(&r, method, Some(5_000_000));
+        }
+        let md = s.to_markdown_auto();
+        assert!(
+            md.contains("| tfp-33 | 3 | 75.0% | 1.000 | 31.00 |"),
+            "{md}"
+        );
+        assert!(md.contains("| net | 1 | 25.0% | 10.000 | 33.00 |"), "{md}");
+        // 13 ms spent; always the network: 40 ms; 67.5% saved.
+        assert!(
+            md.contains("13.0 ms for 4 frames") && md.contains("67.5% saved"),
+            "{md}"
+        );
+        assert!(
+            md.contains("Budget 5.000 ms a frame: 1 of 4 frames late (25.00%)."),
+            "{md}"
+        );
+        assert!(s.to_markdown().contains(&md));
+        assert_eq!(Summary::new().to_markdown_auto(), "");
     }
 
     #[test]

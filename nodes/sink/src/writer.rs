@@ -220,6 +220,9 @@ impl Sink {
         };
         self.csv.append(&row)?;
         self.summary.add(&row);
+        if let Some(c) = &f.chosen {
+            self.summary.add_chosen(&row, c, f.budget_ns);
+        }
         self.evict_truth();
         Ok(())
     }
@@ -299,6 +302,8 @@ mod tests {
             method: method.into(),
             t_ref_ns,
             compute_ns: 1,
+            chosen: None,
+            budget_ns: None,
             seq,
             data: Array2::from_elem((4, 5), value),
         }
@@ -365,6 +370,8 @@ mod tests {
             method: "tfp".into(),
             t_ref_ns: seq as i64,
             compute_ns: 1,
+            chosen: None,
+            budget_ns: None,
             seq,
             data,
         }

@@ -306,6 +306,8 @@ impl ScenePlayback {
                     method: "ground-truth".into(),
                     t_ref_ns: cam.plane_time_ns(k),
                     compute_ns: 0,
+                    chosen: None,
+                    budget_ns: None,
                     seq: self.gt_seq,
                     data: cam.ground_truth(k),
                 });
@@ -410,6 +412,8 @@ impl FilePlayback {
                             method: "ground-truth".into(),
                             t_ref_ns,
                             compute_ns: 0,
+                            chosen: None,
+                            budget_ns: None,
                             seq: self.gt_seq,
                             data,
                         });

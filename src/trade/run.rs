@@ -1,0 +1,547 @@
+//! One recording through one method, as the graph pays for it: align's windows, the represent
+//! stage computing only the kinds the method reads, and the infer stage's `Reconstructor`, timed
+//! per window on a given number of threads; the scored frames kept for the metrics.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use eyre::{WrapErr, bail, eyre};
+use ndarray::Array2;
+use neuspike_event_source::{DvsConfig, EventCamera};
+use neuspike_infer::learned::LearnedModel;
+use neuspike_infer::{EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor};
+use neuspike_represent::{RepresentConfig, Representer, WindowStats};
+use neuspike_schemas::{
+    AlignedWindow, EventBatch, RepresentationKind, SpikeChunk, bytes_per_plane,
+};
+use neuspike_spike_source::{CameraConfig, SpikeCamera};
+
+use super::grid::{self, SceneClass, TextureSet};
+use crate::memory;
+
+/// The planes of every classical method's window but TFP's (align's default).
+pub const WINDOW_PLANES: u32 = 33;
+
+/// How a method reconstructs.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Recon {
+    /// One of the infer node's classical methods.
+    Classical(Method),
+    /// A shipped network: its ONNX file and the representations it reads, in order, with their
+    /// channel counts.
+    Network {
+        /// The ONNX file.
+        path: PathBuf,
+        /// Its inputs.
+        inputs: Vec<(RepresentationKind, usize)>,
+    },
+}
+
+/// A method of the bench: a reconstruction and the window it reads.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MethodSpec {
+    /// Its name in the tables: `tfp-33`, `fusion`, `neuspike-fused-16`, ...
+    pub name: String,
+    /// How it reconstructs.
+    pub recon: Recon,
+    /// Planes per window.
+    pub window_planes: u32,
+}
+
+impl MethodSpec {
+    /// A classical method over `window_planes`.
+    pub fn classical(name: &str, method: Method, window_planes: u32) -> MethodSpec {
+        MethodSpec {
+            name: name.to_string(),
+            recon: Recon::Classical(method),
+            window_planes,
+        }
+    }
+
+    /// A network, its inputs read from the file.
+    ///
+    /// # Errors
+    /// The file is not a NeuSpike-Net the infer node can run.
+    pub fn network(path: &Path) -> eyre::Result<MethodSpec> {
+        let model = LearnedModel::load(path).map_err(|e| eyre!("{e}"))?;
+        let inputs = model
+            .inputs()
+            .iter()
+            .map(|i| i.representation())
+            .zip(model.channels().iter().copied())
+            .collect();
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .ok_or_else(|| eyre!("{}: not a file name", path.display()))?;
+        Ok(MethodSpec {
+            name,
+            recon: Recon::Network {
+                path: path.to_path_buf(),
+                inputs,
+            },
+            window_planes: WINDOW_PLANES,
+        })
+    }
+
+    /// The representation kinds the represent stage computes for it.
+    pub fn representations(&self) -> Vec<RepresentationKind> {
+        match &self.recon {
+            Recon::Classical(m) => m.graph_representation().into_iter().collect(),
+            Recon::Network { inputs, .. } => inputs.iter().map(|(k, _)| *k).collect(),
+        }
+    }
+
+    /// Whether it reads align's event stream.
+    pub fn reads_event_stream(&self) -> bool {
+        matches!(&self.recon, Recon::Classical(m) if m.inputs().events)
+    }
+
+    /// Whether it needs an event camera at all.
+    pub fn needs_events(&self) -> bool {
+        self.reads_event_stream()
+            || self
+                .representations()
+                .contains(&RepresentationKind::EventIntegration)
+    }
+
+    /// Whether a frame depends on earlier windows: such a method runs every window from the
+    /// stream's start, as in a graph; the others run the scored windows only.
+    pub fn stateful(&self) -> bool {
+        matches!(
+            self.recon,
+            Recon::Classical(Method::Tfstp | Method::Hf | Method::Cf | Method::Fusion)
+        )
+    }
+
+    /// The infer stage's settings for it.
+    fn infer_config(&self, contrast: f64) -> InferConfig {
+        let mut cfg = InferConfig {
+            contrast,
+            ..InferConfig::default()
+        };
+        match &self.recon {
+            Recon::Classical(m) => cfg.method = *m,
+            Recon::Network { path, .. } => {
+                cfg.method = Method::Learned;
+                cfg.model = Some(path.clone());
+            }
+        }
+        cfg
+    }
+
+    /// The infer node's input ids for it.
+    fn input_ids(&self) -> Vec<String> {
+        let mut ids: Vec<String> = match &self.recon {
+            Recon::Classical(m) if m.graph_representation().is_some() => {
+                vec![REPRESENTATION.to_string()]
+            }
+            Recon::Classical(_) => vec![],
+            Recon::Network { inputs, .. } => {
+                inputs.iter().map(|(k, _)| k.name().to_string()).collect()
+            }
+        };
+        if self.reads_event_stream() {
+            ids.push(EVENTS.to_string());
+        }
+        ids
+    }
+
+    /// The represent stage's settings for it (the network's channel counts).
+    fn represent_config(&self) -> RepresentConfig {
+        let mut cfg = RepresentConfig::default();
+        if let Recon::Network { inputs, .. } = &self.recon {
+            for (k, c) in inputs {
+                let c = u32::try_from(*c).unwrap_or(u32::MAX);
+                match k {
+                    RepresentationKind::SpikeRepr => cfg.repr_channels = c,
+                    RepresentationKind::EventIntegration => cfg.ei_channels = c,
+                    _ => {}
+                }
+            }
+        }
+        cfg
+    }
+}
+
+/// The methods the bench compares: TFP over 8, 33, 128 and 256 planes, TFI, TFSTP, HF, CF, the
+/// physics fusion, and every network in `models` (`*.onnx`, by name).
+///
+/// # Errors
+/// A network that does not load.
+pub fn methods(models: &Path) -> eyre::Result<Vec<MethodSpec>> {
+    let mut out = vec![
+        MethodSpec::classical("tfp-8", Method::Tfp, 8),
+        MethodSpec::classical("tfp-33", Method::Tfp, 33),
+        MethodSpec::classical("tfp-128", Method::Tfp, 128),
+        MethodSpec::classical("tfp-256", Method::Tfp, 256),
+        MethodSpec::classical("tfi", Method::Tfi, WINDOW_PLANES),
+        MethodSpec::classical("tfstp", Method::Tfstp, WINDOW_PLANES),
+        MethodSpec::classical("hf", Method::Hf, WINDOW_PLANES),
+        MethodSpec::classical("cf", Method::Cf, WINDOW_PLANES),
+        MethodSpec::classical("fusion", Method::Fusion, WINDOW_PLANES),
+    ];
+    let mut files: Vec<PathBuf> = std::fs::read_dir(models)
+        .wrap_err_with(|| format!("--models {}: cannot list the networks", models.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "onnx"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!(
+            "--models {}: no ONNX networks there (run from the repository root, or name the folder)",
+            models.display()
+        );
+    }
+    for f in files {
+        out.push(
+            MethodSpec::network(&f).wrap_err_with(|| format!("--models {}", models.display()))?,
+        );
+    }
+    Ok(out)
+}
+
+/// A recording the methods run on: every plane, the events, and the truth of the scored
+/// windows.
+pub struct Recording {
+    /// All planes, one chunk.
+    pub spikes: SpikeChunk,
+    /// All events, on the spike clock at the spike camera's size, if there is an event camera.
+    pub events: Option<EventBatch>,
+    /// The reference planes scored.
+    pub scored: Vec<u64>,
+    /// The truth at each scored plane (luminance in [0, 1]), if known.
+    pub truth: Option<Vec<Array2<f32>>>,
+    /// The DVS contrast threshold (the event methods' `contrast`).
+    pub theta: f64,
+}
+
+/// The statistics of each scored window (33 planes around it, as `auto` sees it) and the
+/// milliseconds each took.
+pub fn window_stats(rec: &Recording) -> Vec<(WindowStats, f64)> {
+    rec.scored
+        .iter()
+        .map(|&c| {
+            let w = rec.window(c, WINDOW_PLANES, c / grid::STRIDE_PLANES);
+            let start = Instant::now();
+            let s = neuspike_represent::window_stats(&w);
+            (s, start.elapsed().as_secs_f64() * 1e3)
+        })
+        .collect()
+}
+
+/// Simulates texture `texture` of `class` with both cameras.
+///
+/// # Errors
+/// A scene or camera setting out of range.
+pub fn simulate(
+    class: &SceneClass,
+    set: TextureSet,
+    texture: usize,
+) -> eyre::Result<(Recording, String)> {
+    let (scene, label) = grid::scene(class, set, texture)?;
+    let seed = 1_000 + texture as u64;
+    let mut camera = SpikeCamera::new(
+        scene.clone(),
+        CameraConfig {
+            width: grid::WIDTH,
+            height: grid::HEIGHT,
+            rate_hz: grid::RATE_HZ,
+            seed,
+            ..CameraConfig::default()
+        },
+    )
+    .map_err(|e| eyre!("{e}"))?;
+    let spikes = camera.next_chunk(grid::PLANES as usize, 0);
+    let period = spikes.plane_period_ns;
+    let theta = class.theta();
+    let mut dvs = EventCamera::new(
+        scene,
+        DvsConfig {
+            width: grid::WIDTH,
+            height: grid::HEIGHT,
+            theta_on: theta,
+            theta_off: theta,
+            seed,
+            ..DvsConfig::default()
+        },
+        spikes.t_first_ns - period,
+    )
+    .map_err(|e| eyre!("{e}"))?;
+    let events = dvs.advance_to(spikes.plane_time_ns(spikes.n_planes - 1), 0);
+    let scored = grid::SCORED_PLANES.to_vec();
+    let truth = scored.iter().map(|&k| camera.ground_truth(k)).collect();
+    Ok((
+        Recording {
+            spikes,
+            events: Some(events),
+            scored,
+            truth: Some(truth),
+            theta,
+        },
+        label,
+    ))
+}
+
+/// A real spike recording (PKU `.dat`, 400x250 at 20 kHz), scored without truth at three
+/// windows in its middle. No calibration comes with it: its gain maps the mean firing rate to
+/// luminance 0.5 (1 / (2 x the mean rate)), for every method alike.
+///
+/// # Errors
+/// The file cannot be read, or is too short for a window of 128 planes.
+pub fn real(path: &Path) -> eyre::Result<Recording> {
+    let opts = neuspike_formats::pku::PkuOptions::default();
+    let mut reader = neuspike_formats::pku::PkuReader::open(path, &opts)
+        .wrap_err_with(|| format!("--real {}", path.display()))?;
+    let mut spikes = reader
+        .next_chunk(100_000)
+        .wrap_err_with(|| format!("--real {}", path.display()))?
+        .ok_or_else(|| eyre!("--real {}: no planes", path.display()))?;
+    let n = spikes.n_planes as u64;
+    if n < 140 {
+        bail!(
+            "--real {}: {n} planes; at least 140 are needed",
+            path.display()
+        );
+    }
+    let mid = (n / 2) / grid::STRIDE_PLANES * grid::STRIDE_PLANES;
+    let scored = vec![mid - grid::STRIDE_PLANES, mid, mid + grid::STRIDE_PLANES];
+    let pixels = (spikes.width * spikes.height) as f64 * n as f64;
+    let rate = spikes.spike_count() as f64 / pixels.max(1.0);
+    // No spikes at all: any gain gives black frames; 1 keeps them defined.
+    spikes.lum_per_rate = Some(if rate > 0.0 { 0.5 / rate } else { 1.0 });
+    Ok(Recording {
+        spikes,
+        events: None,
+        scored,
+        truth: None,
+        theta: 0.2,
+    })
+}
+
+impl Recording {
+    fn plane_time(&self, k: u64) -> i64 {
+        self.spikes.plane_time_ns(k as usize)
+    }
+
+    /// Whether `spec` can run here: events when it needs them, and every scored window inside
+    /// the planes.
+    pub fn fits(&self, spec: &MethodSpec) -> bool {
+        let n = u64::from(spec.window_planes);
+        (self.events.is_some() || !spec.needs_events())
+            && self
+                .scored
+                .iter()
+                .all(|&c| c >= n / 2 && c + n - 1 - n / 2 < self.spikes.n_planes as u64)
+    }
+
+    /// The window of `n` planes around reference plane `c`, as align cuts it.
+    fn window(&self, c: u64, n: u32, seq: u64) -> AlignedWindow {
+        let n = u64::from(n);
+        let first = c - n / 2;
+        let per = bytes_per_plane(self.spikes.width, self.spikes.height);
+        let bits = self.spikes.bits[first as usize * per..(first + n) as usize * per].to_vec();
+        let period = self.spikes.plane_period_ns;
+        let (t_start, t_end) = (
+            self.plane_time(first) - period,
+            self.plane_time(first + n - 1),
+        );
+        AlignedWindow {
+            t_ref_ns: self.plane_time(c),
+            ref_plane: c,
+            spikes: SpikeChunk {
+                first_plane: first,
+                n_planes: n as usize,
+                t_first_ns: self.plane_time(first),
+                seq,
+                bits,
+                width: self.spikes.width,
+                height: self.spikes.height,
+                plane_period_ns: period,
+                lum_per_rate: self.spikes.lum_per_rate,
+            },
+            events: self.events_in(t_start, t_end, seq),
+        }
+    }
+
+    /// The events of `[t_start, t_end)` as a batch numbered `seq` (an empty 0x0 batch without an
+    /// event camera, as align sends).
+    fn events_in(&self, t_start: i64, t_end: i64, seq: u64) -> EventBatch {
+        let Some(ev) = &self.events else {
+            return EventBatch::empty(0, 0, t_start, t_end, seq);
+        };
+        let lo = ev.t_ns.partition_point(|&t| t < t_start);
+        let hi = ev.t_ns.partition_point(|&t| t < t_end);
+        EventBatch {
+            width: ev.width,
+            height: ev.height,
+            t_start_ns: t_start,
+            t_end_ns: t_end,
+            seq,
+            t_ns: ev.t_ns[lo..hi].to_vec(),
+            x: ev.x[lo..hi].to_vec(),
+            y: ev.y[lo..hi].to_vec(),
+            polarity: ev.polarity[lo..hi].to_vec(),
+        }
+    }
+}
+
+/// What one pass of a method over a recording gave.
+pub struct Pass {
+    /// The frames of the scored windows, in order.
+    pub frames: Vec<Array2<f32>>,
+    /// Milliseconds of each scored window, in order.
+    pub scored_ms: Vec<f64>,
+    /// Milliseconds of each window (representation plus reconstruction).
+    pub times_ms: Vec<f64>,
+    /// Most heap bytes the pass held above what was in use before it (0 where the counting
+    /// allocator is not installed), the network's weights and plan included.
+    pub peak_bytes: usize,
+}
+
+/// A network's infer stage, kept from recording to recording (it has no state between
+/// windows): what a graph loads once.
+pub struct Loaded {
+    reconstructor: Reconstructor,
+    /// Heap bytes the network took to load (weights, plan).
+    bytes: usize,
+}
+
+/// Networks loaded, by method name and thread count.
+#[derive(Default)]
+pub struct Cache {
+    loaded: Vec<((String, usize), Loaded)>,
+}
+
+/// Runs `spec` over `rec` on `threads` threads (rayon and tract): every window from the stream's
+/// start for a stateful method, the scored windows otherwise.
+///
+/// # Errors
+/// The method refused a window (a bug: the recordings are well formed), or the network failed.
+pub fn pass(
+    spec: &MethodSpec,
+    rec: &Recording,
+    threads: usize,
+    cache: &mut Cache,
+) -> eyre::Result<Pass> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .wrap_err("cannot start a thread pool")?;
+    neuspike_infer::learned::set_threads(threads);
+    pool.install(|| pass_on_this_pool(spec, rec, threads, cache))
+}
+
+fn pass_on_this_pool(
+    spec: &MethodSpec,
+    rec: &Recording,
+    threads: usize,
+    cache: &mut Cache,
+) -> eyre::Result<Pass> {
+    let ids = spec.input_ids();
+    let before = memory::reset_peak();
+    let cfg = spec.infer_config(rec.theta);
+    let key = (spec.name.clone(), threads);
+    let mut fresh;
+    let mut warm_up = false;
+    let (reconstructor, loaded_bytes) = match &spec.recon {
+        Recon::Network { .. } => {
+            let i = match cache.loaded.iter().position(|(k, _)| *k == key) {
+                Some(i) => i,
+                None => {
+                    warm_up = true;
+                    let before = memory::live_bytes();
+                    let reconstructor = cfg.reconstructor(&ids).map_err(|e| eyre!("{e}"))?;
+                    let bytes = memory::live_bytes().saturating_sub(before);
+                    cache.loaded.push((
+                        key,
+                        Loaded {
+                            reconstructor,
+                            bytes,
+                        },
+                    ));
+                    cache.loaded.len() - 1
+                }
+            };
+            let l = &mut cache.loaded[i].1;
+            (&mut l.reconstructor, l.bytes)
+        }
+        Recon::Classical(_) => {
+            fresh = cfg.reconstructor(&ids).map_err(|e| eyre!("{e}"))?;
+            (&mut fresh, 0)
+        }
+    };
+    // A network's load is counted once (`loaded_bytes`); a classical method's state is built
+    // in the pass.
+    let base = match spec.recon {
+        Recon::Network { .. } => memory::reset_peak(),
+        Recon::Classical(_) => before,
+    };
+    let mut represent = Representer::new(spec.represent_config()).map_err(|e| eyre!("{e}"))?;
+    let kinds = spec.representations();
+    let last = *rec.scored.last().ok_or_else(|| eyre!("no scored window"))?;
+    let refs: Vec<u64> = if spec.stateful() {
+        let first = u64::from(spec.window_planes)
+            .div_ceil(2)
+            .div_ceil(grid::STRIDE_PLANES);
+        (first.max(1)..)
+            .map(|k| k * grid::STRIDE_PLANES)
+            .take_while(|&c| c <= last)
+            .collect()
+    } else {
+        rec.scored.clone()
+    };
+    let mut frames = Vec::with_capacity(rec.scored.len());
+    let mut times_ms = Vec::with_capacity(refs.len());
+    let mut scored_ms = Vec::with_capacity(rec.scored.len());
+    let mut stream_from = rec.events.as_ref().map_or(0, |e| e.t_start_ns);
+    let mut step = |c: u64, stream_from: i64| -> eyre::Result<(f64, Array2<f32>)> {
+        let seq = c / grid::STRIDE_PLANES;
+        let window = rec.window(c, spec.window_planes, seq);
+        let stream = spec
+            .reads_event_stream()
+            .then(|| rec.events_in(stream_from, window.t_ref_ns, seq));
+        let start = Instant::now();
+        for &k in &kinds {
+            let r = represent
+                .represent(k, &window)
+                .map_err(|e| eyre!("{}: window at plane {c}: {e}", spec.name))?;
+            let id = match spec.recon {
+                Recon::Classical(_) => REPRESENTATION,
+                Recon::Network { .. } => k.name(),
+            };
+            reconstructor.push_representation(id, r);
+        }
+        if let Some(s) = stream {
+            reconstructor.push_events(s);
+        }
+        let out = reconstructor
+            .ready(false)
+            .map_err(|e| eyre!("{}: window at plane {c}: {e}", spec.name))?;
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        let [frame] = <[_; 1]>::try_from(out)
+            .map_err(|v: Vec<_>| eyre!("{}: window at plane {c}: {} frames", spec.name, v.len()))?;
+        Ok((ms, frame.data))
+    };
+    if warm_up {
+        // A network's first frame of a size plans it and times its convolution paths (the infer
+        // node does this once, at its first window): not a frame's cost.
+        step(refs[0], stream_from)?;
+    }
+    for &c in &refs {
+        let (ms, frame) = step(c, stream_from)?;
+        stream_from = rec.plane_time(c);
+        times_ms.push(ms);
+        if rec.scored.contains(&c) {
+            frames.push(frame);
+            scored_ms.push(ms);
+        }
+    }
+    let peak_bytes = memory::peak_bytes().saturating_sub(base) + loaded_bytes;
+    Ok(Pass {
+        frames,
+        scored_ms,
+        times_ms,
+        peak_bytes,
+    })
+}

@@ -1,0 +1,176 @@
+//! `neuspike bench` as a user runs it: a small grid on training textures with a policy fitted
+//! from it, then held-out textures with `auto`; the CSV resumes; the summary and the plots are
+//! written; the shipped policy chooses cheap methods where the scene is easy and a network where
+//! it is dark and fast.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+fn bench(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_neuspike"))
+        .current_dir(common::root())
+        .arg("bench")
+        .args(args)
+        .output()
+        .expect("run neuspike bench");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.status.success(), "neuspike bench {args:?}: {text}");
+    text
+}
+
+fn rows(dir: &Path) -> Vec<neuspike::trade::table::Row> {
+    neuspike::trade::table::read(&dir.join("bench.csv")).expect("bench.csv")
+}
+
+#[test]
+fn a_small_grid_fits_a_policy_that_auto_then_runs_on_held_out_textures_and_runs_resume() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let train = dir.path().join("train");
+    let held = dir.path().join("held");
+    let policy = dir.path().join("policy.yml");
+    let (t, h, p) = (
+        train.to_str().expect("utf-8"),
+        held.to_str().expect("utf-8"),
+        policy.to_str().expect("utf-8"),
+    );
+    let common = [
+        "--classes",
+        "light1-speed0,light0.05-speed8000",
+        "--textures",
+        "1",
+        "--methods",
+        "tfp-33,tfp-256,neuspike-fused-8",
+    ];
+    let mut args = vec![
+        "--out",
+        t,
+        "--set",
+        "train",
+        "--fit-policy",
+        p,
+        "--policy",
+        "none",
+    ];
+    args.extend(common);
+    bench(&args);
+    let r = rows(&train);
+    assert_eq!(r.len(), 2 * 3, "{r:?}");
+    assert!(
+        r.iter()
+            .all(|r| r.set == "train" && r.frames == 4 && r.finite)
+    );
+    // Costs measured on both thread counts, memory counted, statistics recorded.
+    assert!(
+        r.iter()
+            .all(|r| r.p50_1t_ms > 0.0 && r.p50_2t_ms > 0.0 && r.peak_mib > 0.0)
+    );
+    assert!(
+        r.iter()
+            .all(|r| r.rate > 0.0 && r.psnr.is_finite() && r.ssim.is_finite())
+    );
+    // The policy: one row per class, the cheap TFP where it is bright and still, the network
+    // where it is dark and fast.
+    let pol = neuspike_policy::Policy::load(&policy, &["tfp-33", "tfp-256", "neuspike-fused-8"])
+        .expect("the fitted policy loads");
+    assert_eq!((pol.classes.len(), pol.rows.len()), (2, 2));
+    assert!(pol.provenance.command.contains("--fit-policy"));
+    assert!(pol.provenance.data.contains("train"));
+    let method_of = |class: &str| {
+        pol.class(class)
+            .map(|c| c.method.clone())
+            .expect("class row")
+    };
+    assert!(method_of("light1-speed0").starts_with("tfp-"), "{pol:?}");
+    assert_eq!(method_of("light0.05-speed8000"), "neuspike-fused-8");
+
+    // Held-out textures with auto.
+    let mut args = vec!["--out", h, "--policy", p];
+    args.extend(&common[..4]);
+    args.extend(["--methods", "tfp-33,tfp-256,neuspike-fused-8,auto"]);
+    bench(&args);
+    let r = rows(&held);
+    assert_eq!(r.len(), 2 * 4, "{r:?}");
+    let get = |class: &str, m: &str| {
+        r.iter()
+            .find(|x| x.class == class && x.method == m)
+            .cloned()
+            .expect("row")
+    };
+    for class in ["light1-speed0", "light0.05-speed8000"] {
+        let auto = get(class, "auto");
+        let best = r
+            .iter()
+            .filter(|x| x.class == class && x.method != "auto")
+            .map(|x| x.psnr)
+            .fold(f64::MIN, f64::max);
+        // auto takes one of the methods' frames each window: never above the best, and here
+        // (one class each, the nearest row) at the class's choice.
+        assert!(
+            auto.psnr <= best + 1e-9 && auto.psnr >= best - 3.0,
+            "{class}: {auto:?}"
+        );
+        assert!(
+            auto.label.contains(" x4]"),
+            "one method all four windows: {}",
+            auto.label
+        );
+    }
+    let bright = get("light1-speed0", "auto");
+    assert!(bright.label.contains("tfp-"), "{}", bright.label);
+    assert!(bright.psnr > 35.0, "{bright:?}");
+    assert!(bright.p50_1t_ms < get("light1-speed0", "neuspike-fused-8").p50_1t_ms / 10.0);
+    let dark = get("light0.05-speed8000", "auto");
+    assert!(dark.label.contains("neuspike-fused-8"), "{}", dark.label);
+    // The PSNR floor: far above the cheap method's in the dark.
+    let cheap = get("light0.05-speed8000", "tfp-33");
+    assert!(
+        dark.psnr > 20.0 && dark.psnr > cheap.psnr + 5.0,
+        "{dark:?} {cheap:?}"
+    );
+
+    // Run again: everything is there, nothing is measured twice.
+    let out = bench(&args);
+    assert!(
+        out.contains("(0 new, 8 already there)") || out.contains("0 new"),
+        "{out}"
+    );
+    assert_eq!(rows(&held).len(), 8);
+    let md = std::fs::read_to_string(held.join("summary.md")).expect("summary");
+    for want in [
+        "Which method for which scene",
+        "Pareto front",
+        "auto: the method each window needs",
+        "of the oracle",
+    ] {
+        assert!(md.contains(want), "summary lacks {want:?}:\n{md}");
+    }
+    for png in ["pareto.png", "winners.png"] {
+        let img = image::open(held.join(png)).expect(png);
+        assert!(img.width() >= 800 && img.height() >= 300, "{png}");
+    }
+    // A policy naming a method that is not installed is refused at start-up, by name.
+    let text = std::fs::read_to_string(&policy)
+        .expect("policy")
+        .replace("neuspike-fused-8", "neuspike-fused-99");
+    std::fs::write(&policy, text).expect("write");
+    let out = Command::new(env!("CARGO_BIN_EXE_neuspike"))
+        .current_dir(common::root())
+        .args(["bench", "--redo", "auto"])
+        .args(&args)
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("neuspike-fused-99")
+            && err.contains("not installed")
+            && err.contains("policy.yml"),
+        "{err}"
+    );
+}
