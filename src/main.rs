@@ -339,7 +339,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 r.out.display(),
                 r.rows,
                 r.new_rows,
-                r.skipped
+                r.rows - r.new_rows
             );
             Ok(())
         }

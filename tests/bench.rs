@@ -95,7 +95,8 @@ fn a_small_grid_fits_a_policy_that_auto_then_runs_on_held_out_textures_and_runs_
     args.extend(["--methods", "tfp-33,tfp-256,neuspike-fused-8,auto"]);
     bench(&args);
     let r = rows(&held);
-    assert_eq!(r.len(), 2 * 4, "{r:?}");
+    // 3 methods, auto, and budget mode (the infer node's stage at 5 ms) per class.
+    assert_eq!(r.len(), 2 * 5, "{r:?}");
     let get = |class: &str, m: &str| {
         r.iter()
             .find(|x| x.class == class && x.method == m)
@@ -134,13 +135,16 @@ fn a_small_grid_fits_a_policy_that_auto_then_runs_on_held_out_textures_and_runs_
         "{dark:?} {cheap:?}"
     );
 
+    // Budget mode: no network fits 5 ms, and the frames keep to it.
+    for class in ["light1-speed0", "light0.05-speed8000"] {
+        let b = get(class, "auto-5ms");
+        assert!(!b.label.contains("neuspike-") && b.frames == 4, "{b:?}");
+        assert!(b.p50_1t_ms < 5.0, "{b:?}");
+    }
     // Run again: everything is there, nothing is measured twice.
     let out = bench(&args);
-    assert!(
-        out.contains("(0 new, 8 already there)") || out.contains("0 new"),
-        "{out}"
-    );
-    assert_eq!(rows(&held).len(), 8);
+    assert!(out.contains("10 rows (0 new,"), "{out}");
+    assert_eq!(rows(&held).len(), 10);
     let md = std::fs::read_to_string(held.join("summary.md")).expect("summary");
     for want in [
         "Which method for which scene",

@@ -382,7 +382,7 @@ impl Policy {
 }
 
 /// A method as the bench and the policy name it: `tfp-<planes>`, `tfi`, `tfstp`, `hf`, `cf`,
-/// `fusion`, or a network by its ONNX file's stem (`neuspike-fused-8`, any other name).
+/// `fusion`, `fusion-tfp`, or a network by its ONNX file's stem (`neuspike-fused-8`, any other name).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum MethodName {
     /// TFP over this many planes (at least 1).
@@ -395,8 +395,10 @@ pub enum MethodName {
     Hf,
     /// The complementary filter.
     Cf,
-    /// The physics fusion.
+    /// The physics fusion on ISIs (Eq. 5-7).
     Fusion,
+    /// The physics fusion on TFP rates (`fusion-tfp`).
+    FusionTfp,
     /// A network: `<models>/<name>.onnx`.
     Network(String),
 }
@@ -410,6 +412,7 @@ impl MethodName {
             "hf" => MethodName::Hf,
             "cf" => MethodName::Cf,
             "fusion" => MethodName::Fusion,
+            "fusion-tfp" => MethodName::FusionTfp,
             _ => match s.strip_prefix("tfp-") {
                 Some(n) => match n.parse::<u32>() {
                     Ok(n @ 1..=100_000) => MethodName::Tfp(n),
@@ -437,6 +440,7 @@ impl std::fmt::Display for MethodName {
             MethodName::Hf => f.write_str("hf"),
             MethodName::Cf => f.write_str("cf"),
             MethodName::Fusion => f.write_str("fusion"),
+            MethodName::FusionTfp => f.write_str("fusion-tfp"),
             MethodName::Network(n) => f.write_str(n),
         }
     }

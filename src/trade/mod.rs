@@ -77,6 +77,10 @@ pub struct BenchOptions {
     /// of a frame (one thread) to be chosen; 0 takes the most accurate method whatever it costs.
     #[arg(long, default_value_t = 0.04)]
     pub db_per_ms: f64,
+    /// Budget mode's deadline, ms: with a policy, the infer node's `auto` stage runs each
+    /// recording under it on one thread (rows `auto-<X>ms`).
+    #[arg(long, default_value_t = 5.0)]
+    pub budget_ms: f64,
     /// Measure these methods again: their rows are removed from bench.csv first (e.g. `auto`
     /// after fitting a new policy).
     #[arg(long, value_delimiter = ',')]
@@ -90,7 +94,7 @@ pub struct BenchRun {
     pub new_rows: usize,
     /// Rows in the CSV now.
     pub rows: usize,
-    /// Rows skipped because the CSV had them.
+    /// (Method, recording) pairs skipped because the CSV had them.
     pub skipped: usize,
     /// The output folder.
     pub out: PathBuf,
@@ -177,17 +181,40 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
     }
     let before = rows.len();
     let mut skipped = 0;
-    let mut policy_used = None;
-    if !opts.report_only {
+    let policy_used;
+    if opts.report_only {
+        // The summary names the policy's provenance.
+        let path = opts
+            .policy
+            .clone()
+            .unwrap_or_else(|| opts.models.join(auto::DEFAULT_POLICY));
+        policy_used = neuspike_policy::Policy::read(&path).ok();
+    } else {
         let mut methods = run::methods(&opts.models)?;
         let installed = methods.clone();
         let wants_auto = opts.methods.is_empty() || opts.methods.iter().any(|m| m == auto::NAME);
-        let policy = if wants_auto {
+        let loaded = if wants_auto {
             auto::policy(opts, &methods)?
         } else {
             None
         };
+        let policy = loaded.as_ref().map(|(_, p)| p.clone());
         policy_used = policy.clone();
+        // Budget mode runs the infer node's own stage, loaded once (its networks planned once).
+        let mut stage = match &loaded {
+            Some((path, _)) => Some(
+                neuspike_infer::auto::Auto::new(
+                    path,
+                    &opts.models,
+                    Some(opts.budget_ms),
+                    None,
+                    neuspike_infer::learned::ConvPath::Auto,
+                )
+                .map_err(|e| eyre!("--policy: {e}"))?,
+            ),
+            None => None,
+        };
+        let budget_name = auto::budget_name(opts.budget_ms);
         if !opts.methods.is_empty() {
             for m in &opts.methods {
                 if m != auto::NAME && !methods.iter().any(|s| s.name == *m) {
@@ -256,7 +283,9 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             }
             let auto_missing = policy.is_some()
                 && !have.contains(&(set.clone(), class.name.clone(), *t, auto::NAME.to_string()));
-            if todo.is_empty() && !auto_missing {
+            let budget_missing = stage.is_some()
+                && !have.contains(&(set.clone(), class.name.clone(), *t, budget_name.clone()));
+            if todo.is_empty() && !auto_missing && !budget_missing {
                 continue;
             }
             if let Some(b) = &bar {
@@ -309,6 +338,15 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             }
             if let (true, Some(p)) = (auto_todo, &policy) {
                 let row = auto::row(p, &rec, &stats, &kept, &template)
+                    .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
+                write_row(&mut csv, &csv_path, &row)?;
+                rows.push(row);
+            }
+            if let (true, Some(s)) = (budget_missing, stage.as_mut()) {
+                if let Some(b) = &bar {
+                    b.set_message(format!("{} texture {t}: {budget_name}", class.name));
+                }
+                let (row, _) = auto::budget_row(s, opts.budget_ms, &rec, &template)
                     .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
                 write_row(&mut csv, &csv_path, &row)?;
                 rows.push(row);
@@ -450,7 +488,7 @@ fn summary(rows: &[Row], opts: &BenchOptions, seconds: f64, new_rows: usize) -> 
     // The oracle and the choices are among the methods themselves, not `auto`.
     let scored: Vec<Row> = with_auto
         .iter()
-        .filter(|r| r.method != auto::NAME)
+        .filter(|r| !auto::is_auto(&r.method))
         .cloned()
         .collect();
     let sets: std::collections::BTreeSet<&str> = scored.iter().map(|r| r.set.as_str()).collect();
@@ -618,33 +656,50 @@ fn summary(rows: &[Row], opts: &BenchOptions, seconds: f64, new_rows: usize) -> 
             best
         );
     }
-    let _ = writeln!(md, "\n## The physics fusion\n");
-    let mut wins = Vec::new();
-    let mut beats_tfi = 0;
-    let mut n = 0;
-    for (class, methods) in table::by(&scored, |r| r.class.clone()) {
-        let per = summarised(&methods);
-        let get = |n: &str| per.iter().find(|(m, _)| m == n).map(|(_, s)| s.psnr);
-        if let (Some(f), Some(tfi)) = (get("fusion"), get("tfi")) {
-            n += 1;
-            if f > tfi {
-                beats_tfi += 1;
-            }
-        }
-        if table::choice(&per, 0.0).is_some_and(|(b, _)| b == "fusion") {
-            wins.push(class);
-        }
-    }
     let _ = writeln!(
         md,
-        "Fusion beats TFI in {beats_tfi} of {n} scene classes and is the best method in {}{}.\n",
-        wins.len(),
-        if wins.is_empty() {
-            String::new()
-        } else {
-            format!(" ({})", wins.join(", "))
-        }
+        "\n## The physics fusion\n\n`fusion` re-anchors on each window's ISI (Eq. 5-7); `fusion-tfp` \
+         keeps a TFP whose window the pixel's events set (rescaled and forgotten as they say the \
+         luminance changed) and carries it with the events. Per scene class, whether each beats \
+         TFI and TFP over 33 planes, is the best classical method (no network), or the best of all:\n\n\
+         | method | beats TFI | beats TFP-33 | best classical | best of all | classes where it is the best classical method |\n|---|---|---|---|---|---|"
     );
+    let by_class = table::by(&scored, |r| r.class.clone());
+    for f in ["fusion", "fusion-tfp"] {
+        let (mut tfi, mut tfp, mut classical, mut all, mut n) = (0, 0, 0, 0, 0);
+        let mut wins = Vec::new();
+        for (class, methods) in &by_class {
+            let per = summarised(methods);
+            let get = |m: &str| per.iter().find(|(x, _)| x == m).map(|(_, s)| s.psnr);
+            let Some(me) = get(f) else { continue };
+            n += 1;
+            tfi += usize::from(get("tfi").is_some_and(|v| me > v));
+            tfp += usize::from(get("tfp-33").is_some_and(|v| me > v));
+            let best_classical = per
+                .iter()
+                .filter(|(m, _)| !m.starts_with("neuspike-"))
+                .map(|(_, s)| s.psnr)
+                .filter(|v| v.is_finite())
+                .fold(f64::MIN, f64::max);
+            if me >= best_classical {
+                classical += 1;
+                wins.push(class.clone());
+            }
+            all += usize::from(table::choice(&per, 0.0).is_some_and(|(b, _)| b == f));
+        }
+        if n > 0 {
+            let _ = writeln!(
+                md,
+                "| {f} | {tfi} of {n} | {tfp} of {n} | {classical} of {n} | {all} of {n} | {} |",
+                if wins.is_empty() {
+                    "-".to_string()
+                } else {
+                    wins.join(", ")
+                }
+            );
+        }
+    }
+    let _ = writeln!(md);
     let real: Vec<Row> = rows.iter().filter(|r| r.set == "real").cloned().collect();
     if !real.is_empty() {
         let _ = writeln!(

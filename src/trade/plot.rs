@@ -185,7 +185,7 @@ pub fn winners(rows: &[Row], path: &Path) -> eyre::Result<()> {
     let cells: Vec<Row> = rows
         .iter()
         .filter(|r| {
-            r.class.starts_with("light") && r.psnr.is_finite() && r.method != super::auto::NAME
+            r.class.starts_with("light") && r.psnr.is_finite() && !super::auto::is_auto(&r.method)
         })
         .cloned()
         .collect();

@@ -46,6 +46,8 @@ pub struct MethodSpec {
     pub recon: Recon,
     /// Planes per window.
     pub window_planes: u32,
+    /// The representation it reads when not the method's default (`fusion` on TFP rates).
+    pub representation: Option<RepresentationKind>,
 }
 
 impl MethodSpec {
@@ -55,6 +57,7 @@ impl MethodSpec {
             name: name.to_string(),
             recon: Recon::Classical(method),
             window_planes,
+            representation: None,
         }
     }
 
@@ -81,13 +84,18 @@ impl MethodSpec {
                 inputs,
             },
             window_planes: WINDOW_PLANES,
+            representation: None,
         })
     }
 
     /// The representation kinds the represent stage computes for it.
     pub fn representations(&self) -> Vec<RepresentationKind> {
         match &self.recon {
-            Recon::Classical(m) => m.graph_representation().into_iter().collect(),
+            Recon::Classical(m) => self
+                .representation
+                .or(m.graph_representation())
+                .into_iter()
+                .collect(),
             Recon::Network { inputs, .. } => inputs.iter().map(|(k, _)| *k).collect(),
         }
     }
@@ -165,7 +173,7 @@ impl MethodSpec {
 }
 
 /// The methods the bench compares: TFP over 8, 33, 128 and 256 planes, TFI, TFSTP, HF, CF, the
-/// physics fusion, and every network in `models` (`*.onnx`, by name).
+/// physics fusion on ISIs (Eq. 5-7) and on TFP rates (`fusion-tfp`), and every network in `models` (`*.onnx`, by name).
 ///
 /// # Errors
 /// A network that does not load.
@@ -180,6 +188,10 @@ pub fn methods(models: &Path) -> eyre::Result<Vec<MethodSpec>> {
         MethodSpec::classical("hf", Method::Hf, WINDOW_PLANES),
         MethodSpec::classical("cf", Method::Cf, WINDOW_PLANES),
         MethodSpec::classical("fusion", Method::Fusion, WINDOW_PLANES),
+        MethodSpec {
+            representation: Some(RepresentationKind::Tfp),
+            ..MethodSpec::classical("fusion-tfp", Method::Fusion, WINDOW_PLANES)
+        },
     ];
     let mut files: Vec<PathBuf> = std::fs::read_dir(models)
         .wrap_err_with(|| format!("--models {}: cannot list the networks", models.display()))?
@@ -336,7 +348,7 @@ impl Recording {
     }
 
     /// The window of `n` planes around reference plane `c`, as align cuts it.
-    fn window(&self, c: u64, n: u32, seq: u64) -> AlignedWindow {
+    pub(crate) fn window(&self, c: u64, n: u32, seq: u64) -> AlignedWindow {
         let n = u64::from(n);
         let first = c - n / 2;
         let per = bytes_per_plane(self.spikes.width, self.spikes.height);

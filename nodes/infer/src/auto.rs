@@ -7,9 +7,10 @@
 //! TFSTP and the networks in `--models`; TFSTP's synapses are fed every window whether chosen or
 //! not, so that it is current when chosen (its cost counts on every window).
 //!
-//! **Budget mode** (`--budget-ms X`): the method is instead the most accurate of the row's ranked
-//! methods whose expected cost fits in what the deadline leaves after the statistics; when none
-//! fits, the cheapest candidate. Expected costs start from the policy's figures (measured where
+//! **Budget mode** (`--budget-ms X`): the method is instead the most accurate of the class's
+//! ranked methods whose expected cost, with TFSTP's upkeep, fits in [`PLAN_SHARE`] of the
+//! deadline after the statistics; else the most accurate that fits without the upkeep (TFSTP
+//! then misses those planes: its `gaps`); else the cheapest candidate. Expected costs start from the policy's figures (measured where
 //! it was fitted) and follow this machine: each run updates its method's estimate (an
 //! exponentially weighted mean of the last runs, weight [`COST_WEIGHT`], taking a slower run at
 //! once), so load makes the stage fall back to cheaper methods instead of behind the camera.
@@ -31,7 +32,10 @@ use crate::{InferError, luminance_from_isi_into, luminance_from_rate_into};
 pub const STATS_PLANES: usize = 33;
 
 /// Weight of the newest run in a method's cost estimate.
-pub const COST_WEIGHT: f64 = 0.25;
+pub const COST_WEIGHT: f64 = 0.1;
+
+/// Under a budget, the share of it a frame is planned to take.
+pub const PLAN_SHARE: f64 = 0.7;
 
 enum Engine {
     Tfp,
@@ -72,6 +76,18 @@ pub struct AutoFrame {
     pub compute_ns: i64,
     /// Whether it took longer than the budget.
     pub late: bool,
+}
+
+impl Candidate {
+    /// A run's milliseconds into the estimate: taken at once when slower (load arrives
+    /// suddenly), averaged in with [`COST_WEIGHT`] when faster.
+    fn update_cost(&mut self, ms: f64) {
+        self.cost_ms = if ms > self.cost_ms {
+            ms
+        } else {
+            (1.0 - COST_WEIGHT) * self.cost_ms + COST_WEIGHT * ms
+        };
+    }
 }
 
 /// The auto stage.
@@ -189,6 +205,17 @@ impl Auto {
             .max(STATS_PLANES)
     }
 
+    /// Starts over on a new stream: TFSTP's synapses and the counts are reset; the cost
+    /// estimates, which describe this machine, are kept.
+    pub fn reset(&mut self) {
+        for c in &mut self.candidates {
+            if let Ok(r) = Representer::new(c.represent.config().clone()) {
+                c.represent = r;
+            }
+        }
+        self.stats = AutoStats::default();
+    }
+
     /// The budget in nanoseconds, in budget mode.
     pub fn budget_ns(&self) -> Option<i64> {
         self.budget_ms.map(|b| (b * 1e6).round() as i64)
@@ -216,43 +243,52 @@ impl Auto {
         self.candidates.iter().position(|c| c.name == method)
     }
 
-    /// Which candidate a window gets: the policy's choice, or under a budget the most accurate
-    /// ranked method that fits (the cheapest candidate when none does).
-    fn pick(&self, row: &neuspike_policy::Class, spent_ms: f64) -> usize {
+    /// Which candidate a window gets, and whether TFSTP's upkeep runs: the policy's choice (with
+    /// upkeep), or under a budget the most accurate ranked method that fits with the upkeep, else
+    /// the most accurate that fits without it (TFSTP then misses this window's planes, counted
+    /// in its `gaps`), else the cheapest candidate without it. A frame is planned to
+    /// [`PLAN_SHARE`] of the budget; the rest absorbs jitter.
+    fn pick(&self, row: &neuspike_policy::Class, spent_ms: f64) -> (usize, bool) {
         let chosen = self.index(&row.method).unwrap_or(0);
         let Some(budget) = self.budget_ms else {
-            return chosen;
+            return (chosen, true);
         };
-        // TFSTP's upkeep is paid whatever is chosen.
-        let upkeep: f64 = self
-            .candidates
-            .iter()
-            .filter(|c| matches!(c.engine, Engine::Tfstp))
-            .map(|c| c.cost_ms)
+        let is_stp = |i: usize| matches!(self.candidates[i].engine, Engine::Tfstp);
+        let upkeep: f64 = (0..self.candidates.len())
+            .filter(|&i| is_stp(i))
+            .map(|i| self.candidates[i].cost_ms)
             .sum();
-        let left = budget - spent_ms;
-        let fits = |i: usize| {
-            let c = &self.candidates[i];
-            let extra = if matches!(c.engine, Engine::Tfstp) {
-                0.0
-            } else {
-                c.cost_ms
-            };
-            upkeep + extra <= left
-        };
-        row.ranked
+        let left = PLAN_SHARE * budget - spent_ms;
+        let ranked: Vec<usize> = row
+            .ranked
             .iter()
             .filter_map(|k| self.index(&k.method))
-            .find(|&i| fits(i))
-            .unwrap_or_else(|| {
-                (0..self.candidates.len())
-                    .min_by(|&a, &b| {
-                        self.candidates[a]
-                            .cost_ms
-                            .total_cmp(&self.candidates[b].cost_ms)
-                    })
-                    .unwrap_or(chosen)
+            .collect();
+        // With the upkeep: a TFSTP choice is its own upkeep.
+        let with = |i: usize| {
+            let own = if is_stp(i) {
+                0.0
+            } else {
+                self.candidates[i].cost_ms
+            };
+            upkeep + own <= left
+        };
+        if let Some(&i) = ranked.iter().find(|&&i| with(i)) {
+            return (i, true);
+        }
+        let alone = |i: usize| !is_stp(i) && self.candidates[i].cost_ms <= left;
+        if let Some(&i) = ranked.iter().find(|&&i| alone(i)) {
+            return (i, false);
+        }
+        let cheapest = (0..self.candidates.len())
+            .filter(|&i| !is_stp(i))
+            .min_by(|&a, &b| {
+                self.candidates[a]
+                    .cost_ms
+                    .total_cmp(&self.candidates[b].cost_ms)
             })
+            .unwrap_or(chosen);
+        (cheapest, false)
     }
 
     /// The frame of one window.
@@ -274,14 +310,17 @@ impl Auto {
         let s = window_stats(&central);
         let row = self.policy.nearest_class(&s).clone();
         let spent = start.elapsed().as_secs_f64() * 1e3;
-        let i = self.pick(&row, spent);
-        // Feed every TFSTP that is not the choice (its synapses must see every plane).
+        let (i, upkeep) = self.pick(&row, spent);
+        // Feed every TFSTP that is not the choice (its synapses must see every plane), timed:
+        // its estimate follows what the upkeep costs here.
         for k in 0..self.candidates.len() {
-            if k != i && matches!(self.candidates[k].engine, Engine::Tfstp) {
+            if upkeep && k != i && matches!(self.candidates[k].engine, Engine::Tfstp) {
+                let t = Instant::now();
                 let c = &mut self.candidates[k];
                 c.represent
                     .represent(RepresentationKind::Stp, &central)
                     .map_err(|e| window_error(w, e))?;
+                c.update_cost(t.elapsed().as_secs_f64() * 1e3);
             }
         }
         let t0 = Instant::now();
@@ -350,13 +389,7 @@ impl Auto {
                 luminance_from_rate_into(out.view(), g, 1.0, data.view_mut())?;
             }
         }
-        let own_ms = t0.elapsed().as_secs_f64() * 1e3;
-        // Taken at once when slower (load arrives suddenly), averaged when faster.
-        c.cost_ms = if own_ms > c.cost_ms {
-            own_ms
-        } else {
-            (1.0 - COST_WEIGHT) * c.cost_ms + COST_WEIGHT * own_ms
-        };
+        c.update_cost(t0.elapsed().as_secs_f64() * 1e3);
         let method = c.name.clone();
         let total = start.elapsed();
         let compute_ns = i64::try_from(total.as_nanos()).unwrap_or(i64::MAX);

@@ -38,6 +38,7 @@ mod fusion;
 pub mod learned;
 mod online;
 mod reconstructor;
+mod recursive;
 #[cfg(test)]
 mod testing;
 
@@ -57,6 +58,7 @@ pub use fusion::{
 pub use neuspike_represent::EventSlice;
 pub use online::{MethodInputs, Online, OnlineParams, OnlineStats, SpikeInput, Window};
 pub use reconstructor::{EVENTS, InferConfig, REPRESENTATION, Reconstructor, WINDOWS};
+pub use recursive::{RateFusion, RateFusionParams};
 
 /// Pixels below which the kernels stay on the calling thread. These maps are memory-bound (tens
 /// of microseconds for a 400x250 frame on one core); in a graph every node shares the cores, and
@@ -164,7 +166,9 @@ pub enum Method {
     /// Events with the spike camera's TFP or TFI frames: the complementary filter
     /// ([`ComplementaryFilter`]).
     Cf,
-    /// Events with ISI maps: NeuSpike-Net's physics fusion, Eq. 5-7 ([`PhysicsFusion`]).
+    /// Events with ISI maps: NeuSpike-Net's physics fusion, Eq. 5-7 ([`PhysicsFusion`]); or
+    /// events with TFP rates: a recursive log estimate each window's spike count corrects and
+    /// the events carry between windows ([`RateFusion`]).
     Fusion,
     /// A NeuSpike-Net exported to ONNX ([`learned::LearnedModel`]), reading the representations
     /// its model names.

@@ -11,10 +11,12 @@
 //! | `hf` | - | yes | [`HighPassFilter`] |
 //! | `cf` | rate or ISI, as luminance | yes | [`ComplementaryFilter`] fed the TFP or TFI frame |
 //! | `fusion` | ISI | yes | [`PhysicsFusion`] (Eq. 5-7) |
+//! | `fusion` | rate | yes | [`RateFusion`]: a recursive log estimate each window's count corrects and the events carry (Eq. 5) |
 
 use ndarray::{Array2, ArrayView2, ArrayViewMut2};
 use neuspike_schemas::RepresentationKind;
 
+use crate::recursive::{RateFusion, RateFusionParams};
 use crate::{
     ComplementaryFilter, Contrast, EventSlice, FusionFrameStats, FusionParams, HighPassFilter,
     InferError, IsiUpdateStats, Method, PhysicsFusion, ThetaMode, luminance_from_isi_into,
@@ -118,6 +120,9 @@ pub struct Window<'a> {
     /// The events of `[previous t_ref, t_ref)` and the sensor size `(height, width)` they are
     /// on, if the method takes them.
     pub events: Option<(EventSlice<'a>, (usize, usize))>,
+    /// The planes a rate was measured over (its representation's `window`): the fusion turns a
+    /// rate back into a spike count. `None` reads as 33 (align's default window).
+    pub planes: Option<usize>,
 }
 
 /// Counts over a run, for the node's summary.
@@ -138,6 +143,7 @@ enum State {
     Hf(HighPassFilter),
     Cf(ComplementaryFilter, Array2<f32>),
     Fusion(PhysicsFusion, Array2<bool>),
+    RateFusion(RateFusion),
 }
 
 /// A method's state across windows. The sensor size is taken from the first window.
@@ -161,7 +167,7 @@ impl Method {
             Method::Tfstp => (&[Stp], false),
             Method::Hf => (&[], true),
             Method::Cf => (&[Tfp, Isi], true),
-            Method::Fusion => (&[Isi], true),
+            Method::Fusion => (&[Isi, Tfp], true),
             Method::Learned | Method::Auto => (&[], false),
         };
         MethodInputs {
@@ -345,6 +351,22 @@ impl Online {
                 let s = f.frame_into(t, dst.view_mut(), valid.view_mut())?;
                 self.stats.frame += s;
             }
+            (Some(State::RateFusion(f)), Some(SpikeInput::Rate(r)), Some((e, _))) => {
+                f.push_events(e)?;
+                if anchor {
+                    f.push_rate(t, r, w.planes.unwrap_or(33))?;
+                }
+                f.frame_into(t, dst.view_mut())?;
+            }
+            (Some(State::Fusion(..) | State::RateFusion(_)), Some(s), _) => {
+                return Err(InferError::Missing {
+                    method: self.method.as_str(),
+                    what: format!(
+                        "the representation its first window brought (`isi` or `tfp`, not both), got `{}`",
+                        s.kind()
+                    ),
+                });
+            }
             _ => unreachable!("inputs checked against the method above"),
         }
         self.stats.frames += 1;
@@ -373,6 +395,10 @@ impl Online {
                 ComplementaryFilter::new(h, w, p.cf_gain_rad_s, t0)?,
                 Array2::zeros((h, w)),
             ),
+            Method::Fusion if matches!(win.spikes, Some(SpikeInput::Rate(_))) => {
+                let rp = RateFusionParams::new(win.lum_per_rate.unwrap_or(1.0), p.contrast);
+                State::RateFusion(RateFusion::new(h, w, rp, t0)?)
+            }
             Method::Fusion => {
                 let mut fp = FusionParams::new(win.lum_per_rate.unwrap_or(1.0), 1.0);
                 fp.theta_init = p.theta_init;
@@ -426,6 +452,7 @@ mod tests {
                 spikes: Some(SpikeInput::Rate(rate.view())),
                 lum_per_rate: Some(2.0),
                 events: Some((e, (2, 2))),
+                planes: None,
             };
             let got = online.frame(&w).unwrap();
             cf.push_events(e, Contrast::symmetric(0.2)).unwrap();
@@ -484,6 +511,7 @@ mod tests {
                     }),
                     lum_per_rate: Some(1.0),
                     events: Some((e, (1, 1))),
+                    planes: None,
                 };
                 out.push(o.frame(&w).unwrap()[[0, 0]]);
             }
@@ -522,26 +550,33 @@ mod tests {
             spikes: Some(spikes),
             lum_per_rate: Some(1.0),
             events: None,
+            planes: None,
         };
         let e = f.frame(&no_events).unwrap_err().to_string();
         assert!(e.contains("`fusion` needs the event stream"), "{e}");
         let other_size = Window {
             events: Some((events(0), (3, 2))),
+            planes: None,
             ..no_events
         };
         let e = f.frame(&other_size).unwrap_err().to_string();
         assert!(e.contains("event sensor") && e.contains("[3, 2]"), "{e}");
         let rate = Array2::<f32>::zeros((2, 2));
         let wrong_kind = Window {
-            spikes: Some(SpikeInput::Rate(rate.view())),
+            spikes: Some(SpikeInput::StpRate(rate.view())),
             events: Some((events(0), (2, 2))),
+            planes: None,
             ..no_events
         };
         let e = f.frame(&wrong_kind).unwrap_err().to_string();
-        assert!(e.contains("the `isi` representation, got `tfp`"), "{e}");
+        assert!(
+            e.contains("the `isi` or `tfp` representation, got `stp`"),
+            "{e}"
+        );
         let uncalibrated = Window {
             lum_per_rate: None,
             events: Some((events(0), (2, 2))),
+            planes: None,
             ..no_events
         };
         let e = f.frame(&uncalibrated).unwrap_err().to_string();
@@ -584,6 +619,7 @@ mod tests {
                 }),
                 lum_per_rate: Some(1.0),
                 events: Some((flood, (1, 1))),
+                planes: None,
             };
             let f = o.frame(&w).unwrap();
             assert!(

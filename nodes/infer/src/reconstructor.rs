@@ -512,11 +512,16 @@ fn classical(
             ),
         ));
     }
+    let planes = rep
+        .and_then(|r| r.params.get("window"))
+        .filter(|w| w.is_finite() && **w >= 1.0 && **w <= 1e6)
+        .map(|w| *w as usize);
     let window = Window {
         t_ref_ns,
         spikes,
         lum_per_rate,
         events,
+        planes,
     };
     let data = online.frame(&window).map_err(|e| {
         let hint = if lum_per_rate.is_none() && spikes.is_some() {
