@@ -116,14 +116,7 @@ pub fn row(
         ..template.clone()
     };
     super::score(&mut row, &frames, rec.truth.as_ref());
-    row.label = format!(
-        "{} [{}]",
-        template.label,
-        mix.iter()
-            .map(|(m, n)| format!("{m} x{n}"))
-            .collect::<Vec<_>>()
-            .join(" ")
-    );
+    row.label = mix_label(&template.label, mix.iter().map(|(m, n)| (*m, *n)), 0);
     Ok(row)
 }
 
@@ -135,6 +128,22 @@ fn round2(x: f64) -> f64 {
 /// `x` to 6 significant decimals.
 fn round6(x: f64) -> f64 {
     (x * 1e6).round() / 1e6
+}
+
+/// A row's label with the methods chosen and the frames late: `noise:7 [tfp-33 x3 tfstp x1 late
+/// x1]` (the summary reads `late x` back).
+fn mix_label<'a>(
+    texture: &str,
+    mix: impl Iterator<Item = (&'a str, usize)>,
+    late: usize,
+) -> String {
+    let chosen: Vec<String> = mix.map(|(m, n)| format!("{m} x{n}")).collect();
+    let late = if late > 0 {
+        format!(" late x{late}")
+    } else {
+        String::new()
+    };
+    format!("{texture} [{}{late}]", chosen.join(" "))
 }
 
 /// The name of budget mode's rows: `auto-5ms`.
@@ -192,18 +201,10 @@ pub fn budget_row(
         ..template.clone()
     };
     super::score(&mut row, &frames, rec.truth.as_ref());
-    row.label = format!(
-        "{} [{}{}]",
-        template.label,
-        mix.iter()
-            .map(|(m, n)| format!("{m} x{n}"))
-            .collect::<Vec<_>>()
-            .join(" "),
-        if late > 0 {
-            format!(" late x{late}")
-        } else {
-            String::new()
-        }
+    row.label = mix_label(
+        &template.label,
+        mix.iter().map(|(m, n)| (m.as_str(), *n)),
+        late,
     );
     Ok((row, late))
 }

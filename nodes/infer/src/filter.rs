@@ -147,6 +147,15 @@ pub(crate) fn check_events(
     Ok(events.t_ns.last().copied())
 }
 
+/// Adds each event's polarity (+1 ON, -1 OFF) into `count` (`[H, W]` row-major, `width`
+/// columns) at its pixel: the signed count `E` of Eq. 5. The events are checked already.
+pub(crate) fn count_events(count: &mut [f64], width: usize, events: EventSlice) {
+    let xy = events.x.iter().zip(events.y);
+    for ((&x, &y), &p) in xy.zip(events.polarity) {
+        count[usize::from(y) * width + usize::from(x)] += f64::from(p);
+    }
+}
+
 /// A rate in rad/s: finite and `>= 0`.
 fn check_rate(name: &'static str, value: f64) -> Result<(), InferError> {
     if !(value.is_finite() && value >= 0.0) {

@@ -50,7 +50,7 @@
 use ndarray::{Array2, ArrayView2, ArrayViewMut1, ArrayViewMut2, Axis, Zip};
 use neuspike_represent::EventSlice;
 
-use crate::filter::{check_events, check_time, owned_slice, owned_slice_mut};
+use crate::filter::{check_events, check_time, count_events, owned_slice, owned_slice_mut};
 use crate::{InferError, check_shape, gain};
 use neuspike_simd::fastmath::{exp_nonpos, exp_nonpos_reference};
 
@@ -383,11 +383,7 @@ impl PhysicsFusion {
     pub fn push_events(&mut self, events: EventSlice) -> Result<(), InferError> {
         let (h, w) = self.dim();
         let last = check_events(events, h, w, self.latest_ns)?;
-        let count = owned_slice_mut(&mut self.count);
-        let xy = events.x.iter().zip(events.y);
-        for ((&x, &y), &p) in xy.zip(events.polarity) {
-            count[usize::from(y) * w + usize::from(x)] += f64::from(p);
-        }
+        count_events(owned_slice_mut(&mut self.count), w, events);
         self.latest_ns = last.unwrap_or(self.latest_ns);
         Ok(())
     }

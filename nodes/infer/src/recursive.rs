@@ -22,7 +22,7 @@
 
 use ndarray::{Array2, ArrayView2, ArrayViewMut2};
 
-use crate::filter::{check_events, check_time, owned_slice, owned_slice_mut};
+use crate::filter::{check_events, check_time, count_events, owned_slice, owned_slice_mut};
 use crate::{EventSlice, InferError, check_shape, gain};
 
 /// Settings of [`RateFusion`].
@@ -152,11 +152,7 @@ impl RateFusion {
     pub fn push_events(&mut self, events: EventSlice) -> Result<(), InferError> {
         let (h, w) = self.dim();
         let last = check_events(events, h, w, self.latest_ns)?;
-        let count = owned_slice_mut(&mut self.count);
-        let xy = events.x.iter().zip(events.y);
-        for ((&x, &y), &p) in xy.zip(events.polarity) {
-            count[usize::from(y) * w + usize::from(x)] += f64::from(p);
-        }
+        count_events(owned_slice_mut(&mut self.count), w, events);
         self.latest_ns = last.unwrap_or(self.latest_ns);
         Ok(())
     }
