@@ -295,6 +295,9 @@ pub fn simulate(
     ))
 }
 
+/// The most planes of a real recording the bench reads (the first ones).
+pub const REAL_MAX_PLANES: u64 = 4_096;
+
 /// A real spike recording (PKU `.dat`, 400x250 at 20 kHz), scored without truth at three
 /// windows in its middle. No calibration comes with it: its gain maps the mean firing rate to
 /// luminance 0.5 (1 / (2 x the mean rate)), for every method alike.
@@ -303,10 +306,17 @@ pub fn simulate(
 /// The file cannot be read, or is too short for a window of 128 planes.
 pub fn real(path: &Path) -> eyre::Result<Recording> {
     let opts = neuspike_formats::pku::PkuOptions::default();
+    // The planes the file holds, from its size, and at most REAL_MAX_PLANES of them: the reader
+    // allocates what it is asked for.
+    let planes = neuspike_formats::pku::plane_count(path, &opts.geometry)
+        .wrap_err_with(|| format!("--real {}", path.display()))?;
+    let planes = usize::try_from(planes.min(REAL_MAX_PLANES))
+        .unwrap_or(1)
+        .max(1);
     let mut reader = neuspike_formats::pku::PkuReader::open(path, &opts)
         .wrap_err_with(|| format!("--real {}", path.display()))?;
     let mut spikes = reader
-        .next_chunk(100_000)
+        .next_chunk(planes)
         .wrap_err_with(|| format!("--real {}", path.display()))?
         .ok_or_else(|| eyre!("--real {}: no planes", path.display()))?;
     let n = spikes.n_planes as u64;
