@@ -7,6 +7,7 @@
 
 pub mod bench_live;
 pub mod bench_model;
+pub mod calibrate;
 pub mod cluster;
 pub mod dataset;
 pub mod graph;

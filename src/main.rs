@@ -103,6 +103,11 @@ enum Command {
     /// each; PSNR, SSIM, 2D entropy and the cost of a frame on 1 and 2 threads; bench.csv
     /// (resumable), summary.md, pareto.png and winners.png in --out.
     Bench(neuspike::trade::BenchOptions),
+    /// The spike camera's noise model against a real recording: inter-spike-interval histograms
+    /// of its still pixels at matched rates, for the paper's model, each noise term, SCSim's
+    /// values and the fitted model; calibration.md, isi.png and profile.yml (a `--profile` file)
+    /// in --out.
+    Calibrate(neuspike::calibrate::CalibrateOptions),
     /// Time a learned model (ONNX) under tract at a frame size, on 1 and 2 threads (as the infer
     /// node runs it: shapes pinned, optimised once, padded to the network's stride).
     BenchModel {
@@ -329,6 +334,24 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 rec.spikes,
                 rec.events,
                 rec.ground_truth
+            );
+            Ok(())
+        }
+        Command::Calibrate(opts) => {
+            let cal = neuspike::calibrate::run(&opts)?;
+            for m in &cal.models {
+                println!(
+                    "{:<36} sigma {:.4}  mean W1 {:.3} ticks  mean KL {:.3}",
+                    m.label,
+                    m.noise.fire_sigma(),
+                    m.score.mean_wasserstein,
+                    m.score.mean_kl
+                );
+            }
+            println!(
+                "{}: calibration.md, isi.png, profile.yml (`--profile {}`)",
+                opts.out.display(),
+                opts.out.join("profile.yml").display()
             );
             Ok(())
         }

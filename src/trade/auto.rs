@@ -210,7 +210,7 @@ pub fn budget_row(
 }
 
 /// The UTC date and time now, RFC 3339 (civil date from the Unix day count).
-fn now_utc() -> String {
+pub(crate) fn now_utc() -> String {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());

@@ -23,7 +23,7 @@ const FONTS: [&str; 5] = [
 ];
 
 /// Registers a font as `sans-serif` once; whether text can be drawn.
-fn has_font() -> bool {
+pub(crate) fn has_font() -> bool {
     static FONT: OnceLock<bool> = OnceLock::new();
     *FONT.get_or_init(|| {
         let env = std::env::var("NEUSPIKE_FONT").ok();
@@ -43,12 +43,12 @@ fn has_font() -> bool {
     })
 }
 
-fn pe<E: std::fmt::Display>(e: E) -> eyre::Report {
+pub(crate) fn pe<E: std::fmt::Display>(e: E) -> eyre::Report {
     eyre!("plot: {e}")
 }
 
 /// A colour per method, stable across plots (by its place in the first-seen order).
-fn colour(i: usize) -> RGBColor {
+pub(crate) fn colour(i: usize) -> RGBColor {
     const C: [RGBColor; 16] = [
         RGBColor(31, 119, 180),
         RGBColor(255, 127, 14),
@@ -70,7 +70,7 @@ fn colour(i: usize) -> RGBColor {
     C[i % C.len()]
 }
 
-fn save(buf: Vec<u8>, (w, h): (u32, u32), path: &Path) -> eyre::Result<()> {
+pub(crate) fn save(buf: Vec<u8>, (w, h): (u32, u32), path: &Path) -> eyre::Result<()> {
     let img = image::RgbImage::from_raw(w, h, buf).ok_or_else(|| eyre!("plot: buffer size"))?;
     img.save(path)
         .wrap_err_with(|| format!("cannot write {}", path.display()))

@@ -311,6 +311,7 @@ impl Auto {
         let row = self.policy.nearest_class(&s).clone();
         let spent = start.elapsed().as_secs_f64() * 1e3;
         let (i, upkeep) = self.pick(&row, spent);
+        let t_upkeep = Instant::now();
         // Feed every TFSTP that is not the choice (its synapses must see every plane), timed:
         // its estimate follows what the upkeep costs here.
         for k in 0..self.candidates.len() {
@@ -323,6 +324,7 @@ impl Auto {
                 c.update_cost(t.elapsed().as_secs_f64() * 1e3);
             }
         }
+        let upkeep_ms = t_upkeep.elapsed().as_secs_f64() * 1e3;
         let t0 = Instant::now();
         let gain = self.lum_per_rate.or(w.spikes.lum_per_rate);
         let c = &mut self.candidates[i];
@@ -389,7 +391,9 @@ impl Auto {
                 luminance_from_rate_into(out.view(), g, 1.0, data.view_mut())?;
             }
         }
-        c.update_cost(t0.elapsed().as_secs_f64() * 1e3);
+        let estimate_ms = c.cost_ms;
+        let method_ms = t0.elapsed().as_secs_f64() * 1e3;
+        c.update_cost(method_ms);
         let method = c.name.clone();
         let total = start.elapsed();
         let compute_ns = i64::try_from(total.as_nanos()).unwrap_or(i64::MAX);
@@ -399,6 +403,18 @@ impl Auto {
         *self.stats.frames.entry(method.clone()).or_default() += 1;
         *self.stats.compute_ns.entry(method.clone()).or_default() += compute_ns.max(0) as u64;
         self.stats.late += u64::from(late);
+        if late {
+            tracing::debug!(
+                seq = w.seq(),
+                method,
+                estimate_ms,
+                stats_ms = spent,
+                upkeep_ms,
+                method_ms,
+                total_ms = total.as_secs_f64() * 1e3,
+                "auto: a frame late"
+            );
+        }
         Ok(AutoFrame {
             data,
             method,

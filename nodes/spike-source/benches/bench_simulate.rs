@@ -6,8 +6,8 @@
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use neuspike_scene::Scene;
 use neuspike_spike_source::{
-    CameraConfig, Isa, KeyLight, PixelState, Reset, SpikeCamera, integrate_ticks_reference,
-    integrate_ticks_with,
+    CameraConfig, FireNoise, Isa, KeyLight, Noise, NoiseArgs, PixelState, Reset, SpikeCamera,
+    integrate_ticks_noisy_with, integrate_ticks_reference, integrate_ticks_with,
 };
 use std::hint::black_box;
 
@@ -83,11 +83,115 @@ fn bench(c: &mut Criterion) {
         });
     }
 
-    // The whole camera on a moving scene, rendering included.
-    for scene in ["bright-static", "bright-slow", "bright-fast"] {
+    // The noisy kernel (per-interval threshold draws and the reset delay) on the fastest
+    // instruction set.
+    let isa = Isa::ALL
+        .into_iter()
+        .rfind(|isa| isa.is_supported())
+        .expect("an instruction set");
+    let mut thr = vec![1.0f32; n];
+    let mut rng: Vec<u32> = (0..n as u32)
+        .map(|i| i.wrapping_mul(2_654_435_761) | 1)
+        .collect();
+    g.bench_function(format!("kernel_noisy_fast_{}", isa.name()), |b| {
+        b.iter(|| {
+            for _ in 0..PLANES / KEY_TICKS {
+                planes.fill(0);
+                let px = PixelState {
+                    acc: &mut acc,
+                    since: &mut since,
+                    cap: &cap,
+                };
+                let fire = FireNoise {
+                    sigma: 0.1,
+                    reset_delay: 0.002,
+                    thr: &mut thr,
+                    rng: &mut rng,
+                };
+                integrate_ticks_noisy_with(
+                    isa,
+                    light,
+                    0,
+                    1.0,
+                    Reset::Subtract,
+                    px,
+                    fire,
+                    &mut planes,
+                );
+            }
+            black_box(&planes);
+        })
+    });
+
+    // The whole camera, rendering included: the paper's model on a still and two moving scenes,
+    // and on the still scene each noise term alone and every term on (SCSim's values).
+    let term = |name: &'static str, noise: Noise| (name, noise);
+    let terms = [
+        term(
+            "shot",
+            Noise {
+                electrons_per_phi: Noise::SCSIM.electrons_per_phi,
+                ..Noise::OFF
+            },
+        ),
+        term(
+            "jitter",
+            Noise {
+                threshold_jitter: 0.1,
+                ..Noise::OFF
+            },
+        ),
+        term(
+            "offset",
+            Noise {
+                threshold_offset: Noise::SCSIM.threshold_offset,
+                ..Noise::OFF
+            },
+        ),
+        term(
+            "prnu",
+            Noise {
+                prnu: Noise::SCSIM.prnu,
+                ..Noise::OFF
+            },
+        ),
+        term(
+            "dark",
+            Noise {
+                dark_current_hz: 93.5,
+                dark_current_spread: 0.38,
+                ..Noise::OFF
+            },
+        ),
+        term(
+            "reset_delay",
+            Noise {
+                reset_delay_ticks: 0.002,
+                ..Noise::OFF
+            },
+        ),
+        term("all", Noise::SCSIM),
+    ];
+    let mut cases = vec![
+        ("bright-static".to_string(), "bright-static", Noise::OFF),
+        ("bright-slow".to_string(), "bright-slow", Noise::OFF),
+        ("bright-fast".to_string(), "bright-fast", Noise::OFF),
+    ];
+    for (name, noise) in terms {
+        cases.push((
+            format!("bright-static_noise_{name}"),
+            "bright-static",
+            noise,
+        ));
+    }
+    for (label, scene, noise) in cases {
         let s = Scene::load(scene).expect("builtin scene");
-        let mut cam = SpikeCamera::new(s, CameraConfig::default()).expect("camera");
-        g.bench_function(format!("camera_{scene}"), |b| {
+        let cfg = CameraConfig {
+            noise: NoiseArgs::from(noise),
+            ..CameraConfig::default()
+        };
+        let mut cam = SpikeCamera::new(s, cfg).expect("camera");
+        g.bench_function(format!("camera_{label}"), |b| {
             b.iter(|| black_box(cam.next_chunk(PLANES, 0)))
         });
     }

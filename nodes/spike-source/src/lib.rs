@@ -13,14 +13,21 @@
 //!   `N(180, 50)`, rounded, at least 1); a pixel that has not fired for `cap_i` ticks fires anyway
 //!   (dark current) and its accumulator restarts from 0.
 //!
+//! More noise terms (shot noise, threshold jitter and offset, gain, dark current, reset delay),
+//! each switchable, and the named camera profiles that set them: [`noise`].
+//!
 //! The simulation is deterministic for a seed: the noise draws come from a ChaCha generator seeded
 //! with it. The scene is rendered at key instants every `render_step_ticks` ticks and linearly
 //! interpolated in time between them (1 = render every tick).
 #![deny(missing_docs)]
 
 use ndarray::Array2;
+pub mod calibrate;
+pub mod noise;
+
 use neuspike_scene::Scene;
 use neuspike_schemas::{SpikeChunk, bytes_per_plane};
+pub use noise::{Noise, NoiseArgs};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -71,6 +78,9 @@ pub struct CameraConfig {
     /// Seed of the noise draws (the scene has its own seed).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// The noise terms beyond the paper's: a profile and per-term overrides.
+    #[command(flatten)]
+    pub noise: NoiseArgs,
 }
 
 impl Default for CameraConfig {
@@ -87,6 +97,7 @@ impl Default for CameraConfig {
             fpn_sigma: 50.0,
             render_step_ticks: 0,
             seed: 0,
+            noise: NoiseArgs::default(),
         }
     }
 }
@@ -137,6 +148,22 @@ impl CameraConfig {
     }
 }
 
+/// A camera's noise settings could not be resolved (its profile, or a value).
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("{0}")]
+pub struct NoiseError(pub String);
+
+/// Why a camera could not be made.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum CameraError {
+    /// A setting out of range.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The noise profile or a noise value.
+    #[error(transparent)]
+    Noise(#[from] NoiseError),
+}
+
 /// The spike camera looking at a scene: state of every pixel plus the tick clock.
 pub struct SpikeCamera {
     scene: Scene,
@@ -156,12 +183,24 @@ pub struct SpikeCamera {
     slope: Vec<f32>,
     key_tick: u64,
     tick: u64,
+    /// The noise terms in effect.
+    noise: Noise,
+    /// Per-pixel light factor (gain over threshold offset) and dark light per tick, when on.
+    factor: Option<Vec<f32>>,
+    dark: Option<Vec<f32>>,
+    /// Per-interval thresholds and their generators, when the per-fire noise is on.
+    thr: Vec<f32>,
+    rng: Vec<u32>,
 }
 
 impl SpikeCamera {
     /// A camera at tick 0.
-    pub fn new(scene: Scene, cfg: CameraConfig) -> Result<Self, ConfigError> {
+    ///
+    /// # Errors
+    /// A setting out of range, or a noise profile that cannot be loaded.
+    pub fn new(scene: Scene, cfg: CameraConfig) -> Result<Self, CameraError> {
         let period_ns = cfg.validate()?;
+        let noise = cfg.noise.resolve().map_err(NoiseError)?;
         let n = cfg.width * cfg.height;
         let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
         let phi = cfg.phi as f32;
@@ -181,6 +220,46 @@ impl SpikeCamera {
                 .collect()
         } else {
             vec![u32::MAX; n]
+        };
+        // The fixed patterns, each drawn only when its term is on, after the paper's draws (so
+        // the paper's model gives the same spikes for a seed with every other term off).
+        let std_normal = Normal::new(0.0f64, 1.0).expect("unit normal");
+        // A threshold offset acts on light and dark current alike (1 / (1 + o)); the gain on the
+        // light alone.
+        let offset: Option<Vec<f64>> = (noise.threshold_offset > 0.0).then(|| {
+            (0..n)
+                .map(|_| {
+                    1.0 / (1.0 + noise.threshold_offset * std_normal.sample(&mut rng)).max(0.05)
+                })
+                .collect()
+        });
+        let gain: Option<Vec<f64>> = (noise.prnu > 0.0).then(|| {
+            (0..n)
+                .map(|_| (1.0 + noise.prnu * std_normal.sample(&mut rng)).max(0.0))
+                .collect()
+        });
+        let at = |v: &Option<Vec<f64>>, i: usize| v.as_ref().map_or(1.0, |v| v[i]);
+        let factor = (offset.is_some() || gain.is_some()).then(|| {
+            (0..n)
+                .map(|i| (at(&gain, i) * at(&offset, i)) as f32)
+                .collect()
+        });
+        let dark = (noise.dark_current_hz > 0.0).then(|| {
+            // Log-normal with mean `d`: d exp(s z - s^2 / 2).
+            let d = noise.dark_current_hz / cfg.rate_hz * cfg.phi;
+            let sd = noise.dark_current_spread;
+            (0..n)
+                .map(|i| {
+                    let z = std_normal.sample(&mut rng);
+                    (d * (sd * z - sd * sd / 2.0).exp() * at(&offset, i)) as f32
+                })
+                .collect()
+        });
+        let (thr, rng_state) = if noise.per_fire() {
+            let seeds = (0..n).map(|_| rng.random::<u32>() | 1).collect();
+            (vec![phi; n], seeds)
+        } else {
+            (Vec::new(), Vec::new())
         };
         let render_step = if cfg.render_step_ticks > 0 {
             u64::from(cfg.render_step_ticks)
@@ -204,6 +283,11 @@ impl SpikeCamera {
             slope: vec![0.0; n],
             key_tick: 0,
             tick: 0,
+            noise,
+            factor,
+            dark,
+            thr,
+            rng: rng_state,
             cfg,
         };
         cam.render_key(0);
@@ -275,15 +359,23 @@ impl SpikeCamera {
         };
         let (a, b) = (self.key_a.as_slice(), self.key_b.as_slice());
         if let (Some(a), Some(b)) = (a, b) {
-            for (((base, slope), &la), &lb) in self
+            // The fixed patterns: a pixel's light factor (gain, threshold offset), then its dark
+            // current, at both ends of the interval.
+            let (factor, dark) = (self.factor.as_deref(), self.dark.as_deref());
+            let pixel = |i: usize, l: f32| {
+                let l = factor.map_or(l, |f| l * f[i]);
+                dark.map_or(l, |d| l + d[i])
+            };
+            for (i, (((base, slope), &la), &lb)) in self
                 .base
                 .iter_mut()
                 .zip(self.slope.iter_mut())
                 .zip(a)
                 .zip(b)
+                .enumerate()
             {
-                *base = light(la);
-                *slope = (light(lb) - *base) * inv_step;
+                *base = pixel(i, light(la));
+                *slope = (pixel(i, light(lb)) - *base) * inv_step;
             }
         }
     }
@@ -319,21 +411,27 @@ impl SpikeCamera {
             }
             let k0 = self.tick - key;
             let run = ((self.render_step - k0) as usize).min(n - done);
-            integrate_ticks(
-                KeyLight {
-                    base: &self.base,
-                    slope: &self.slope,
-                },
-                k0 as u32,
-                self.phi,
-                self.cfg.reset,
-                PixelState {
-                    acc: &mut self.acc,
-                    since: &mut self.since,
-                    cap: &self.cap,
-                },
-                &mut bits[done * per..(done + run) * per],
-            );
+            let light = KeyLight {
+                base: &self.base,
+                slope: &self.slope,
+            };
+            let px = PixelState {
+                acc: &mut self.acc,
+                since: &mut self.since,
+                cap: &self.cap,
+            };
+            let out = &mut bits[done * per..(done + run) * per];
+            if self.noise.per_fire() {
+                let fire = FireNoise {
+                    sigma: self.noise.fire_sigma() as f32,
+                    reset_delay: self.noise.reset_delay_ticks as f32,
+                    thr: &mut self.thr,
+                    rng: &mut self.rng,
+                };
+                integrate_ticks_noisy(light, k0 as u32, self.phi, self.cfg.reset, px, fire, out);
+            } else {
+                integrate_ticks(light, k0 as u32, self.phi, self.cfg.reset, px, out);
+            }
             self.tick += run as u64;
             done += run;
         }
@@ -610,6 +708,279 @@ pub fn integrate_ticks_with(
     );
 }
 
+/// The per-interval noise the noisy kernels draw: each pixel's threshold for its current
+/// interval, redrawn at each fire from its generator, and the light lost after a fire.
+#[derive(Debug)]
+pub struct FireNoise<'a> {
+    /// Relative standard deviation of an interval's threshold ([`Noise::fire_sigma`], at most
+    /// [`noise::MAX_FIRE_SIGMA`]).
+    pub sigma: f32,
+    /// Light lost after a fire, in ticks of the pixel's light (< 1).
+    pub reset_delay: f32,
+    /// Each pixel's threshold for its current interval.
+    pub thr: &'a mut [f32],
+    /// Each pixel's xorshift32 state (never 0), advanced every tick.
+    pub rng: &'a mut [u32],
+}
+
+/// One step of the xorshift32 generator (13, 17, 5).
+#[inline(always)]
+fn xorshift32(mut r: u32) -> u32 {
+    r ^= r << 13;
+    r ^= r >> 17;
+    r ^= r << 5;
+    r
+}
+
+/// The threshold a draw gives: `phi + (u1 + u2 - 65535) scale`, the two 16-bit halves of `r` as
+/// two uniforms (a triangular draw, exact in `f32`).
+#[inline(always)]
+fn drawn_threshold(r: u32, phi: f32, scale: f32) -> f32 {
+    let tri = ((r & 0xffff) + (r >> 16)) as i32 as f32;
+    phi + (tri - 65_535.0) * scale
+}
+
+/// The scale of a draw: `sigma phi / TRIANGLE_STD`.
+#[inline(always)]
+fn draw_scale(sigma: f32, phi: f32) -> f32 {
+    sigma * phi / noise::TRIANGLE_STD
+}
+
+/// One tick of every pixel with per-interval noise, the plain loop (the oracle of
+/// [`integrate_ticks_noisy`]): every pixel's generator steps; a pixel fires at `acc >= thr` (its
+/// interval's threshold) or at its ISI cap, and then takes the drawn threshold for its next
+/// interval; the subtracting reset keeps `acc - thr` less the light of the reset delay, at
+/// least 0 and below the next threshold.
+pub fn integrate_tick_noisy_reference(
+    light: TickLight,
+    phi: f32,
+    reset: Reset,
+    px: PixelState,
+    fire: FireNoise,
+    plane: &mut [u8],
+) {
+    let scale = draw_scale(fire.sigma, phi);
+    for i in 0..px.acc.len() {
+        let l = light.base[i] + light.slope[i] * light.k;
+        let a = px.acc[i] + l;
+        let s = px.since[i].saturating_add(1);
+        let r = xorshift32(fire.rng[i]);
+        fire.rng[i] = r;
+        let next = drawn_threshold(r, phi, scale);
+        let thr = fire.thr[i];
+        let fired = if a >= thr {
+            px.acc[i] = match reset {
+                Reset::Subtract => ((a - thr) - fire.reset_delay * l).max(0.0).min(next),
+                Reset::Zero => 0.0,
+            };
+            true
+        } else if s >= px.cap[i] {
+            px.acc[i] = 0.0;
+            true
+        } else {
+            px.acc[i] = a;
+            false
+        };
+        px.since[i] = if fired { 0 } else { s };
+        if fired {
+            fire.thr[i] = next;
+            plane[i >> 3] |= 1 << (i & 7);
+        }
+    }
+}
+
+/// Consecutive ticks of one key interval with [`integrate_tick_noisy_reference`] (the oracle of
+/// [`integrate_ticks_noisy`]).
+pub fn integrate_ticks_noisy_reference(
+    light: KeyLight,
+    k0: u32,
+    phi: f32,
+    reset: Reset,
+    px: PixelState,
+    fire: FireNoise,
+    planes: &mut [u8],
+) {
+    let per = px.acc.len().div_ceil(8);
+    for (t, plane) in planes.chunks_exact_mut(per.max(1)).enumerate() {
+        let light = TickLight {
+            base: light.base,
+            slope: light.slope,
+            k: (k0 as usize + t) as f32,
+        };
+        let px = PixelState {
+            acc: &mut *px.acc,
+            since: &mut *px.since,
+            cap: px.cap,
+        };
+        let fire = FireNoise {
+            sigma: fire.sigma,
+            reset_delay: fire.reset_delay,
+            thr: &mut *fire.thr,
+            rng: &mut *fire.rng,
+        };
+        integrate_tick_noisy_reference(light, phi, reset, px, fire, plane);
+    }
+}
+
+/// [`integrate_ticks_noisy_reference`], fast: equal to it bit for bit (tested), blocked and
+/// vectorised as [`integrate_ticks`] is.
+pub fn integrate_ticks_noisy(
+    light: KeyLight,
+    k0: u32,
+    phi: f32,
+    reset: Reset,
+    px: PixelState,
+    fire: FireNoise,
+    planes: &mut [u8],
+) {
+    integrate_ticks_noisy_with(
+        neuspike_simd::detect(),
+        light,
+        k0,
+        phi,
+        reset,
+        px,
+        fire,
+        planes,
+    );
+}
+
+/// [`integrate_ticks_noisy`] compiled for a chosen instruction set (tests and benchmarks).
+#[allow(clippy::too_many_arguments)]
+pub fn integrate_ticks_noisy_with(
+    isa: Isa,
+    light: KeyLight,
+    k0: u32,
+    phi: f32,
+    reset: Reset,
+    px: PixelState,
+    fire: FireNoise,
+    planes: &mut [u8],
+) {
+    neuspike_simd::with_isa(
+        isa,
+        #[inline(always)]
+        || match reset {
+            Reset::Subtract => noisy_blocked::<true>(light, k0, phi, px, fire, planes),
+            Reset::Zero => noisy_blocked::<false>(light, k0, phi, px, fire, planes),
+        },
+    );
+}
+
+/// The noisy fast path's body (see [`ticks_blocked`]).
+#[inline(always)]
+fn noisy_blocked<const SUBTRACT: bool>(
+    light: KeyLight,
+    k0: u32,
+    phi: f32,
+    px: PixelState,
+    fire: FireNoise,
+    planes: &mut [u8],
+) {
+    let n = px.acc.len();
+    let per = n.div_ceil(8);
+    if per == 0 {
+        return;
+    }
+    let n_ticks = planes.len() / per;
+    let scale = draw_scale(fire.sigma, phi);
+    let delay = fire.reset_delay;
+    let whole = n / BLOCK * BLOCK;
+    let (acc, acc_tail) = px.acc.split_at_mut(whole);
+    let (since, since_tail) = px.since.split_at_mut(whole);
+    let (thr, thr_tail) = fire.thr.split_at_mut(whole);
+    let (rng, rng_tail) = fire.rng.split_at_mut(whole);
+    let blocks = light.base[..whole]
+        .chunks_exact(BLOCK)
+        .zip(light.slope[..whole].chunks_exact(BLOCK))
+        .zip(acc.chunks_exact_mut(BLOCK))
+        .zip(since.chunks_exact_mut(BLOCK))
+        .zip(px.cap[..whole].chunks_exact(BLOCK))
+        .zip(thr.chunks_exact_mut(BLOCK))
+        .zip(rng.chunks_exact_mut(BLOCK));
+    for (b, ((((((base, slope), acc), since), cap), thr), rng)) in blocks.enumerate() {
+        let mut a = [0f32; BLOCK];
+        let mut s = [0u32; BLOCK];
+        let mut th = [0f32; BLOCK];
+        let mut r = [0u32; BLOCK];
+        a.copy_from_slice(acc);
+        s.copy_from_slice(since);
+        th.copy_from_slice(thr);
+        r.copy_from_slice(rng);
+        let byte0 = b * (BLOCK / 8);
+        for t in 0..n_ticks {
+            let k = (k0 as usize + t) as f32;
+            let mut flags = [0u8; BLOCK];
+            for j in 0..BLOCK {
+                let l = base[j] + slope[j] * k;
+                let x = a[j] + l;
+                let si = s[j].saturating_add(1);
+                let rj = xorshift32(r[j]);
+                r[j] = rj;
+                let next = drawn_threshold(rj, phi, scale);
+                let over = x >= th[j];
+                let fired = over | (si >= cap[j]);
+                let reset_to = if SUBTRACT {
+                    ((x - th[j]) - delay * l).max(0.0).min(next)
+                } else {
+                    0.0
+                };
+                a[j] = if over {
+                    reset_to
+                } else if fired {
+                    0.0
+                } else {
+                    x
+                };
+                th[j] = if fired { next } else { th[j] };
+                s[j] = if fired { 0 } else { si };
+                flags[j] = u8::from(fired);
+            }
+            let out = &mut planes[t * per + byte0..][..BLOCK / 8];
+            for (o, f) in out.iter_mut().zip(flags.chunks_exact(8)) {
+                *o = pack8(f);
+            }
+        }
+        acc.copy_from_slice(&a);
+        since.copy_from_slice(&s);
+        thr.copy_from_slice(&th);
+        rng.copy_from_slice(&r);
+    }
+    if whole < n {
+        let reset = if SUBTRACT {
+            Reset::Subtract
+        } else {
+            Reset::Zero
+        };
+        for t in 0..n_ticks {
+            let light = TickLight {
+                base: &light.base[whole..],
+                slope: &light.slope[whole..],
+                k: (k0 as usize + t) as f32,
+            };
+            let px = PixelState {
+                acc: &mut *acc_tail,
+                since: &mut *since_tail,
+                cap: &px.cap[whole..],
+            };
+            let fire = FireNoise {
+                sigma: fire.sigma,
+                reset_delay: delay,
+                thr: &mut *thr_tail,
+                rng: &mut *rng_tail,
+            };
+            integrate_tick_noisy_reference(
+                light,
+                phi,
+                reset,
+                px,
+                fire,
+                &mut planes[t * per + whole / 8..][..per - whole / 8],
+            );
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -756,6 +1127,206 @@ mod tests {
                 proptest::prop_assert_eq!(a1.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), a2.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{:?}", isa);
             }
         }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn noisy_kernel_equals_its_reference_on_every_isa(
+            n in 1usize..700,
+            ticks in 1usize..24,
+            seed in proptest::prelude::any::<u64>(),
+            k0 in 0u32..16,
+            subtract in proptest::prelude::any::<bool>(),
+            sigma in 0.0f32..0.4,
+            delay in 0.0f32..0.9,
+        ) {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let base: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
+            let slope: Vec<f32> = (0..n).map(|_| (rng.random::<f32>() - 0.5) * 0.05).collect();
+            let acc0: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 2.0).collect();
+            let since0: Vec<u32> = (0..n).map(|_| rng.random_range(0..20)).collect();
+            let cap: Vec<u32> = (0..n).map(|_| rng.random_range(1..25)).collect();
+            let thr0: Vec<f32> = (0..n).map(|_| 0.5 + rng.random::<f32>()).collect();
+            let rng0: Vec<u32> = (0..n).map(|_| rng.random::<u32>() | 1).collect();
+            let reset = if subtract { Reset::Subtract } else { Reset::Zero };
+            let light = KeyLight { base: &base, slope: &slope };
+            let per = n.div_ceil(8);
+            let run = |isa: Option<Isa>| {
+                let (mut a, mut s, mut th, mut r, mut p) =
+                    (acc0.clone(), since0.clone(), thr0.clone(), rng0.clone(), vec![0u8; per * ticks]);
+                let px = PixelState { acc: &mut a, since: &mut s, cap: &cap };
+                let fire = FireNoise { sigma, reset_delay: delay, thr: &mut th, rng: &mut r };
+                match isa {
+                    Some(isa) => integrate_ticks_noisy_with(isa, light, k0, 1.0, reset, px, fire, &mut p),
+                    None => integrate_ticks_noisy_reference(light, k0, 1.0, reset, px, fire, &mut p),
+                }
+                (p, s, r, a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), th.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+            };
+            let want = run(None);
+            for isa in Isa::ALL {
+                proptest::prop_assert_eq!(&want, &run(Some(isa)), "{:?}", isa);
+            }
+        }
+    }
+
+    #[test]
+    fn the_noisy_kernel_without_noise_is_the_papers_kernel() {
+        let n = 300;
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let base: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.2).collect();
+        let slope: Vec<f32> = (0..n).map(|_| (rng.random::<f32>() - 0.5) * 0.01).collect();
+        let cap: Vec<u32> = (0..n).map(|_| rng.random_range(5..40)).collect();
+        let light = KeyLight {
+            base: &base,
+            slope: &slope,
+        };
+        let ticks = 200;
+        let (mut a1, mut s1, mut p1) = (vec![0.0f32; n], vec![0u32; n], vec![0u8; 38 * ticks]);
+        integrate_ticks(
+            light,
+            0,
+            1.0,
+            Reset::Subtract,
+            PixelState {
+                acc: &mut a1,
+                since: &mut s1,
+                cap: &cap,
+            },
+            &mut p1,
+        );
+        let (mut a2, mut s2, mut p2) = (vec![0.0f32; n], vec![0u32; n], vec![0u8; 38 * ticks]);
+        let (mut th, mut r) = (vec![1.0f32; n], vec![7u32; n]);
+        let fire = FireNoise {
+            sigma: 0.0,
+            reset_delay: 0.0,
+            thr: &mut th,
+            rng: &mut r,
+        };
+        integrate_ticks_noisy(
+            light,
+            0,
+            1.0,
+            Reset::Subtract,
+            PixelState {
+                acc: &mut a2,
+                since: &mut s2,
+                cap: &cap,
+            },
+            fire,
+            &mut p2,
+        );
+        assert_eq!(p1, p2);
+        assert_eq!(a1, a2);
+    }
+
+    /// A flat scene seen by a camera with only `noise` on (no random start, no cap), `ticks`
+    /// planes: every pixel's spike times.
+    fn spike_times(light: f64, noise: Noise, ticks: usize) -> Vec<Vec<usize>> {
+        let cfg = CameraConfig {
+            noise: NoiseArgs::from(noise),
+            seed: 11,
+            ..quiet(32, 8)
+        };
+        let mut cam = SpikeCamera::new(flat_scene(0.5, light), cfg).unwrap();
+        let p = planes(&cam.next_chunk(ticks, 0));
+        let mut out = vec![Vec::new(); 32 * 8];
+        for ((k, y, x), &v) in p.indexed_iter() {
+            if v == 1 {
+                out[y * 32 + x].push(k);
+            }
+        }
+        out
+    }
+
+    fn isi_cv(times: &[Vec<usize>]) -> (f64, f64) {
+        let isis: Vec<f64> = times
+            .iter()
+            .flat_map(|t| t.windows(2).map(|w| (w[1] - w[0]) as f64))
+            .collect();
+        let mean = isis.iter().sum::<f64>() / isis.len() as f64;
+        let var = isis.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / isis.len() as f64;
+        (mean, var.sqrt() / mean)
+    }
+
+    #[test]
+    fn shot_noise_and_jitter_spread_the_interval_by_their_combined_sigma() {
+        // 0.025 phi a tick (light 0.05 x luminance 0.5): intervals of 40 ticks, quantisation
+        // adds at most 1/40 to the spread.
+        let (mean, cv) = isi_cv(&spike_times(0.05, Noise::OFF, 20_000));
+        assert!((mean - 40.0).abs() < 0.1 && cv < 0.01, "{mean} {cv}");
+        let noise = Noise {
+            electrons_per_phi: 400.0,
+            threshold_jitter: 0.08,
+            ..Noise::OFF
+        };
+        let want = (0.08f64 * 0.08 + 1.0 / 400.0).sqrt();
+        assert!((noise.fire_sigma() - want).abs() < 1e-12);
+        let (mean, cv) = isi_cv(&spike_times(0.05, noise, 20_000));
+        assert!((mean - 40.0).abs() < 0.5, "mean {mean}");
+        assert!((cv - want).abs() < 0.1 * want, "cv {cv}, sigma {want}");
+    }
+
+    #[test]
+    fn gain_offset_dark_current_and_reset_delay_do_what_they_say() {
+        let rate = |t: &Vec<usize>, ticks: usize| t.len() as f64 / ticks as f64;
+        // PRNU: the spread of per-pixel rates on flat light is the gain's.
+        let ticks = 4_000;
+        let t = spike_times(
+            1.0,
+            Noise {
+                prnu: 0.1,
+                ..Noise::OFF
+            },
+            ticks,
+        );
+        let r: Vec<f64> = t.iter().map(|t| rate(t, ticks)).collect();
+        let mean = r.iter().sum::<f64>() / r.len() as f64;
+        let sd = (r.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / r.len() as f64).sqrt();
+        assert!(
+            (mean - 0.5).abs() < 0.02 && (sd / mean - 0.1).abs() < 0.03,
+            "{mean} {sd}"
+        );
+        // Threshold offset: the rate goes as 1 / (1 + o).
+        let t = spike_times(
+            1.0,
+            Noise {
+                threshold_offset: 0.1,
+                ..Noise::OFF
+            },
+            ticks,
+        );
+        let r: Vec<f64> = t.iter().map(|t| rate(t, ticks)).collect();
+        let mean = r.iter().sum::<f64>() / r.len() as f64;
+        let sd = (r.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / r.len() as f64).sqrt();
+        assert!((sd / mean - 0.1).abs() < 0.03, "{mean} {sd}");
+        // Dark current: in the dark, pixels fire at the dark rate on average (log-normal spread).
+        let ticks = 40_000;
+        let noise = Noise {
+            dark_current_hz: 200.0,
+            dark_current_spread: 0.3,
+            ..Noise::OFF
+        };
+        let t = spike_times(1e-9, noise, ticks);
+        let hz: Vec<f64> = t.iter().map(|t| rate(t, ticks) * 20_000.0).collect();
+        let mean = hz.iter().sum::<f64>() / hz.len() as f64;
+        assert!((mean - 200.0).abs() < 20.0, "dark {mean} Hz");
+        assert!(
+            hz.iter().any(|&h| h < 170.0) && hz.iter().any(|&h| h > 230.0),
+            "{hz:?}"
+        );
+        // Reset delay: bright light loses `r` ticks of light per interval: rate l / (phi + r l).
+        let ticks = 10_000;
+        let t = spike_times(
+            0.8,
+            Noise {
+                reset_delay_ticks: 0.5,
+                ..Noise::OFF
+            },
+            ticks,
+        );
+        let r = rate(&t[0], ticks);
+        let want = 0.4 / (1.0 + 0.5 * 0.4);
+        assert!((r - want).abs() < 0.01, "rate {r}, want {want}");
     }
 
     #[test]

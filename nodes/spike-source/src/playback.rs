@@ -19,7 +19,7 @@ use neuspike_scene::{Scene, SceneError};
 use neuspike_schemas::{Frame, FrameKind, SpikeChunk};
 
 use crate::truth::Truth;
-use crate::{CameraConfig, ConfigError, SpikeCamera};
+use crate::{CameraConfig, CameraError, ConfigError, SpikeCamera};
 
 /// Luminance per unit firing rate sent with the planes of a recording when the settings give
 /// none: TFP frames show the firing rate (0.366 on average in a Vidar street recording).
@@ -87,6 +87,9 @@ pub enum SourceError {
     /// A camera setting is out of its domain.
     #[error("spike-source: bad camera settings")]
     Config(#[from] ConfigError),
+    /// The camera could not be made (a setting or its noise profile).
+    #[error("spike-source: bad camera settings")]
+    Camera(#[from] CameraError),
     /// The scene could not be loaded.
     #[error("spike-source: cannot load the scene")]
     Scene(#[from] SceneError),
