@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use neuspike_schemas::EventBatch;
 
+use crate::aedat4::{Aedat4Frames, FrameFormat};
 use crate::error::Result;
 use crate::events::{EventReader, ReadOptions, ReadStats, Resolution};
 use crate::open::open_event_format;
@@ -23,6 +24,96 @@ pub struct EventInfo {
     pub resolution: Option<Resolution>,
     /// Counts, first and last timestamps, repairs and skips.
     pub stats: ReadStats,
+    /// The APS frames beside the events (AEDAT 4 from a DAVIS), when the file has any.
+    pub aps: Option<ApsInfo>,
+}
+
+/// A summary of a recording's APS frames.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ApsInfo {
+    /// Frames.
+    pub frames: u64,
+    /// The first frame's size and pixel format.
+    pub width: u16,
+    /// Rows of the first frame.
+    pub height: u16,
+    /// Pixel format of the first frame.
+    pub format: FrameFormat,
+    /// Frames of another size or format than the first.
+    pub other_sizes: u64,
+    /// Timestamp of the first frame, ns.
+    pub first_t_ns: i64,
+    /// Timestamp of the last frame, ns.
+    pub last_t_ns: i64,
+}
+
+impl ApsInfo {
+    /// Frames per second between the first and last frame (0 for fewer than two).
+    pub fn rate_per_s(&self) -> f64 {
+        let d = self.last_t_ns.saturating_sub(self.first_t_ns);
+        if self.frames < 2 || d <= 0 {
+            0.0
+        } else {
+            (self.frames - 1) as f64 * 1e9 / d as f64
+        }
+    }
+
+    /// Summarises the APS frames of an AEDAT 4 file (`None` when it has none). Each frame is
+    /// decoded and checked as a reader of frames would.
+    ///
+    /// # Errors
+    /// The file cannot be read, or a frame packet is corrupt.
+    pub fn of_aedat4(path: &Path) -> Result<Option<ApsInfo>> {
+        let mut info: Option<ApsInfo> = None;
+        for frame in Aedat4Frames::open(path)? {
+            let f = frame?;
+            match &mut info {
+                None => {
+                    info = Some(ApsInfo {
+                        frames: 1,
+                        width: f.width,
+                        height: f.height,
+                        format: f.format,
+                        other_sizes: 0,
+                        first_t_ns: f.t_ns,
+                        last_t_ns: f.t_ns,
+                    });
+                }
+                Some(i) => {
+                    i.frames += 1;
+                    i.other_sizes +=
+                        u64::from((f.width, f.height, f.format) != (i.width, i.height, i.format));
+                    i.last_t_ns = f.t_ns;
+                }
+            }
+        }
+        Ok(info)
+    }
+}
+
+impl fmt::Display for ApsInfo {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let format = match self.format {
+            FrameFormat::Gray => "grey",
+            FrameFormat::Gray16 => "16-bit grey",
+            FrameFormat::Bgr => "BGR",
+            FrameFormat::Bgra => "BGRA",
+        };
+        write!(
+            f,
+            "{} APS frames, {}x{} {format}, first t {} ns, last t {} ns, {:.1} frames/s",
+            self.frames,
+            self.width,
+            self.height,
+            self.first_t_ns,
+            self.last_t_ns,
+            self.rate_per_s()
+        )?;
+        if self.other_sizes > 0 {
+            write!(f, " ({} of another size or format)", self.other_sizes)?;
+        }
+        Ok(())
+    }
 }
 
 impl EventInfo {
@@ -63,6 +154,9 @@ impl fmt::Display for EventInfo {
             writeln!(f, "  first t {a} ns, last t {b} ns, {} ns", b - a)?;
         }
         write!(f, "  {:.0} events/s", self.rate_per_s())?;
+        if let Some(aps) = &self.aps {
+            write!(f, "\n  {aps}")?;
+        }
         let notes = [
             (s.clamped_timestamps, "timestamps clamped"),
             (s.duplicate_events, "duplicate events"),
@@ -77,7 +171,7 @@ impl fmt::Display for EventInfo {
             (s.lines_skipped, "lines skipped"),
             (
                 s.skipped_packets,
-                "packets of other streams (frames, IMU, triggers)",
+                "packets of other streams (frames, IMU, triggers) skipped by the event reader",
             ),
         ];
         for (n, what) in notes {
@@ -110,6 +204,7 @@ pub fn summarise(
         format,
         resolution,
         stats: reader.stats().clone(),
+        aps: None,
     })
 }
 
@@ -121,7 +216,11 @@ pub fn event_info(path: impl AsRef<Path>, format: Format, opts: &ReadOptions) ->
         ..opts.clone()
     };
     let (mut reader, resolution) = open_event_format(path.as_ref(), format, &opts)?;
-    summarise(reader.as_mut(), format, resolution)
+    let mut info = summarise(reader.as_mut(), format, resolution)?;
+    if format == Format::Aedat4 && info.stats.skipped_packets > 0 {
+        info.aps = ApsInfo::of_aedat4(path.as_ref())?;
+    }
+    Ok(info)
 }
 
 /// A summary of any recording.

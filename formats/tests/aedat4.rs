@@ -90,6 +90,23 @@ fn files_written_by_dv_processing_read_as_its_reader_reads_them() {
             .map(|(_, v)| v)
             .collect();
         assert_eq!(frames.len(), want.len());
+        // `info` reports them.
+        let info =
+            neuspike_formats::info::event_info(&path, Format::Aedat4, &ReadOptions::default())
+                .unwrap();
+        let aps = info.aps.clone().expect("APS frames");
+        assert_eq!(aps.frames as usize, want.len());
+        assert_eq!(
+            (aps.width, aps.height, aps.format),
+            (346, 260, FrameFormat::Gray)
+        );
+        assert_eq!(aps.first_t_ns, want[0][0] * 1000);
+        assert_eq!(aps.last_t_ns, want[want.len() - 1][0] * 1000);
+        let text = info.to_string();
+        assert!(
+            text.contains(&format!("{} APS frames, 346x260 grey", want.len())),
+            "{text}"
+        );
         for (fr, w) in frames.iter().zip(want) {
             assert_eq!(fr.t_ns, w[0] * 1000);
             assert_eq!(fr.pixels.iter().map(|&p| i64::from(p)).sum::<i64>(), w[1]);
