@@ -59,33 +59,44 @@ fn bench(c: &mut Criterion) {
                 black_box(top)
             })
         });
+        // With v2e's noise as its emulator's example sets it (cutoff 200 Hz, leak 1 Hz, shot
+        // noise 10 Hz, threshold mismatch 0.03).
+        let noisy = DvsConfig {
+            cutoff_hz: 200.0,
+            leak_rate_hz: 1.0,
+            shot_noise_rate_hz: 10.0,
+            ..cfg.clone()
+        };
+        let fresh_noisy = DvsPixels::new(&noisy, 1.0, &frames[0]).expect("pixels");
         // As the camera runs it: each frame was just written (by the renderer), so it is in
         // cache. The copy into the two hot buffers is outside the timing.
-        g.bench_function(format!("dvs_core_hot_{scene}_10kHz"), |b| {
-            b.iter_custom(|iters| {
-                let mut took = std::time::Duration::ZERO;
-                let (mut fa, mut fb) = (frames[0].clone(), frames[0].clone());
-                let mut events = Vec::new();
-                for _ in 0..iters {
-                    let mut px = fresh.clone();
-                    let mut count = 0;
-                    fa.copy_from_slice(&frames[0]);
-                    for k in 0..samples as usize {
-                        fb.copy_from_slice(&frames[k + 1]);
-                        let (t_a, t_b) = (k as i64 * STEP_NS, (k as i64 + 1) * STEP_NS);
-                        let start = std::time::Instant::now();
-                        events.clear();
-                        px.step(&fa, &fb, t_a, t_b, &mut events);
-                        neuspike_event_source::sort_by_time(&mut events);
-                        count += events.len();
-                        took += start.elapsed();
-                        std::mem::swap(&mut fa, &mut fb);
+        for (label, fresh) in [("", &fresh), ("_noisy", &fresh_noisy)] {
+            g.bench_function(format!("dvs_core_hot_{scene}_10kHz{label}"), |b| {
+                b.iter_custom(|iters| {
+                    let mut took = std::time::Duration::ZERO;
+                    let (mut fa, mut fb) = (frames[0].clone(), frames[0].clone());
+                    let mut events = Vec::new();
+                    for _ in 0..iters {
+                        let mut px = fresh.clone();
+                        let mut count = 0;
+                        fa.copy_from_slice(&frames[0]);
+                        for k in 0..samples as usize {
+                            fb.copy_from_slice(&frames[k + 1]);
+                            let (t_a, t_b) = (k as i64 * STEP_NS, (k as i64 + 1) * STEP_NS);
+                            let start = std::time::Instant::now();
+                            events.clear();
+                            px.step(&fa, &fb, t_a, t_b, &mut events);
+                            neuspike_event_source::sort_by_time(&mut events);
+                            count += events.len();
+                            took += start.elapsed();
+                            std::mem::swap(&mut fa, &mut fb);
+                        }
+                        black_box(count);
                     }
-                    black_box(count);
-                }
-                took
-            })
-        });
+                    took
+                })
+            });
+        }
         for reference in [false, true] {
             let name = if reference {
                 format!("dvs_core_reference_{scene}_10kHz")

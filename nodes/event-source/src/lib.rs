@@ -19,6 +19,29 @@
 //! fall inside it leave the reference where it was, so they are emitted (late, at the end of the
 //! refractory period at the earliest) once the pixel is free, as a real pixel held in reset would.
 //!
+//! **Noise as v2e models it**, each term off by default and named as v2e names it:
+//! - *leak events* (`--leak-rate-hz`, `--leak-jitter`): every pixel's reference level drifts
+//!   down by `theta_on * rate_i` a second (`rate_i` drawn once per pixel with the jitter as its
+//!   relative standard deviation, and a random starting phase), so a still pixel fires ON at
+//!   `rate_i`. A drift of the reference is a ramp added to the pixel's log intensity, so the
+//!   model compares `L(t) + theta_on rate_i t` with a fixed reference: exact and linear in time
+//!   like `L` between samples.
+//! - *shot-noise events* (`--shot-noise-rate-hz`): in each step, pixels fire ON or OFF (equally
+//!   likely) at random at the rate times `1 - 0.75 i`, `i = clamp((255 I + 20) / 275, 0, 1)` the
+//!   pixel's light on v2e's 8-bit scale (the full rate in the dark, a quarter in full light),
+//!   times the nominal threshold over the pixel's. As in v2e, the fluctuation that crossed a
+//!   threshold comes back: each such event is followed one step later by its echo of the other
+//!   polarity, so a still pixel in the dark gives twice the rate in events. Drawn as a Poisson
+//!   count of candidates for the whole array, each kept with that probability.
+//! - *photoreceptor bandwidth* (`--cutoff-hz`): the log intensity goes through a first-order
+//!   low-pass, `lp += eps (L - lp)` each step with `eps = min(1, i dt 2 pi cutoff)`: slower in
+//!   the dark.
+//! - *threshold mismatch* (`--theta-sigma`, v2e's `sigma_thres`) and the *refractory period*
+//!   (`--refractory-ns`, v2e's `refractory_period` in seconds) as above.
+//!
+//! With the leak or the low-pass on, every pixel's log is taken each step (the intensity
+//! pre-check does not apply); shot noise adds only its events' work.
+//!
 //! Deterministic for a seed.
 #![deny(missing_docs)]
 
@@ -66,6 +89,22 @@ pub struct DvsConfig {
     /// Seed of the mismatch draws.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Leak events: each pixel's reference level drifts down by this many ON thresholds a
+    /// second, so a still pixel fires ON at this rate (v2e's `leak_rate_hz`; 0 = off).
+    #[arg(long, default_value_t = 0.0)]
+    pub leak_rate_hz: f64,
+    /// Relative standard deviation of the per-pixel leak rate (v2e's `leak_jitter_fraction`).
+    #[arg(long, default_value_t = 0.1)]
+    pub leak_jitter: f64,
+    /// Shot-noise events: a pixel in the dark fires ON or OFF at random at this rate, a quarter
+    /// of it in full light (v2e's `shot_noise_rate_hz`; 0 = off).
+    #[arg(long, default_value_t = 0.0)]
+    pub shot_noise_rate_hz: f64,
+    /// The photoreceptor's bandwidth in full light, Hz: its log intensity follows the light
+    /// through a first-order low-pass whose cutoff falls with the light (v2e's `cutoff_hz`;
+    /// 0 = off, infinitely fast).
+    #[arg(long, default_value_t = 0.0)]
+    pub cutoff_hz: f64,
 }
 
 impl Default for DvsConfig {
@@ -81,6 +120,10 @@ impl Default for DvsConfig {
             max_shift_px: 0.25,
             max_step_ns: 1_000_000,
             seed: 0,
+            leak_rate_hz: 0.0,
+            leak_jitter: 0.1,
+            shot_noise_rate_hz: 0.0,
+            cutoff_hz: 0.0,
         }
     }
 }
@@ -143,6 +186,24 @@ impl DvsConfig {
         if self.max_step_ns <= 0 {
             return bad("max-step-ns", self.max_step_ns.to_string(), "must be > 0");
         }
+        for (key, v, max) in [
+            ("leak-rate-hz", self.leak_rate_hz, 1e4),
+            ("leak-jitter", self.leak_jitter, 1.0),
+            ("shot-noise-rate-hz", self.shot_noise_rate_hz, 1e4),
+            ("cutoff-hz", self.cutoff_hz, 1e7),
+        ] {
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
+                return Err(ConfigError {
+                    key,
+                    value: format!("{v:?}"),
+                    why: match key {
+                        "leak-jitter" => "must be in [0, 1]",
+                        "cutoff-hz" => "must be in [0, 1e7]",
+                        _ => "must be in [0, 1e4]",
+                    },
+                });
+            }
+        }
         Ok(())
     }
 }
@@ -183,9 +244,118 @@ pub struct DvsPixels {
     /// no crossing.
     upper: Vec<f32>,
     lower: Vec<f32>,
+    /// Log pre-check levels of the step on logs: `reference + theta_on` rounded down and
+    /// `reference - theta_off` rounded up (a superset of the pixels that cross).
+    upper_log: Vec<f32>,
+    lower_log: Vec<f32>,
     /// Scratch of [`DvsPixels::step`]: one bit per pixel that may cross, and those pixels.
     block_masks: Vec<u32>,
     candidates: Candidates,
+    /// The noise terms' state.
+    noise: NoiseState,
+}
+
+/// The state of v2e's noise terms in a pixel array.
+#[derive(Clone)]
+struct NoiseState {
+    /// Per-pixel leak ramp, log units a second (`theta_on * rate_i`); empty when off.
+    leak: Vec<f32>,
+    /// Time the leak ramps start from (set at the first step; moved forward when they grow).
+    ramp_origin_ns: Option<i64>,
+    /// The photoreceptor's cutoff in full light, Hz (0 = off).
+    cutoff_hz: f32,
+    /// Shot-noise rate in the dark, Hz per pixel (0 = off).
+    shot_rate_hz: f64,
+    /// With the leak or the low-pass: every pixel's (filtered) log intensity at the end of the
+    /// last step, and scratch for the next.
+    lp: Vec<f32>,
+    next: Vec<f32>,
+    /// The draws of the shot noise.
+    rng: ChaCha8Rng,
+    /// The nominal ON and OFF thresholds, and the largest ratio of nominal to a pixel's.
+    theta_nominal: (f32, f32),
+    shot_max_ratio: f32,
+    /// Shot-noise echoes still to come: pixel, time, polarity.
+    echoes: Vec<(usize, i64, i8)>,
+}
+
+impl NoiseState {
+    /// Whether the step runs on the logs of every pixel (leak or low-pass on).
+    fn log_path(&self) -> bool {
+        !self.leak.is_empty() || self.cutoff_hz > 0.0
+    }
+}
+
+/// A leak ramp larger than this (log units) is folded into the reference levels.
+const MAX_RAMP: f32 = 8.0;
+
+/// v2e's light on its 8-bit scale, `clamp((255 x + 20) / 275, 0, 1)` of the scaled intensity.
+#[inline(always)]
+fn inten01(x: f32) -> f32 {
+    ((255.0 * x + 20.0) / 275.0).clamp(0.0, 1.0)
+}
+
+/// One step of the photoreceptor's low-pass: `lp + eps (l - lp)`, `eps = min(1, i dt 2 pi fc)`.
+#[inline(always)]
+fn low_pass(lp: f32, l: f32, x: f32, dt_2pi_fc: f32) -> f32 {
+    let eps = (inten01(x) * dt_2pi_fc).min(1.0);
+    lp + eps * (l - lp)
+}
+
+/// What the step on logs computes each pixel's new level from.
+struct LogStep<'a> {
+    frame_b: &'a [f32],
+    lp: &'a [f32],
+    scale: f32,
+    floor: f32,
+    filter: bool,
+    dt_2pi_fc: f32,
+}
+
+/// Each pixel's log intensity at the step's end, low-passed when the filter is on.
+#[inline(always)]
+fn logs_into(a: &LogStep, next: &mut [f32]) {
+    for ((o, &v), &lp) in next.iter_mut().zip(a.frame_b).zip(a.lp) {
+        let x = (v * a.scale).max(a.floor);
+        let l = ln_fast(x);
+        *o = if a.filter {
+            low_pass(lp, l, x, a.dt_2pi_fc)
+        } else {
+            l
+        };
+    }
+}
+
+/// The levels a step on logs compares.
+struct ScanLevels<'a> {
+    next: &'a [f32],
+    upper: &'a [f32],
+    lower: &'a [f32],
+    /// Per-pixel leak ramps (empty: none).
+    leak: &'a [f32],
+    tau_b: f32,
+}
+
+/// One bit per pixel that may cross, [`CANDIDATE_BLOCK`] to a mask.
+#[inline(always)]
+fn scan_logs(s: &ScanLevels, masks: &mut [u32]) {
+    let n = s.next.len();
+    for (b, mask) in masks.iter_mut().enumerate() {
+        let r = b * CANDIDATE_BLOCK..((b + 1) * CANDIDATE_BLOCK).min(n);
+        let (nx, up, lo) = (&s.next[r.clone()], &s.upper[r.clone()], &s.lower[r.clone()]);
+        let mut m = 0u32;
+        if s.leak.is_empty() {
+            for (j, ((&l, &u), &d)) in nx.iter().zip(up).zip(lo).enumerate() {
+                m |= (u32::from(l >= u) | u32::from(l <= d)) << j;
+            }
+        } else {
+            for (j, (((&l, &u), &d), &k)) in nx.iter().zip(up).zip(lo).zip(&s.leak[r]).enumerate() {
+                let l = l + k * s.tau_b;
+                m |= (u32::from(l >= u) | u32::from(l <= d)) << j;
+            }
+        }
+        *mask = m;
+    }
 }
 
 /// One pixel's thresholds, reference level and refractory clock.
@@ -312,6 +482,29 @@ impl DvsPixels {
         };
         let theta_on = draw(cfg.theta_on);
         let theta_off = draw(cfg.theta_off);
+        // The noise terms' draws come after the mismatch's, each only when its term is on, so
+        // a seed gives the same thresholds with or without them.
+        let (leak, phase) = if cfg.leak_rate_hz > 0.0 {
+            let jitter = Normal::new(0.0, cfg.leak_jitter).map_err(|_| ConfigError {
+                key: "leak-jitter",
+                value: cfg.leak_jitter.to_string(),
+                why: "not a valid standard deviation",
+            })?;
+            let leak: Vec<f32> = theta_on
+                .iter()
+                .map(|&on| {
+                    let rate = (cfg.leak_rate_hz * (1.0 + jitter.sample(&mut rng))).max(0.0);
+                    (f64::from(on) * rate) as f32
+                })
+                .collect();
+            let phase: Vec<f32> = (0..n).map(|_| rand::Rng::random::<f32>(&mut rng)).collect();
+            (leak, phase)
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        // The shot noise's own stream of the seed.
+        let mut noise_rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+        noise_rng.set_stream(1);
         let mut px = DvsPixels {
             width: cfg.width,
             refractory_ns: cfg.refractory_ns,
@@ -334,13 +527,39 @@ impl DvsPixels {
                 .collect(),
             upper: vec![0.0; n],
             lower: vec![0.0; n],
+            upper_log: vec![0.0; n],
+            lower_log: vec![0.0; n],
             block_masks: Vec::new(),
             candidates: Candidates::default(),
+            noise: NoiseState {
+                leak,
+                ramp_origin_ns: None,
+                cutoff_hz: cfg.cutoff_hz as f32,
+                shot_rate_hz: cfg.shot_noise_rate_hz,
+                lp: Vec::new(),
+                next: Vec::new(),
+                rng: noise_rng,
+                theta_nominal: (cfg.theta_on as f32, cfg.theta_off as f32),
+                shot_max_ratio: 1.0,
+                echoes: Vec::new(),
+            },
         };
         for (i, &v) in frame_start.iter().enumerate() {
             let l = px.log_of(v);
-            px.set_reference(i, f64::from(l));
+            // With the leak, each pixel starts at a random phase of its cycle: its reference
+            // up to one ON threshold below its level.
+            let below = phase.get(i).map_or(0.0, |p| p * px.state[i].theta_on);
+            px.set_reference(i, f64::from(l - below));
         }
+        if px.noise.log_path() {
+            px.noise.lp = frame_start.iter().map(|&v| px.log_of(v)).collect();
+        }
+        let (on, off) = px.noise.theta_nominal;
+        px.noise.shot_max_ratio = px
+            .state
+            .iter()
+            .map(|p| (on / p.theta_on).max(off / p.theta_off))
+            .fold(1.0f32, f32::max);
         Ok(px)
     }
 
@@ -391,6 +610,11 @@ impl DvsPixels {
     ) {
         let n = self.state.len();
         assert!(frame_a.len() == n && frame_b.len() == n, "frame size");
+        if self.noise.log_path() {
+            self.step_logs(Some(isa), frame_b, t_a_ns, t_b_ns, out);
+            self.shot_noise(frame_b, t_a_ns, t_b_ns, out);
+            return;
+        }
         // Pass 1, vectorised: one bit per pixel, set when the pixel may cross (`x >= upper`
         // or `x <= lower`, see `linear_levels`), 32 pixels to a mask.
         let mut masks = std::mem::take(&mut self.block_masks);
@@ -446,6 +670,155 @@ impl DvsPixels {
         }
         self.block_masks = masks;
         self.candidates = c;
+        self.shot_noise(frame_b, t_a_ns, t_b_ns, out);
+    }
+
+    /// A step on the logs of every pixel (leak or low-pass on): each pixel's log intensity at
+    /// `t_b`, low-passed, plus its leak ramp, against its reference; the pixels past a level emit
+    /// their crossings of the linear path from the last step's value. `isa` vectorises the logs
+    /// and the filter; `None` is the scalar oracle, equal bit for bit.
+    fn step_logs(
+        &mut self,
+        isa: Option<neuspike_simd::Isa>,
+        frame_b: &[f32],
+        t_a_ns: i64,
+        t_b_ns: i64,
+        out: &mut Vec<Event>,
+    ) {
+        let n = self.state.len();
+        // The leak's ramps, from their origin; folded into the references when they grow.
+        let origin = *self.noise.ramp_origin_ns.get_or_insert(t_a_ns);
+        let secs = |t: i64| (t.saturating_sub(origin) as f64 * 1e-9) as f32;
+        let max_leak = self.noise.leak.iter().copied().fold(0.0f32, f32::max);
+        let (mut tau_a, mut tau_b) = (secs(t_a_ns), secs(t_b_ns));
+        if max_leak * tau_b > MAX_RAMP {
+            for i in 0..n {
+                let r = f64::from(self.state[i].reference) - f64::from(self.noise.leak[i] * tau_a);
+                self.set_reference(i, r);
+            }
+            self.noise.ramp_origin_ns = Some(t_a_ns);
+            (tau_a, tau_b) = (0.0, ((t_b_ns - t_a_ns) as f64 * 1e-9) as f32);
+        }
+        let dt_2pi_fc = (((t_b_ns - t_a_ns) as f64 * 1e-9)
+            * 2.0
+            * std::f64::consts::PI
+            * f64::from(self.noise.cutoff_hz)) as f32;
+        let filter = self.noise.cutoff_hz > 0.0;
+        let (scale, floor) = (self.light_scale, self.floor);
+        let mut next = std::mem::take(&mut self.noise.next);
+        next.clear();
+        next.resize(n, 0.0);
+        let lp = &self.noise.lp;
+        let args = LogStep {
+            frame_b,
+            lp,
+            scale,
+            floor,
+            filter,
+            dt_2pi_fc,
+        };
+        match isa {
+            Some(isa) => neuspike_simd::with_isa(
+                isa,
+                #[inline(always)]
+                || logs_into(&args, &mut next),
+            ),
+            None => logs_into(&args, &mut next),
+        }
+        // The pixels that may cross, 32 to a mask: the level with its ramp against the log
+        // pre-check levels (vectorised); then each candidate's crossings.
+        let leak = std::mem::take(&mut self.noise.leak);
+        let lp = std::mem::take(&mut self.noise.lp);
+        let mut masks = std::mem::take(&mut self.block_masks);
+        masks.clear();
+        masks.resize(n.div_ceil(CANDIDATE_BLOCK), 0);
+        let levels = ScanLevels {
+            next: &next,
+            upper: &self.upper_log,
+            lower: &self.lower_log,
+            leak: &leak,
+            tau_b,
+        };
+        match isa {
+            Some(isa) => neuspike_simd::with_isa(
+                isa,
+                #[inline(always)]
+                || scan_logs(&levels, &mut masks),
+            ),
+            None => scan_logs(&levels, &mut masks),
+        }
+        for (b, &m) in masks.iter().enumerate() {
+            let mut m = m;
+            while m != 0 {
+                let i = b * CANDIDATE_BLOCK + m.trailing_zeros() as usize;
+                m &= m - 1;
+                let ramp = |tau: f32| leak.get(i).map_or(0.0, |k| k * tau);
+                let (la, lb) = (lp[i] + ramp(tau_a), next[i] + ramp(tau_b));
+                self.emit_pixel(i, self.state[i], la, lb, t_a_ns, t_b_ns, out);
+            }
+        }
+        self.block_masks = masks;
+        self.noise.leak = leak;
+        self.noise.lp = next;
+        self.noise.next = lp;
+    }
+
+    /// The shot-noise events of a step, as v2e makes them: a Poisson count of candidates over
+    /// the array, each kept with probability `(1 - 0.75 i) theta / theta_i` (its light at `t_b`,
+    /// the nominal over the pixel's threshold of the polarity drawn), ON or OFF equally, at a
+    /// uniform time in the step. A noise fluctuation that crossed a threshold comes back: each
+    /// event has its echo of the other polarity one step later (v2e's next frame), and neither
+    /// moves the reference. Echoes due in this step are emitted first.
+    fn shot_noise(&mut self, frame_b: &[f32], t_a_ns: i64, t_b_ns: i64, out: &mut Vec<Event>) {
+        let n = self.state.len();
+        let dt = t_b_ns.saturating_sub(t_a_ns);
+        let width = self.width;
+        let at = |i: usize, t_ns: i64, polarity: i8| Event {
+            t_ns,
+            x: (i % width) as u16,
+            y: (i / width) as u16,
+            polarity,
+        };
+        let mut echoes = std::mem::take(&mut self.noise.echoes);
+        echoes.retain(|&(i, t, p)| {
+            if t < t_b_ns {
+                out.push(at(i, t.max(t_a_ns), p));
+                false
+            } else {
+                true
+            }
+        });
+        self.noise.echoes = echoes;
+        if self.noise.shot_rate_hz <= 0.0 || n == 0 || dt <= 0 {
+            return;
+        }
+        let most = self.noise.shot_max_ratio;
+        let mean = n as f64 * self.noise.shot_rate_hz * dt as f64 * 1e-9 * f64::from(most);
+        let Ok(poisson) = rand_distr::Poisson::new(mean) else {
+            return;
+        };
+        let count = poisson.sample(&mut self.noise.rng) as u64;
+        for _ in 0..count {
+            let i = rand::Rng::random_range(&mut self.noise.rng, 0..n);
+            let light = 1.0 - 0.75 * inten01(self.scaled(frame_b[i]));
+            let rng = &mut self.noise.rng;
+            let on = rand::Rng::random_bool(rng, 0.5);
+            let px = self.state[i];
+            let theta = if on { px.theta_on } else { px.theta_off };
+            let nominal = if on {
+                self.noise.theta_nominal.0
+            } else {
+                self.noise.theta_nominal.1
+            };
+            let keep = light * (nominal / theta) / most;
+            if rand::Rng::random::<f32>(rng) >= keep {
+                continue;
+            }
+            let t = t_a_ns + rand::Rng::random_range(rng, 0..dt);
+            let p = if on { 1 } else { -1 };
+            out.push(at(i, t, p));
+            self.noise.echoes.push((i, t.saturating_add(dt), -p));
+        }
     }
 
     /// [`DvsPixels::step`] as the plain loop over every pixel (the oracle): the log of every
@@ -458,11 +831,17 @@ impl DvsPixels {
         t_b_ns: i64,
         out: &mut Vec<Event>,
     ) {
+        if self.noise.log_path() {
+            self.step_logs(None, frame_b, t_a_ns, t_b_ns, out);
+            self.shot_noise(frame_b, t_a_ns, t_b_ns, out);
+            return;
+        }
         let log_a: Vec<f32> = frame_a.iter().map(|&v| self.log_of(v)).collect();
         let log_b: Vec<f32> = frame_b.iter().map(|&v| self.log_of(v)).collect();
         for (i, (&la, &lb)) in log_a.iter().zip(&log_b).enumerate() {
             self.emit_pixel(i, self.state[i], la, lb, t_a_ns, t_b_ns, out);
         }
+        self.shot_noise(frame_b, t_a_ns, t_b_ns, out);
     }
 
     /// Emits every crossing of pixel `i` (whose state is `px`) between `t_a` and `t_b`.
@@ -532,6 +911,8 @@ impl DvsPixels {
         let px = &mut self.state[i];
         px.reference = r as f32;
         let r = f64::from(px.reference);
+        self.upper_log[i] = f32_at_or_below(r + f64::from(px.theta_on));
+        self.lower_log[i] = f32_at_or_above(r - f64::from(px.theta_off));
         (self.upper[i], self.lower[i]) = linear_levels(
             r,
             f64::from(px.theta_on),
@@ -764,9 +1145,21 @@ mod tests {
             refractory_ns in 0i64..300,
             steps in 1usize..6,
             isa in 0usize..3,
+            noise in 0usize..4,
         ) {
             let isa = neuspike_simd::Isa::ALL[isa];
+            // No noise (steps of 100 ns); with noise, steps of 1 ms: the leak (about two events
+            // a step), shot noise, the low-pass with both.
+            let (leak_rate_hz, shot_noise_rate_hz, cutoff_hz) = match noise {
+                0 => (0.0, 0.0, 0.0),
+                1 => (2000.0, 0.0, 0.0),
+                2 => (0.0, 5000.0, 0.0),
+                _ => (2000.0, 5000.0, 50.0),
+            };
+            let dt: i64 = if noise == 0 { 100 } else { 1_000_000 };
+            let refractory_ns = refractory_ns * (dt / 100);
             let c = DvsConfig { width: w, height: h, refractory_ns, theta_sigma: 0.1, seed, ..Default::default() };
+            let c = DvsConfig { leak_rate_hz, shot_noise_rate_hz, cutoff_hz, ..c };
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             // Small changes of log intensity (most pixels stay below a threshold) with an
             // occasional jump; the frames are the intensities.
@@ -785,8 +1178,8 @@ mod tests {
             let mut last = start.clone();
             for k in 0..steps as i64 {
                 let next = frame();
-                fast.step_with(isa, &last, &next, k * 100, (k + 1) * 100, &mut e1);
-                slow.step_reference(&last, &next, k * 100, (k + 1) * 100, &mut e2);
+                fast.step_with(isa, &last, &next, k * dt, (k + 1) * dt, &mut e1);
+                slow.step_reference(&last, &next, k * dt, (k + 1) * dt, &mut e2);
                 last = next;
             }
             proptest::prop_assert_eq!(e1, e2);
@@ -834,6 +1227,94 @@ mod tests {
                 proptest::prop_assert!(lx > lo || x <= l, "x {x} ln_fast {lx} <= {lo} but above {l}");
             }
         }
+    }
+
+    /// A still 32x16 scene at light 1 (half grey) for `ms` milliseconds with `cfg`'s noise.
+    fn still_events(c: DvsConfig, light: f64, ms: i64) -> EventBatch {
+        EventCamera::new(scene("", light), c, 0)
+            .unwrap()
+            .advance_to(ms * 1_000_000, 0)
+    }
+
+    #[test]
+    fn leak_events_come_at_the_leak_rate_and_are_on() {
+        let c = DvsConfig {
+            leak_rate_hz: 50.0,
+            leak_jitter: 0.1,
+            ..cfg()
+        };
+        let b = still_events(c, 1.0, 400);
+        // 512 pixels x 50 Hz x 0.4 s = 10,240 events, all ON, each pixel about 20.
+        let n = b.len() as f64;
+        assert!((n - 10_240.0).abs() < 0.05 * 10_240.0, "{n} events");
+        assert!(b.polarity.iter().all(|&p| p == 1));
+        b.validate("leak").unwrap();
+        // The random phases spread the first events over the first cycle (20 ms).
+        let first = b.t_ns.iter().copied().filter(|&t| t < 20_000_000).count();
+        assert!((400..=620).contains(&first), "{first} in the first cycle");
+    }
+
+    #[test]
+    fn shot_noise_is_the_rate_in_the_dark_and_a_quarter_in_full_light() {
+        let c = DvsConfig {
+            shot_noise_rate_hz: 20.0,
+            ..cfg()
+        };
+        // Each event and its echo: twice the rate, times 1 - 0.75 i of each pixel's light.
+        let want = |light: f64| {
+            let frame = scene("", light).render(0, 16, 32);
+            frame
+                .iter()
+                .map(|&v| 2.0 * 20.0 * 0.5 * f64::from(1.0 - 0.75 * inten01(v * light as f32)))
+                .sum::<f64>()
+        };
+        for light in [1e-3, 4.0] {
+            let got = still_events(c.clone(), light, 500).len() as f64;
+            let want = want(light);
+            assert!(
+                (got - want).abs() < 0.08 * want,
+                "light {light}: {got}, want {want}"
+            );
+        }
+        assert!(want(4.0) < 0.5 * want(1e-3));
+        let b = still_events(c, 1e-3, 500);
+        let on = b.polarity.iter().filter(|&&p| p == 1).count() as f64;
+        assert!((on / b.len() as f64 - 0.5).abs() < 0.05);
+        b.validate("shot").unwrap();
+    }
+
+    #[test]
+    fn the_photoreceptor_low_pass_spreads_a_step_of_light_in_time() {
+        let w = 8;
+        let c = DvsConfig {
+            width: w,
+            height: 1,
+            theta_sigma: 0.0,
+            ..Default::default()
+        };
+        let run = |cutoff_hz: f64| {
+            let c = DvsConfig {
+                cutoff_hz,
+                ..c.clone()
+            };
+            let (dim, bright) = (vec![0.1f32; w], vec![1.0f32; w]);
+            let mut px = DvsPixels::new(&c, 1.0, &dim).unwrap();
+            let mut out = Vec::new();
+            px.step(&dim, &bright, 0, 100_000, &mut out);
+            for k in 1..200 {
+                px.step(&bright, &bright, k * 100_000, (k + 1) * 100_000, &mut out);
+            }
+            out
+        };
+        // ln 10 / 0.2 = 11.5: eleven ON events a pixel either way.
+        let sharp = run(0.0);
+        let slow = run(100.0);
+        assert_eq!(sharp.len(), 11 * w);
+        assert_eq!(slow.len(), 11 * w);
+        assert!(sharp.iter().all(|e| e.t_ns < 100_000 && e.polarity == 1));
+        // 100 Hz in full light: a time constant of 1.6 ms; the last event comes after 2 ms.
+        let last = slow.iter().map(|e| e.t_ns).max().unwrap();
+        assert!(last > 2_000_000, "last event at {last} ns");
     }
 
     #[test]
