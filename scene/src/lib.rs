@@ -210,6 +210,20 @@ impl Scene {
         render::render_fast(self, t_ns, dst, render::worth_parallel(self, rows, cols));
     }
 
+    /// Luminance as another camera sees the view: destination pixel `(c, r)`'s sub-samples at
+    /// `(c + ox, r + oy)` (its own pixel coordinates) are taken by `map` to the view's
+    /// coordinates (scene pixels) and sampled there as [`Scene::render_into`] samples them; a
+    /// sub-sample `map` sends nowhere (`None`) sees black. Scalar, in `f64`, rows in parallel.
+    /// Never NaN or infinite.
+    pub fn render_mapped_into(
+        &self,
+        t_ns: i64,
+        map: &(dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync),
+        dst: ArrayViewMut2<'_, f32>,
+    ) {
+        render::render_mapped(self, t_ns, map, dst);
+    }
+
     /// [`Scene::render_into`] into a new `rows x cols` array.
     pub fn render(&self, t_ns: i64, rows: usize, cols: usize) -> Array2<f32> {
         let mut out = Array2::zeros((rows, cols));

@@ -117,6 +117,48 @@ pub fn render_reference(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32
     }
 }
 
+/// [`crate::Scene::render_mapped_into`]: each sub-sample mapped to the view by `map`, sampled
+/// as [`render_reference`] samples it.
+pub(crate) fn render_mapped(
+    scene: &Scene,
+    t_ns: i64,
+    map: &(dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync),
+    mut dst: ArrayViewMut2<'_, f32>,
+) {
+    let (rows, cols) = dst.dim();
+    if rows == 0 || cols == 0 {
+        return;
+    }
+    let view = ViewMap::at(scene, t_ns);
+    let n = scene.spec().samples_per_pixel;
+    let offsets = sub_offsets(n);
+    dst.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(r, mut row)| {
+            for (c, d) in row.iter_mut().enumerate() {
+                let mut sum = 0.0f64;
+                for &oy in &offsets {
+                    for &ox in &offsets {
+                        let Some((x, y)) = map(c as f64 + ox, r as f64 + oy) else {
+                            continue;
+                        };
+                        let u = view.a11 * x + view.a12 * y + view.b1;
+                        let v = view.a21 * x + view.a22 * y + view.b2;
+                        let mut s = scene.texture.sample(u, v);
+                        if let Some(gain) = &scene.gain {
+                            s *= gain.gain_at(x, y);
+                        }
+                        sum += s;
+                    }
+                }
+                let mean = (sum / (n * n) as f64) as f32;
+                // Black where nothing is seen; else the clamp of a plain render.
+                *d = if sum == 0.0 { 0.0 } else { finish(scene, mean) };
+            }
+        });
+}
+
 /// Horizontal bilinear tap of one column sub-sample: texel columns and the weight of the right.
 #[derive(Debug, Clone, Copy)]
 struct ColumnTap {

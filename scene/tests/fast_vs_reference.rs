@@ -83,3 +83,36 @@ fn parallel_path_matches_reference_on_a_large_rotating_frame() {
     render_fast_with(&scene, 31_000_000, fast.view_mut(), true);
     assert!(worst_difference(&fast, &reference) < 1e-5);
 }
+
+/// A mapped render whose map is the plain view's own (pixel to scene by the grid's scale) is the
+/// plain render; a map that sends half the frame nowhere leaves it black.
+#[test]
+fn mapped_render_with_the_views_own_map_is_the_plain_render() {
+    let scene = Scene::from_yaml_str(
+        "width: 40\nheight: 30\nsamples_per_pixel: 2\ntexture: { kind: noise }\nmotion: { vx_px_s: 300, rotation_deg_s: 20 }\n\
+         light: { gain_map: { kind: radial, decades: 2 } }",
+        "mapped",
+        None,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let (rows, cols) = (26usize, 35usize);
+    let (sx, sy) = (40.0 / cols as f64, 30.0 / rows as f64);
+    let mut reference = Array2::zeros((rows, cols));
+    render_reference(&scene, 7_000_000, reference.view_mut());
+    let mut mapped = Array2::zeros((rows, cols));
+    scene.render_mapped_into(7_000_000, &|x, y| Some((x * sx, y * sy)), mapped.view_mut());
+    assert!(worst_difference(&mapped, &reference) < 1e-5);
+    let mut half = Array2::zeros((rows, cols));
+    scene.render_mapped_into(
+        7_000_000,
+        &|x, y| (x < 10.0).then_some((x * sx, y * sy)),
+        half.view_mut(),
+    );
+    assert!(half.column(20).iter().all(|&v| v == 0.0));
+    assert!(
+        worst_difference(
+            &half.column(3).to_owned().insert_axis(ndarray::Axis(1)),
+            &reference.column(3).to_owned().insert_axis(ndarray::Axis(1))
+        ) < 1e-5
+    );
+}

@@ -10,6 +10,12 @@
 //! `[t_first - T, t_last)` on the spike clock, where an event's spike-clock time is its own
 //! time plus `event_offset_ns`.
 //!
+//! **Two sensors of different sizes.** With `--homography H` the event camera is another sensor
+//! (a DVS beside the spike camera, behind a beam splitter): each event's pixel centre is mapped
+//! through `H` onto the spike camera's grid and takes the spike pixel it lands in; events that
+//! land outside it are dropped and counted. Events that come before the first spike chunk (which
+//! gives the grid's size) wait for it.
+//!
 //! A window is emitted once its last plane has arrived and (when the graph has an event camera)
 //! the event batches cover its whole interval. At end of stream the windows whose planes all
 //! arrived are flushed; a window whose planes never arrived is not counted as produced.
@@ -17,6 +23,7 @@
 
 use std::collections::VecDeque;
 
+use neuspike_geometry::Homography;
 use neuspike_schemas::{AlignedWindow, EventBatch, SpikeChunk, bytes_per_plane};
 
 /// Aligner settings. Every field is a node argument in the graph YAML.
@@ -34,6 +41,16 @@ pub struct AlignConfig {
     /// Added to event timestamps to put them on the spike clock, nanoseconds.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub event_offset_ns: i64,
+    /// The homography from the event camera's pixels to the spike camera's, nine numbers
+    /// row-major (`h11,h12,...,h33`), when the two sensors differ: events are mapped onto the
+    /// spike grid.
+    #[arg(long, value_parser = parse_homography, allow_hyphen_values = true)]
+    pub homography: Option<Homography>,
+}
+
+/// `--homography`'s parser: the error names the value.
+fn parse_homography(text: &str) -> Result<Homography, String> {
+    Homography::parse(text).map_err(|e| e.to_string())
 }
 
 impl Default for AlignConfig {
@@ -43,6 +60,7 @@ impl Default for AlignConfig {
             stride_planes: 20,
             fps: None,
             event_offset_ns: 0,
+            homography: None,
         }
     }
 }
@@ -96,6 +114,10 @@ pub struct Aligner {
     with_stream: bool,
     stream_cut_ns: Option<i64>,
     stream: VecDeque<EventBatch>,
+    /// Event batches waiting for the spike grid (with a homography, before the first chunk).
+    pending: Vec<EventBatch>,
+    /// Events mapped outside the spike grid.
+    dropped_events: u64,
 }
 
 impl Aligner {
@@ -125,7 +147,14 @@ impl Aligner {
             with_stream: false,
             stream_cut_ns: None,
             stream: VecDeque::new(),
+            pending: Vec::new(),
+            dropped_events: 0,
         }
+    }
+
+    /// Events the homography mapped outside the spike grid (dropped).
+    pub fn dropped_events(&self) -> u64 {
+        self.dropped_events
     }
 
     /// Also cut the event stream at every window's reference instant: after each window,
@@ -214,6 +243,9 @@ impl Aligner {
                 {
                     self.advance();
                 }
+                for batch in std::mem::take(&mut self.pending) {
+                    self.add_events(batch);
+                }
             }
             Some((w, h, p, _)) if (w, h, p) != geo => {
                 return Err(AlignError::Geometry {
@@ -248,13 +280,36 @@ impl Aligner {
         Ok(())
     }
 
-    /// Adds an event batch (its timestamps are shifted onto the spike clock).
+    /// Adds an event batch (its timestamps are shifted onto the spike clock and, with a
+    /// homography, its pixels mapped onto the spike grid).
     pub fn push_events(&mut self, batch: EventBatch) {
+        if self.cfg.homography.is_some() && self.geometry.is_none() {
+            self.pending.push(batch);
+            return;
+        }
+        self.add_events(batch);
+    }
+
+    fn add_events(&mut self, batch: EventBatch) {
         let off = self.cfg.event_offset_ns;
-        self.event_size = (batch.width, batch.height);
+        let grid = self.geometry.map(|g| (g.0, g.1));
+        let map = self.cfg.homography.zip(grid);
+        self.event_size = grid
+            .filter(|_| map.is_some())
+            .unwrap_or((batch.width, batch.height));
         for i in 0..batch.len() {
             let mut e = batch.get(i);
             e.t_ns = e.t_ns.saturating_add(off);
+            if let Some((h, (w, hh))) = map {
+                match h.pixel(u32::from(e.x), u32::from(e.y), w, hh) {
+                    // The grid is at most 65535 wide (a SpikeChunk's bound).
+                    Some((x, y)) => (e.x, e.y) = (x as u16, y as u16),
+                    None => {
+                        self.dropped_events += 1;
+                        continue;
+                    }
+                }
+            }
             self.events.push(e);
         }
         self.events_cover_until_ns = self
@@ -408,6 +463,42 @@ mod tests {
         }
     }
 
+    #[test]
+    fn a_homography_maps_events_onto_the_spike_grid_and_drops_what_falls_outside() {
+        // An 8x4 event sensor at half the spike camera's pitch, shifted one spike pixel left:
+        // event pixel (x, y) lands in spike pixel ((x + 0.5) / 2 - 1, (y + 0.5) / 2).
+        let h = Homography::scale_translate(0.5, 0.5, -1.0, 0.0).unwrap();
+        let cfg = AlignConfig {
+            window_planes: 3,
+            stride_planes: 2,
+            homography: Some(h),
+            ..Default::default()
+        };
+        let mut a = Aligner::new(cfg, true);
+        let mut b = EventBatch::empty(8, 4, 0, 10 * P, 0);
+        for (x, y) in [(0u16, 0u16), (1, 0), (2, 0), (7, 3), (5, 2)] {
+            b.push(Event {
+                t_ns: P,
+                x,
+                y,
+                polarity: 1,
+            });
+        }
+        // Events first: they wait for the grid.
+        a.push_events(b);
+        a.close_events();
+        a.push_spikes(chunk(0, 6, 0)).unwrap();
+        let w = a.pop_ready().expect("window");
+        assert_eq!((w.events.width, w.events.height), (4, 2));
+        let got: Vec<(u16, u16)> = (0..w.events.len())
+            .map(|i| (w.events.get(i).x, w.events.get(i).y))
+            .collect();
+        // (0,0) and (1,0) land at x -0.75 and -0.25: outside.
+        assert_eq!(got, vec![(0, 0), (2, 1), (1, 1)]);
+        assert_eq!(a.dropped_events(), 2);
+        w.events.validate("mapped").unwrap();
+    }
+
     fn events(t0: i64, t1: i64, at: &[i64]) -> EventBatch {
         let mut b = EventBatch::empty(4, 2, t0, t1, 0);
         for &t in at {
@@ -431,6 +522,7 @@ mod tests {
                 stride_planes,
                 fps: None,
                 event_offset_ns: 0,
+                homography: None,
             };
             let mut a = Aligner::new(cfg, true).with_event_stream();
             let at: Vec<i64> = (0..400).map(|k| k * 9_999).collect();
@@ -474,6 +566,7 @@ mod tests {
             stride_planes: 4,
             fps: None,
             event_offset_ns: 0,
+            homography: None,
         };
         let mut a = Aligner::new(cfg, false);
         a.push_spikes(chunk(0, 20, 0)).unwrap();
@@ -498,6 +591,7 @@ mod tests {
             stride_planes: 4,
             fps: None,
             event_offset_ns: 0,
+            homography: None,
         };
         let mut a = Aligner::new(cfg, false);
         a.push_spikes(chunk(1001, 20, 0)).unwrap();
@@ -519,6 +613,7 @@ mod tests {
             stride_planes: 10,
             fps: None,
             event_offset_ns: 1_000,
+            homography: None,
         };
         let mut a = Aligner::new(cfg, true);
         a.push_spikes(chunk(0, 12, 0)).unwrap();
@@ -548,6 +643,7 @@ mod tests {
                 stride_planes: 2,
                 fps: None,
                 event_offset_ns: 0,
+                homography: None,
             },
             true,
         );
@@ -568,6 +664,7 @@ mod tests {
                 stride_planes: 2,
                 fps: None,
                 event_offset_ns: 0,
+                homography: None,
             },
             false,
         );
@@ -591,6 +688,7 @@ mod tests {
             stride_planes: 1,
             fps: Some(3000.0),
             event_offset_ns: 0,
+            homography: None,
         };
         let mut a = Aligner::new(cfg, false);
         a.push_spikes(chunk(0, 36, 0)).unwrap();

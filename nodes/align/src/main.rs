@@ -90,6 +90,7 @@ fn run(node: DoraNode, events: EventStream, mut aligner: Aligner) -> eyre::Resul
         skipped = aligner.skipped_windows(),
         spike_chunks_lost = inputs.get("spikes").map_or(0, |s| s.seq.missing()),
         event_batches_lost = inputs.get("events").map_or(0, |s| s.seq.missing()),
+        events_outside_the_spike_grid = aligner.dropped_events(),
         "align finished"
     );
     Ok(())

@@ -31,6 +31,7 @@ fn windows_then_end_of_stream() {
         stride_planes: 20,
         fps: None,
         event_offset_ns: 0,
+        homography: None,
     };
     let out = c
         .run(|node, events| run(node, events, Aligner::new(cfg, true)))
@@ -65,6 +66,7 @@ fn event_stream_follows_each_window_and_ends() {
         stride_planes: 20,
         fps: None,
         event_offset_ns: 0,
+        homography: None,
     };
     let out = c
         .run(|node, events| run(node, events, Aligner::new(cfg, true).with_event_stream()))

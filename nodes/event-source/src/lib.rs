@@ -46,6 +46,7 @@
 #![deny(missing_docs)]
 
 use ndarray::Array2;
+use neuspike_geometry::Homography;
 use neuspike_scene::Scene;
 use neuspike_schemas::{Event, EventBatch};
 use rand::SeedableRng;
@@ -105,6 +106,26 @@ pub struct DvsConfig {
     /// 0 = off, infinitely fast).
     #[arg(long, default_value_t = 0.0)]
     pub cutoff_hz: f64,
+    /// A rig of two sensors: the homography from this camera's pixels to the spike camera's
+    /// (nine numbers, row-major), through which this camera sees the scene. Without it the two
+    /// see the same view, each at its own size.
+    #[arg(long, value_parser = parse_homography, allow_hyphen_values = true)]
+    pub homography: Option<Homography>,
+    /// The spike camera's width, the grid `--homography` maps onto.
+    #[arg(long, default_value_t = 400)]
+    pub rig_width: usize,
+    /// The spike camera's height, the grid `--homography` maps onto.
+    #[arg(long, default_value_t = 250)]
+    pub rig_height: usize,
+    /// This camera's clock reads this many nanoseconds later than the spike camera's: every
+    /// timestamp it sends is shifted by it.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    pub clock_offset_ns: i64,
+}
+
+/// `--homography`'s parser: the error names the value.
+fn parse_homography(text: &str) -> Result<Homography, String> {
+    Homography::parse(text).map_err(|e| e.to_string())
 }
 
 impl Default for DvsConfig {
@@ -124,6 +145,10 @@ impl Default for DvsConfig {
             leak_jitter: 0.1,
             shot_noise_rate_hz: 0.0,
             cutoff_hz: 0.0,
+            homography: None,
+            rig_width: 400,
+            rig_height: 250,
+            clock_offset_ns: 0,
         }
     }
 }
@@ -185,6 +210,13 @@ impl DvsConfig {
         }
         if self.max_step_ns <= 0 {
             return bad("max-step-ns", self.max_step_ns.to_string(), "must be > 0");
+        }
+        if self.rig_width == 0 || self.rig_height == 0 {
+            return bad(
+                "rig-width",
+                format!("{}x{}", self.rig_width, self.rig_height),
+                "the spike camera's grid must not be empty",
+            );
         }
         for (key, v, max) in [
             ("leak-rate-hz", self.leak_rate_hz, 1e4),
@@ -940,7 +972,15 @@ impl EventCamera {
     /// A camera whose reference levels are the scene at `t_start_ns`.
     pub fn new(scene: Scene, cfg: DvsConfig, t_start_ns: i64) -> Result<Self, ConfigError> {
         cfg.validate()?;
-        let scale = cfg.width as f64 / scene.width().max(1) as f64;
+        // Sensor pixels per scene pixel: through a homography, its local scale.
+        let scale = match &cfg.homography {
+            None => cfg.width as f64 / scene.width().max(1) as f64,
+            Some(h) => {
+                let c = h.coefficients();
+                let spike_per_dvs = (c[0] * c[4] - c[1] * c[3]).abs().sqrt().max(1e-9);
+                cfg.rig_width as f64 / scene.width().max(1) as f64 / spike_per_dvs
+            }
+        };
         let speed = scene.max_speed_px_per_s() * scale;
         let step_ns = if speed > 0.0 {
             ((cfg.max_shift_px / speed) * 1e9)
@@ -949,7 +989,8 @@ impl EventCamera {
         } else {
             cfg.max_step_ns
         };
-        let frame = scene.render(t_start_ns, cfg.height, cfg.width);
+        let mut frame = Array2::zeros((cfg.height, cfg.width));
+        render_view(&scene, &cfg, t_start_ns, &mut frame);
         let pixels = DvsPixels::new(&cfg, scene.light_scale() as f32, pixels_of(&frame))?;
         Ok(EventCamera {
             frame_next: frame.clone(),
@@ -985,7 +1026,7 @@ impl EventCamera {
         while self.t_ns < t_end_ns {
             let t_b = (self.t_ns + self.step_ns).min(t_end_ns);
             if !self.scene.is_static() {
-                self.scene.render_into(t_b, self.frame_next.view_mut());
+                render_view(&self.scene, &self.cfg, t_b, &mut self.frame_next);
             }
             self.scratch.clear();
             self.pixels.step(
@@ -1003,7 +1044,30 @@ impl EventCamera {
             }
             self.t_ns = t_b;
         }
+        // On this camera's clock.
+        let off = self.cfg.clock_offset_ns;
+        if off != 0 {
+            batch.t_start_ns = batch.t_start_ns.saturating_add(off);
+            batch.t_end_ns = batch.t_end_ns.saturating_add(off);
+            for t in &mut batch.t_ns {
+                *t = t.saturating_add(off);
+            }
+        }
         batch
+    }
+}
+
+/// The scene as the camera sees it at `t_ns`: the whole view at the sensor's size, or through
+/// the rig's homography (this camera's pixel -> spike camera's pixel -> scene).
+fn render_view(scene: &Scene, cfg: &DvsConfig, t_ns: i64, frame: &mut Array2<f32>) {
+    match &cfg.homography {
+        None => scene.render_into(t_ns, frame.view_mut()),
+        Some(h) => {
+            let sx = scene.width() as f64 / cfg.rig_width as f64;
+            let sy = scene.height() as f64 / cfg.rig_height as f64;
+            let map = |x: f64, y: f64| h.apply(x, y).map(|(u, v)| (u * sx, v * sy));
+            scene.render_mapped_into(t_ns, &map, frame.view_mut());
+        }
     }
 }
 
