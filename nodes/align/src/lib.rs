@@ -23,6 +23,8 @@
 
 use std::collections::VecDeque;
 
+pub mod rig;
+
 use neuspike_geometry::Homography;
 use neuspike_schemas::{AlignedWindow, EventBatch, SpikeChunk, bytes_per_plane};
 
