@@ -15,6 +15,7 @@ pub mod memory;
 pub mod publish_file;
 pub mod reconstruct;
 pub mod record;
+pub mod rig;
 pub mod soak;
 pub mod trade;
 

@@ -108,6 +108,10 @@ enum Command {
     /// values and the fitted model; calibration.md, isi.png and profile.yml (a `--profile` file)
     /// in --out.
     Calibrate(neuspike::calibrate::CalibrateOptions),
+    /// The homography and clock offset of a rig of two cameras (a spike camera and a DVS behind
+    /// a beam splitter), estimated from a stretch of both recordings; prints them as the event
+    /// source's and align's arguments.
+    CalibrateRig(neuspike::rig::RigOptions),
     /// Time a learned model (ONNX) under tract at a frame size, on 1 and 2 threads (as the infer
     /// node runs it: shapes pinned, optimised once, padded to the network's stride).
     BenchModel {
@@ -352,6 +356,18 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 "{}: calibration.md, isi.png, profile.yml (`--profile {}`)",
                 opts.out.display(),
                 opts.out.join("profile.yml").display()
+            );
+            Ok(())
+        }
+        Command::CalibrateRig(opts) => {
+            let (est, size) = neuspike::rig::run(&opts)?;
+            println!(
+                "homography {} (event camera pixel -> spike camera pixel)\nclock offset {} ns (event camera minus spike camera)\nagreement {:.3} over {} events\n{}",
+                est.homography,
+                est.offset_ns,
+                est.score,
+                est.events,
+                neuspike::rig::arguments(&est, size)
             );
             Ok(())
         }

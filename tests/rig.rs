@@ -300,3 +300,65 @@ fn the_rig_is_estimated_from_what_the_two_sensors_recorded() {
         );
     }
 }
+
+/// As a user runs it: `neuspike simulate` writes the rig's two recordings (the DVS at its own
+/// size, through the homography, 3 ms ahead), `neuspike calibrate-rig` reads them back with the
+/// clock known and prints the homography and the arguments for the two nodes.
+#[test]
+fn calibrate_rig_reads_two_recordings_and_prints_the_nodes_arguments() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let scene = dir.path().join("rig.yml");
+    std::fs::write(
+        &scene,
+        "width: 160\nheight: 100\nduration_ms: 40\nseed: 9\ntexture: { kind: shapes }\n\
+         motion: { vx_px_s: 400, vy_px_s: -150, rotation_deg_s: 60, zoom_per_s: 0.5, start_ns: 12000000 }\n",
+    )
+    .expect("scene file");
+    let out = dir.path().join("rec");
+    let bin = env!("CARGO_BIN_EXE_neuspike");
+    let status = std::process::Command::new(bin)
+        .args(["simulate", scene.to_str().expect("utf-8"), "--out", out.to_str().expect("utf-8")])
+        .arg("--gt-every-planes=0")
+        .arg("--spike=--width 160 --height 100")
+        .arg(format!(
+            "--dvs=--width 138 --height 104 --rig-width 160 --rig-height 100 --homography {} --clock-offset-ns {OFFSET_NS}",
+            rig()
+        ))
+        .status()
+        .expect("neuspike simulate");
+    assert!(status.success());
+    let run = std::process::Command::new(bin)
+        .args([
+            "calibrate-rig",
+            "--spike-size",
+            "160x100",
+            "--clock-offset-ns",
+        ])
+        .arg(OFFSET_NS.to_string())
+        .arg("--spikes")
+        .arg(out.join("spikes.dat"))
+        .arg("--events")
+        .arg(out.join("events.aedat4"))
+        .output()
+        .expect("neuspike calibrate-rig");
+    let text = String::from_utf8_lossy(&run.stdout).into_owned();
+    assert!(
+        run.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let h = text
+        .lines()
+        .find_map(|l| l.strip_prefix("homography "))
+        .and_then(|l| l.split_whitespace().next())
+        .map(Homography::parse)
+        .expect("a homography line")
+        .expect("a valid homography");
+    let worst = worst_error(&h);
+    assert!(worst < 1.5, "{worst} px: {text}");
+    assert!(
+        text.contains("align: --homography")
+            && text.contains(&format!("--event-offset-ns -{OFFSET_NS}")),
+        "{text}"
+    );
+}
