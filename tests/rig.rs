@@ -42,6 +42,20 @@ fn rig() -> Homography {
     .expect("the rig's homography")
 }
 
+/// The rig's DVS: 138x104, seeing the scene through [`rig`], its clock [`OFFSET_NS`] ahead.
+fn rig_dvs() -> DvsConfig {
+    DvsConfig {
+        width: 138,
+        height: 104,
+        theta_sigma: 0.0,
+        homography: Some(rig()),
+        rig_width: W,
+        rig_height: H,
+        clock_offset_ns: OFFSET_NS,
+        ..Default::default()
+    }
+}
+
 /// Every window's events through align, per spike pixel, and the events' mean time.
 fn aligned(dvs: DvsConfig, align: AlignConfig) -> (Array2<f64>, f64, u64) {
     let s = scene();
@@ -119,16 +133,7 @@ fn a_dvs_of_its_own_size_and_clock_lands_on_the_spike_grid() {
     );
     // The rig: its own size, seen through the homography, 3 ms ahead.
     let (mapped, t_mapped, dropped) = aligned(
-        DvsConfig {
-            width: 138,
-            height: 104,
-            theta_sigma: 0.0,
-            homography: Some(rig()),
-            rig_width: W,
-            rig_height: H,
-            clock_offset_ns: OFFSET_NS,
-            ..Default::default()
-        },
+        rig_dvs(),
         AlignConfig {
             homography: Some(rig()),
             event_offset_ns: -OFFSET_NS,
@@ -158,16 +163,7 @@ fn a_dvs_of_its_own_size_and_clock_lands_on_the_spike_grid() {
     })
     .unwrap();
     let (shifted, _, _) = aligned(
-        DvsConfig {
-            width: 138,
-            height: 104,
-            theta_sigma: 0.0,
-            homography: Some(rig()),
-            rig_width: W,
-            rig_height: H,
-            clock_offset_ns: OFFSET_NS,
-            ..Default::default()
-        },
+        rig_dvs(),
         AlignConfig {
             homography: Some(off),
             event_offset_ns: -OFFSET_NS,
@@ -179,16 +175,7 @@ fn a_dvs_of_its_own_size_and_clock_lands_on_the_spike_grid() {
     assert!(r_off < r - 0.05, "{r_off} vs {r}");
     // Without undoing the clock, the windows hold events 3 ms off.
     let (_, t_wrong, _) = aligned(
-        DvsConfig {
-            width: 138,
-            height: 104,
-            theta_sigma: 0.0,
-            homography: Some(rig()),
-            rig_width: W,
-            rig_height: H,
-            clock_offset_ns: OFFSET_NS,
-            ..Default::default()
-        },
+        rig_dvs(),
         AlignConfig {
             homography: Some(rig()),
             ..window
@@ -225,13 +212,8 @@ fn rig_recording(seed: u64) -> (neuspike_schemas::SpikeChunk, neuspike_schemas::
     let mut dvs = EventCamera::new(
         s,
         DvsConfig {
-            width: 138,
-            height: 104,
-            homography: Some(rig()),
-            rig_width: W,
-            rig_height: H,
-            clock_offset_ns: OFFSET_NS,
-            ..Default::default()
+            theta_sigma: DvsConfig::default().theta_sigma,
+            ..rig_dvs()
         },
         0,
     )

@@ -39,7 +39,7 @@ pub use events::{Event, EventBatch};
 pub use frame::{Frame, FrameKind, Representation};
 pub use kind::{RepresentationKind, UnknownKind};
 pub use meta::{Meta, MetaExt, Parameter, SchemaError};
-pub use spikes::{SpikeChunk, bytes_per_plane, pack_planes, unpack_planes_into};
+pub use spikes::{SpikeChunk, bytes_per_plane, fired_pixels, pack_planes, unpack_planes_into};
 pub use stream::{SeqStatus, SeqTracker, end_of_stream, end_of_stream_header, is_end_of_stream};
 pub use window::AlignedWindow;
 

@@ -17,6 +17,23 @@ pub fn bytes_per_plane(width: usize, height: usize) -> usize {
     (width * height).div_ceil(8)
 }
 
+/// The pixels that fired in one packed plane of `n` pixels, ascending (bits past `n`, the
+/// last byte's padding, are ignored).
+pub fn fired_pixels(plane: &[u8], n: usize) -> impl Iterator<Item = usize> + '_ {
+    plane.iter().enumerate().flat_map(move |(byte, &b)| {
+        let mut b = b;
+        std::iter::from_fn(move || {
+            if b == 0 {
+                return None;
+            }
+            let i = byte * 8 + b.trailing_zeros() as usize;
+            b &= b - 1;
+            Some(i)
+        })
+        .filter(move |&i| i < n)
+    })
+}
+
 /// N consecutive spike planes of `height x width`, bit-packed row-major, rows top-down, pixel
 /// `k = y * width + x` at bit `k & 7` (least significant first) of byte `k >> 3` of its plane
 /// (the PKU `.dat` packing, except that `.dat` files store rows bottom-up).
@@ -278,5 +295,22 @@ mod tests {
         m.set_int(meta::PLANE_PERIOD_NS, 0);
         let e = SpikeChunk::from_arrow(&m, &a).unwrap_err().to_string();
         assert!(e.contains("plane_period_ns") && e.contains('0'), "{e}");
+    }
+}
+
+#[cfg(test)]
+mod fired_tests {
+    use super::*;
+
+    #[test]
+    fn fired_pixels_are_the_set_bits_below_n() {
+        // Pixels 0, 3, 9 and 12 of 11 (12 is padding).
+        let plane = [0b0000_1001u8, 0b0001_0010];
+        assert_eq!(fired_pixels(&plane, 11).collect::<Vec<_>>(), vec![0, 3, 9]);
+        assert_eq!(
+            fired_pixels(&plane, 16).collect::<Vec<_>>(),
+            vec![0, 3, 9, 12]
+        );
+        assert_eq!(fired_pixels(&[], 0).count(), 0);
     }
 }

@@ -18,7 +18,7 @@
 //! unknown, 0.2-1.8 px and 0.5-0.7 ms.
 
 use neuspike_geometry::Homography;
-use neuspike_schemas::{EventBatch, SpikeChunk};
+use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
 
 /// Planes per frame of the log-intensity video.
 pub const FRAME_PLANES: usize = 4;
@@ -84,15 +84,8 @@ impl ChangeVideo {
         {
             let f = k / FRAME_PLANES;
             let row = &mut counts[f * n..(f + 1) * n];
-            for (byte, &b) in plane.iter().enumerate() {
-                let mut b = b;
-                while b != 0 {
-                    let i = byte * 8 + b.trailing_zeros() as usize;
-                    b &= b - 1;
-                    if i < n {
-                        row[i] += 1;
-                    }
-                }
+            for i in fired_pixels(plane, n) {
+                row[i] += 1;
             }
         }
         // Log rate over RATE_FRAMES frames, centred: frame f covers frames f .. f + RATE_FRAMES.

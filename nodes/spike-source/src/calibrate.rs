@@ -16,7 +16,7 @@
 
 use crate::noise::{MAX_FIRE_SIGMA, Noise};
 use crate::{FireNoise, KeyLight, PixelState, Reset, integrate_ticks, integrate_ticks_noisy};
-use neuspike_schemas::SpikeChunk;
+use neuspike_schemas::{SpikeChunk, fired_pixels};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -157,15 +157,8 @@ pub fn spike_trains(chunk: &SpikeChunk) -> Vec<Vec<u32>> {
     let per = n.div_ceil(8);
     let mut trains = vec![Vec::new(); n];
     for (k, plane) in chunk.bits.chunks_exact(per.max(1)).enumerate() {
-        for (byte, &b) in plane.iter().enumerate() {
-            let mut b = b;
-            while b != 0 {
-                let i = byte * 8 + b.trailing_zeros() as usize;
-                b &= b - 1;
-                if i < n {
-                    trains[i].push(k as u32);
-                }
-            }
+        for i in fired_pixels(plane, n) {
+            trains[i].push(k as u32);
         }
     }
     trains
