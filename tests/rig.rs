@@ -56,18 +56,23 @@ fn rig_dvs() -> DvsConfig {
     }
 }
 
-/// Every window's events through align, per spike pixel, and the events' mean time.
-fn aligned(dvs: DvsConfig, align: AlignConfig) -> (Array2<f64>, f64, u64) {
-    let s = scene();
-    let mut spikes = SpikeCamera::new(
-        s.clone(),
+/// The rig's spike camera, W x H.
+fn spike_camera(s: Scene) -> SpikeCamera {
+    SpikeCamera::new(
+        s,
         CameraConfig {
             width: W,
             height: H,
             ..Default::default()
         },
     )
-    .expect("spike camera");
+    .expect("spike camera")
+}
+
+/// Every window's events through align, per spike pixel, and the events' mean time.
+fn aligned(dvs: DvsConfig, align: AlignConfig) -> (Array2<f64>, f64, u64) {
+    let s = scene();
+    let mut spikes = spike_camera(s.clone());
     let mut events = EventCamera::new(s, dvs, 0).expect("DVS");
     let mut a = Aligner::new(align, true);
     let mut counts = Array2::<f64>::zeros((H, W));
@@ -198,15 +203,7 @@ fn rig_recording(seed: u64) -> (neuspike_schemas::SpikeChunk, neuspike_schemas::
         None,
     )
     .unwrap_or_else(|e| panic!("{e}"));
-    let mut spikes = SpikeCamera::new(
-        s.clone(),
-        CameraConfig {
-            width: W,
-            height: H,
-            ..Default::default()
-        },
-    )
-    .expect("spike camera");
+    let mut spikes = spike_camera(s.clone());
     let chunk = spikes.next_chunk(800, 0);
     let t_end = spikes.plane_time_ns(spikes.tick());
     let mut dvs = EventCamera::new(

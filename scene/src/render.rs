@@ -85,6 +85,19 @@ fn finish(scene: &Scene, mean: f32) -> f32 {
     }
 }
 
+/// The light at view point `(x, y)` (scene pixels) at the instant of `map`: the texture there,
+/// bilinear, times the gain map if any; `f64` throughout.
+#[inline]
+fn sample_view(scene: &Scene, map: &ViewMap, x: f64, y: f64) -> f64 {
+    let u = map.a11 * x + map.a12 * y + map.b1;
+    let v = map.a21 * x + map.a22 * y + map.b2;
+    let s = scene.texture.sample(u, v);
+    match &scene.gain {
+        Some(gain) => s * gain.gain_at(x, y),
+        None => s,
+    }
+}
+
 /// The scalar oracle: every sub-sample computed from scratch in f64.
 pub fn render_reference(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32>) {
     let (rows, cols) = dst.dim();
@@ -102,14 +115,7 @@ pub fn render_reference(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32
             for &oy in &offsets {
                 let y = (r as f64 + oy) * sy;
                 for &ox in &offsets {
-                    let x = (c as f64 + ox) * sx;
-                    let u = map.a11 * x + map.a12 * y + map.b1;
-                    let v = map.a21 * x + map.a22 * y + map.b2;
-                    let mut s = scene.texture.sample(u, v);
-                    if let Some(gain) = &scene.gain {
-                        s *= gain.gain_at(x, y);
-                    }
-                    sum += s;
+                    sum += sample_view(scene, &map, (c as f64 + ox) * sx, y);
                 }
             }
             dst[[r, c]] = finish(scene, (sum / (n * n) as f64) as f32);
@@ -140,16 +146,9 @@ pub(crate) fn render_mapped(
                 let mut sum = 0.0f64;
                 for &oy in &offsets {
                     for &ox in &offsets {
-                        let Some((x, y)) = map(c as f64 + ox, r as f64 + oy) else {
-                            continue;
-                        };
-                        let u = view.a11 * x + view.a12 * y + view.b1;
-                        let v = view.a21 * x + view.a22 * y + view.b2;
-                        let mut s = scene.texture.sample(u, v);
-                        if let Some(gain) = &scene.gain {
-                            s *= gain.gain_at(x, y);
+                        if let Some((x, y)) = map(c as f64 + ox, r as f64 + oy) {
+                            sum += sample_view(scene, &view, x, y);
                         }
-                        sum += s;
                     }
                 }
                 let mean = (sum / (n * n) as f64) as f32;
