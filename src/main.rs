@@ -160,6 +160,11 @@ enum Command {
         /// The ONNX network for `--method learned`, e.g. models/neuspike-spike-8.onnx.
         #[arg(long)]
         model: Option<PathBuf>,
+        /// The policy of `--method auto` (`neuspike bench --fit-policy`); the networks it names
+        /// are read from its folder. Without `--events` auto chooses among the methods that read
+        /// spikes alone.
+        #[arg(long, default_value = "models/policy.yml")]
+        policy: PathBuf,
         /// Output folder: frames, metrics, summary, and the graph that made them.
         #[arg(long)]
         out: PathBuf,
@@ -174,9 +179,11 @@ enum Command {
         /// Infer settings, e.g. `--infer="--contrast 0.25 --theta-mode per-pixel"`.
         #[arg(long, default_value = "", allow_hyphen_values = true)]
         infer: String,
-        /// Planes per window.
-        #[arg(long, default_value_t = 33)]
-        window_planes: u32,
+        /// Planes per window: 33 by default; for `--method auto` the longest its policy's
+        /// methods read (256), and a smaller value (a short recording) leaves out the methods
+        /// that read more.
+        #[arg(long)]
+        window_planes: Option<u32>,
         /// Planes between two frames.
         #[arg(long, default_value_t = 10)]
         stride_planes: u32,
@@ -435,6 +442,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
             truth,
             method,
             model,
+            policy,
             out,
             source,
             event_source,
@@ -453,6 +461,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 truth,
                 method,
                 model,
+                policy,
                 out,
                 source_args: source,
                 event_source_args: event_source,

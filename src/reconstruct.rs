@@ -45,6 +45,54 @@ impl Learned {
     }
 }
 
+/// What the graph needs to know for [`Method::Auto`].
+#[derive(Clone, Debug)]
+pub struct AutoPlan {
+    /// The policy file (absolute).
+    pub policy: PathBuf,
+    /// The folder of the networks it names (absolute).
+    pub models: PathBuf,
+    /// Planes of align's windows.
+    pub window_planes: u32,
+    /// Whether the windows are shorter than the policy's longest method reads.
+    pub short: bool,
+}
+
+impl AutoPlan {
+    /// Reads and checks the policy; the window is the longest any of its methods reads (TFP over
+    /// its planes, 33 for the others), or `window_planes` when given.
+    ///
+    /// # Errors
+    /// The policy does not load (the error names the file and field).
+    pub fn new(policy: &Path, window_planes: Option<u32>) -> eyre::Result<AutoPlan> {
+        use neuspike_policy::{MethodName, Policy};
+        let policy = std::fs::canonicalize(policy)
+            .wrap_err_with(|| format!("--policy {}: cannot open", policy.display()))?;
+        let p = Policy::read(&policy)?;
+        let stats = neuspike_infer::auto::STATS_PLANES as u32;
+        let longest = p
+            .all_methods()
+            .into_iter()
+            .map(|m| match MethodName::parse(m) {
+                Ok(MethodName::Tfp(n)) => n,
+                _ => stats,
+            })
+            .max()
+            .unwrap_or(stats)
+            .max(stats);
+        let models = policy
+            .parent()
+            .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+        let window_planes = window_planes.unwrap_or(longest);
+        Ok(AutoPlan {
+            policy,
+            models,
+            window_planes,
+            short: window_planes < longest,
+        })
+    }
+}
+
 /// What to reconstruct.
 #[derive(Clone, Debug)]
 pub struct ReconstructOptions {
@@ -64,6 +112,8 @@ pub struct ReconstructOptions {
     pub method: Method,
     /// The ONNX network, for [`Method::Learned`].
     pub model: Option<PathBuf>,
+    /// The policy, for [`Method::Auto`]; the networks it names are read from its folder.
+    pub policy: PathBuf,
     /// Output folder.
     pub out: PathBuf,
     /// Extra spike-source arguments (resolution, head columns, rate, start, calibration).
@@ -72,8 +122,10 @@ pub struct ReconstructOptions {
     pub event_source_args: String,
     /// Extra infer arguments (contrast, filter gains, theta mode).
     pub infer_args: String,
-    /// Planes per window and planes between frames.
-    pub window_planes: u32,
+    /// Planes per window: `None` gives 33, or for [`Method::Auto`] the longest window its
+    /// policy's methods read. For auto a smaller value (a short recording) leaves out the methods
+    /// that read more.
+    pub window_planes: Option<u32>,
     /// Planes between two frames.
     pub stride_planes: u32,
     /// PNG bit depth.
@@ -90,6 +142,7 @@ pub fn graph_yaml(
     events: Option<&Path>,
     truth: Option<&Path>,
     learned: Option<&Learned>,
+    auto: Option<&AutoPlan>,
     out: &Path,
 ) -> String {
     // The node binaries beside this program; built from its sources when it runs from them.
@@ -157,9 +210,12 @@ pub fn graph_yaml(
             ],
         );
     }
+    let window_planes = auto.map_or(opts.window_planes.unwrap_or(DEFAULT_WINDOW_PLANES), |a| {
+        a.window_planes
+    });
     let window_args = format!(
-        "--window-planes {} --stride-planes {}",
-        opts.window_planes, opts.stride_planes
+        "--window-planes {window_planes} --stride-planes {}",
+        opts.stride_planes
     );
     if events.is_some() {
         // A classical event method reads align's event stream; the learned one reads the events
@@ -220,7 +276,7 @@ pub fn graph_yaml(
             .collect(),
     };
     if !reprs.is_empty() {
-        let mut args = format!("--tfp-planes {}", opts.window_planes);
+        let mut args = format!("--tfp-planes {window_planes}");
         if let Some(l) = learned {
             for (i, c) in &l.inputs {
                 let _ = match i {
@@ -268,13 +324,33 @@ pub fn graph_yaml(
         inputs.push(format!("events: {{ source: align/events, {queue} }}"));
         types.push(format!("events: {}", t("EventBatch")));
     }
-    let infer_args = match learned {
-        Some(l) => format!(
+    if auto.is_some() {
+        inputs.push(format!("windows: {{ source: align/windows, {queue} }}"));
+        types.push(format!("windows: {}", t("AlignedWindow")));
+    }
+    let infer_args = match (learned, auto) {
+        (Some(l), _) => format!(
             "--method {m} --model {} {}",
             l.model.display(),
             opts.infer_args
         ),
-        None => format!("--method {m} {}", opts.infer_args),
+        (None, Some(a)) => format!(
+            "--method {m} --policy {} --models {}{}{} {}",
+            a.policy.display(),
+            a.models.display(),
+            if events.is_none() {
+                " --spikes-only"
+            } else {
+                ""
+            },
+            if a.short {
+                format!(" --window-planes {}", a.window_planes)
+            } else {
+                String::new()
+            },
+            opts.infer_args
+        ),
+        (None, None) => format!("--method {m} {}", opts.infer_args),
     };
     node(
         &format!("infer-{m}"),
@@ -320,6 +396,30 @@ pub fn graph_yaml(
     with_credits(&y)
 }
 
+/// The luminance per unit firing rate that `neuspike simulate` wrote in `recording.yml` beside
+/// `spikes`, when that manifest describes this file; `None` otherwise (no manifest, another
+/// file, or a value that is not finite and `> 0`).
+pub fn recorded_lum_per_rate(spikes: &Path) -> Option<f64> {
+    let manifest = spikes.parent()?.join("recording.yml");
+    let meta = std::fs::metadata(&manifest).ok()?;
+    if meta.len() > 1 << 20 {
+        return None;
+    }
+    let text = std::fs::read_to_string(&manifest).ok()?;
+    let y: serde_yaml::Value = serde_yaml::from_str(&text).ok()?;
+    let s = &y["spikes"];
+    let named = s["file"].as_str()?;
+    if spikes.file_name()?.to_str()? != named {
+        return None;
+    }
+    s["lum_per_rate"]
+        .as_f64()
+        .filter(|v| v.is_finite() && *v > 0.0)
+}
+
+/// Planes per window of the methods that do not choose their own.
+pub const DEFAULT_WINDOW_PLANES: u32 = 33;
+
 /// `yaml` with neuspike's credit flow control wired in ([`graph::wire_credits`]), its first
 /// comment line kept.
 fn with_credits(yaml: &str) -> String {
@@ -362,11 +462,10 @@ fn plane_period_ns(source_args: &str) -> i64 {
 /// Writes the graph into the output folder and runs it.
 pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     let m = opts.method.as_str();
-    if opts.method == Method::Auto {
-        eyre::bail!(
-            "--method auto chooses per window from align's windows: run graphs/auto.yml (its spike-source takes --file)"
-        );
-    }
+    let auto = match opts.method {
+        Method::Auto => Some(AutoPlan::new(&opts.policy, opts.window_planes)?),
+        _ => None,
+    };
     let learned = match (opts.method, &opts.model) {
         (Method::Learned, Some(path)) => Some(Learned::load(path)?),
         (Method::Learned, None) => eyre::bail!(
@@ -382,11 +481,14 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
         Some(l) => l.reads_events(),
         None => opts.method.inputs().events,
     };
-    let events = match (&opts.events, needs_events) {
+    // auto takes events when given (its policy then may choose the methods that read them),
+    // and chooses among the methods that read spikes alone when not.
+    let events = match (&opts.events, needs_events || auto.is_some()) {
         (Some(e), true) => Some(
             std::fs::canonicalize(e)
                 .wrap_err_with(|| format!("--events {}: cannot open", e.display()))?,
         ),
+        (None, _) if auto.is_some() => None,
         (None, true) => eyre::bail!(
             "--method {m}{} reconstructs from events: give the event recording with --events FILE",
             learned
@@ -395,7 +497,7 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
         ),
         (Some(e), false) => eyre::bail!(
             "--events {}: --method {m} reads the spikes only; the methods that read events are \
-             hf, cf, fusion, and learned with a model that reads events",
+             hf, cf, fusion, auto, and learned with a model that reads events",
             e.display()
         ),
         (None, false) => None,
@@ -415,6 +517,18 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     if let Some(dir) = &truth {
         tracing::info!(truth = %dir.display(), "scoring against the recorded ground truth");
     }
+    // The calibration `neuspike simulate` recorded beside the spikes, unless given.
+    let mut opts = opts.clone();
+    if !opts.source_args.contains("--lum-per-rate")
+        && let Some(lpr) = recorded_lum_per_rate(&spikes)
+    {
+        tracing::info!(
+            lum_per_rate = lpr,
+            "calibration from the recording's recording.yml"
+        );
+        opts.source_args = format!("{} --lum-per-rate {lpr}", opts.source_args);
+    }
+    let opts = &opts;
     std::fs::create_dir_all(&opts.out)
         .wrap_err_with(|| format!("cannot create {}", opts.out.display()))?;
     let out = std::fs::canonicalize(&opts.out)?;
@@ -428,6 +542,7 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
             events.as_deref(),
             truth.as_deref(),
             learned.as_ref(),
+            auto.as_ref(),
             &out,
         ),
     )
@@ -446,11 +561,12 @@ mod tests {
             truth: None,
             method,
             model: None,
+            policy: "models/policy.yml".into(),
             out: "out".into(),
             source_args: "--file-width 40 --file-height 25".into(),
             event_source_args: String::new(),
             infer_args: String::new(),
-            window_planes: 33,
+            window_planes: Some(33),
             stride_planes: 10,
             bit_depth: 8,
             build: false,
@@ -479,6 +595,7 @@ mod tests {
             let y = graph_yaml(
                 &opts(method),
                 Path::new("/d/x.dat"),
+                None,
                 None,
                 None,
                 None,
@@ -524,6 +641,7 @@ mod tests {
                 Path::new("/d/x.dat"),
                 Some(Path::new("/d/e.raw")),
                 Some(Path::new("/d/ground-truth")),
+                None,
                 None,
                 Path::new("/o"),
             );
@@ -603,6 +721,104 @@ mod tests {
     }
 
     #[test]
+    fn auto_reads_align_windows_and_takes_events_only_when_given() {
+        let plan = AutoPlan {
+            policy: "/m/policy.yml".into(),
+            models: "/m".into(),
+            window_planes: 256,
+            short: false,
+        };
+        let infer_args = |events: Option<&Path>, plan: &AutoPlan| {
+            let y = graph_yaml(
+                &opts(Method::Auto),
+                Path::new("/d/x.dat"),
+                events,
+                None,
+                None,
+                Some(plan),
+                Path::new("/o"),
+            );
+            let graph = nodes(&y);
+            assert!(graph.iter().all(|n| n["id"].as_str() != Some("represent")));
+            let align = find(&graph, "align");
+            assert!(
+                align["args"]
+                    .as_str()
+                    .is_some_and(|a| a.contains("--window-planes 256")),
+                "{align:?}"
+            );
+            let infer = find(&graph, "infer-auto");
+            assert_eq!(
+                infer["inputs"]["windows"]["source"].as_str(),
+                Some("align/windows")
+            );
+            assert_eq!(graph.len(), 4 + usize::from(events.is_some()));
+            infer["args"].as_str().expect("args").to_string()
+        };
+        let alone = infer_args(None, &plan);
+        assert!(
+            alone.contains("--method auto --policy /m/policy.yml --models /m --spikes-only"),
+            "{alone}"
+        );
+        assert!(!alone.contains("--window-planes"), "{alone}");
+        let both = infer_args(Some(Path::new("/d/e.raw")), &plan);
+        assert!(!both.contains("--spikes-only"), "{both}");
+        let short = AutoPlan {
+            window_planes: 128,
+            short: true,
+            ..plan.clone()
+        };
+        let y = graph_yaml(
+            &opts(Method::Auto),
+            Path::new("/d/x.dat"),
+            None,
+            None,
+            None,
+            Some(&short),
+            Path::new("/o"),
+        );
+        let graph = nodes(&y);
+        assert!(
+            find(&graph, "infer-auto")["args"]
+                .as_str()
+                .is_some_and(|a| a.contains("--window-planes 128")),
+            "{y}"
+        );
+    }
+
+    #[test]
+    fn the_calibration_comes_from_the_recordings_manifest_when_it_names_the_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let spikes = dir.path().join("spikes.dat");
+        assert_eq!(recorded_lum_per_rate(&spikes), None, "no manifest");
+        let write = |text: &str| {
+            std::fs::write(dir.path().join("recording.yml"), text).expect("write");
+        };
+        write("spikes:\n  file: spikes.dat\n  lum_per_rate: 20\n");
+        assert_eq!(recorded_lum_per_rate(&spikes), Some(20.0));
+        assert_eq!(recorded_lum_per_rate(&dir.path().join("other.dat")), None);
+        write("spikes:\n  file: spikes.dat\n  lum_per_rate: -1\n");
+        assert_eq!(recorded_lum_per_rate(&spikes), None);
+        write("not: [yaml");
+        assert_eq!(recorded_lum_per_rate(&spikes), None);
+    }
+
+    #[test]
+    fn the_shipped_policy_sets_auto_windows_to_its_longest_method() {
+        let policy = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/policy.yml");
+        let plan = AutoPlan::new(&policy, None).expect("the shipped policy");
+        assert_eq!(plan.window_planes, 256);
+        assert!(!plan.short);
+        assert!(plan.models.join("neuspike-fused-16.onnx").is_file());
+        let short = AutoPlan::new(&policy, Some(128)).expect("the shipped policy");
+        assert!(short.short);
+        let e = AutoPlan::new(Path::new("/no/policy.yml"), None)
+            .expect_err("missing")
+            .to_string();
+        assert!(e.contains("/no/policy.yml"), "{e}");
+    }
+
+    #[test]
     fn the_learned_method_wires_what_its_model_reads() {
         let spike_only = Learned {
             model: "/m/spike.onnx".into(),
@@ -614,6 +830,7 @@ mod tests {
             None,
             None,
             Some(&spike_only),
+            None,
             Path::new("/o"),
         );
         let graph = nodes(&y);
@@ -643,6 +860,7 @@ mod tests {
             Some(Path::new("/d/e.raw")),
             None,
             Some(&fused),
+            None,
             Path::new("/o"),
         );
         let graph = nodes(&y);
@@ -715,6 +933,7 @@ mod tests {
                 Path::new("/d/x.dat"),
                 None,
                 Some(truth),
+                None,
                 None,
                 Path::new("/o"),
             );

@@ -310,6 +310,47 @@ impl Policy {
         Ok(())
     }
 
+    /// The policy for a node that can run only the methods `runnable` accepts (a recording
+    /// without events: no event filter, fusion or network that reads events; windows too short
+    /// for TFP over many planes). Each class keeps the ranked methods that can run and chooses
+    /// among them as the fit chose ([`best_value`] at the same `db_per_ms`). With `no_events`
+    /// every row's event rate reads as 0, as every window's will, so the event rate no longer
+    /// separates rows.
+    ///
+    /// # Errors
+    /// A class has no method that can run; the message names it and what it ranks.
+    pub fn restricted(
+        &self,
+        runnable: impl Fn(&str) -> bool,
+        no_events: bool,
+    ) -> Result<Policy, String> {
+        let mut p = self.clone();
+        for c in &mut p.classes {
+            let all: Vec<String> = c.ranked.iter().map(|k| k.method.clone()).collect();
+            c.ranked.retain(|k| runnable(&k.method));
+            let candidates: Vec<(String, f64, f64)> = c
+                .ranked
+                .iter()
+                .map(|k| (k.method.clone(), k.psnr_db, k.ms))
+                .collect();
+            let Some((method, psnr, _)) = best_value(&candidates, self.db_per_ms).cloned() else {
+                return Err(format!(
+                    "class {:?}: none of its methods ({}) can run here",
+                    c.class,
+                    all.join(", ")
+                ));
+            };
+            c.method = method;
+            c.psnr_db = psnr;
+        }
+        if no_events {
+            for r in &mut p.rows {
+                r.event_rate = 0.0;
+            }
+        }
+        Ok(p)
+    }
+
     /// Writes the policy as YAML, with a comment saying what it is.
     ///
     /// # Errors
@@ -362,6 +403,58 @@ impl Policy {
         }
         best.and_then(|(c, _)| self.class(c))
             .unwrap_or(&self.classes[0])
+    }
+
+    /// The class of a window whose features cannot tell its scene's classes apart (without
+    /// events, the speed: spikes alone barely show motion): the `k` nearest rows pooled, each
+    /// method ranked by its mean PSNR over their classes (with its mean cost), and the method of
+    /// best mean value ([`best_value`]) chosen: the best choice on average over what the window
+    /// may be. Methods not ranked in every pooled class are left out; with none left, the
+    /// nearest class.
+    pub fn pooled_class(&self, s: &WindowStats, k: usize) -> Class {
+        let mut pooled = self.clone();
+        pooled.neighbours = k.max(1);
+        let near = pooled.nearest_rows(s);
+        let classes: Vec<&Class> = near
+            .iter()
+            .filter_map(|(_, r)| self.class(&r.class))
+            .collect();
+        let Some(first) = classes.first() else {
+            return self.nearest_class(s).clone();
+        };
+        let mut ranked: Vec<Ranked> = first
+            .ranked
+            .iter()
+            .filter_map(|m| {
+                let figures: Vec<&Ranked> = classes
+                    .iter()
+                    .filter_map(|c| c.ranked.iter().find(|k| k.method == m.method))
+                    .collect();
+                (figures.len() == classes.len()).then(|| {
+                    let n = figures.len() as f64;
+                    Ranked {
+                        method: m.method.clone(),
+                        psnr_db: figures.iter().map(|k| k.psnr_db).sum::<f64>() / n,
+                        ms: figures.iter().map(|k| k.ms).sum::<f64>() / n,
+                    }
+                })
+            })
+            .collect();
+        ranked.sort_by(|a, b| b.psnr_db.total_cmp(&a.psnr_db));
+        let candidates: Vec<(String, f64, f64)> = ranked
+            .iter()
+            .map(|k| (k.method.clone(), k.psnr_db, k.ms))
+            .collect();
+        let Some((method, psnr_db, _)) = best_value(&candidates, self.db_per_ms).cloned() else {
+            return self.nearest_class(s).clone();
+        };
+        Class {
+            class: format!("{} rows near {}", classes.len(), first.class),
+            method,
+            psnr_db,
+            best_psnr_db: ranked.first().map_or(psnr_db, |k| k.psnr_db),
+            ranked,
+        }
     }
 
     /// The method for a window: its class's ([`Self::nearest_class`]).
@@ -510,6 +603,92 @@ mod tests {
                 row("dark fast", 0.03, 0.02),
             ],
         )
+    }
+
+    #[test]
+    fn a_restricted_policy_chooses_among_what_can_run_and_ignores_the_event_rate() {
+        let mut p = policy();
+        p.classes[1].ranked = vec![
+            Ranked {
+                method: "neuspike-fused-8".into(),
+                psnr_db: 30.0,
+                ms: 40.0,
+            },
+            Ranked {
+                method: "neuspike-spike-8".into(),
+                psnr_db: 26.0,
+                ms: 20.0,
+            },
+            Ranked {
+                method: "tfstp".into(),
+                psnr_db: 25.5,
+                ms: 2.0,
+            },
+        ];
+        let spikes_only = |m: &str| !m.contains("fused");
+        let r = p.restricted(spikes_only, true).expect("restricted");
+        // 26 - 0.04 * 20 = 25.2 < 25.5 - 0.04 * 2 = 25.42: TFSTP is the better value.
+        assert_eq!(r.classes[1].method, "tfstp");
+        assert_eq!(r.classes[1].psnr_db, 25.5);
+        assert_eq!(r.classes[1].ranked.len(), 2);
+        assert_eq!(r.classes[0].method, "tfp-256");
+        assert!(r.rows.iter().all(|row| row.event_rate == 0.0));
+        // With events the rows keep their rates.
+        let kept = p.restricted(spikes_only, false).expect("restricted");
+        assert_eq!(kept.rows[1].event_rate, 0.01);
+        // A class left with nothing names itself and what it ranked.
+        let err = p
+            .restricted(|m| m == "tfstp", true)
+            .expect_err("nothing runs");
+        assert!(
+            err.contains("\"bright static\"") && err.contains("tfp-256"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_pooled_class_takes_the_best_value_on_average_over_its_rows() {
+        let ranked = |a: f64, b: f64| {
+            vec![
+                Ranked {
+                    method: "tfstp".into(),
+                    psnr_db: a,
+                    ms: 1.0,
+                },
+                Ranked {
+                    method: "neuspike-spike-8".into(),
+                    psnr_db: b,
+                    ms: 10.0,
+                },
+            ]
+        };
+        let mut p = policy();
+        // Two classes the features cannot tell apart: TFSTP wins one by far, the network the
+        // other by a little; on average TFSTP is the better choice.
+        p.classes = vec![
+            Class {
+                ranked: ranked(33.0, 23.0),
+                ..class("dark still", "tfstp")
+            },
+            Class {
+                ranked: ranked(17.0, 22.0),
+                ..class("dark fast", "neuspike-spike-8")
+            },
+        ];
+        p.rows = vec![row("dark still", 0.03, 0.0), row("dark fast", 0.03, 0.0)];
+        let s = WindowStats {
+            rate: 0.03,
+            ..WindowStats::default()
+        };
+        let c = p.pooled_class(&s, 2);
+        assert_eq!(c.method, "tfstp");
+        assert_eq!(c.psnr_db, 25.0);
+        assert_eq!(c.ranked[1].method, "neuspike-spike-8");
+        assert_eq!(c.ranked[1].psnr_db, 22.5);
+        // Pooling one row is the nearest class.
+        assert_eq!(p.pooled_class(&s, 1).method, "tfstp");
+        p.classes[0].ranked = ranked(23.0, 33.0);
+        assert_eq!(p.pooled_class(&s, 2).method, "neuspike-spike-8");
     }
 
     #[test]

@@ -310,6 +310,8 @@ fn end_input(
 /// - A message that arrives before its turn waits for the ones before it (dora may deliver an
 ///   output's messages out of order, see [`crate::reorder`]); a missing one is given up after a
 ///   wait and counted as lost, and a message that comes after its turn is dropped and logged.
+///   The wait counts only while dora has nothing queued for the node: a node busy computing
+///   never gives up on messages that have come meanwhile.
 /// - Sequence gaps are logged and counted in `inputs`; messages of inputs the node does not read
 ///   are logged and skipped; credits go back once `on` has taken a message; messages dora
 ///   dropped are logged.
@@ -329,8 +331,12 @@ pub fn receive(
         return Ok(());
     }
     let mut flush = false;
+    // The last instant dora had nothing more for this node. A held message waits for the ones
+    // before it on this clock: time the node spends computing does not count, so a message
+    // still queued in dora is not given up while the node was busy.
+    let mut idle_at = Instant::now();
     loop {
-        while let Some((input, (meta, data))) = inputs.next_due(Instant::now(), flush) {
+        while let Some((input, (meta, data))) = inputs.next_due(idle_at, flush) {
             let flow = match inputs.accept(&input, &meta)? {
                 Accepted::End(count) => {
                     if inputs.get(&input).is_some_and(|s| s.broken) {
@@ -408,7 +414,8 @@ pub fn receive(
             Polled::Event(Event::Stop(cause)) => {
                 tracing::debug!(?cause, "stop received; draining the inputs")
             }
-            Polled::Event(_) | Polled::Timeout => {}
+            Polled::Timeout => idle_at = Instant::now(),
+            Polled::Event(_) => {}
             Polled::Ended => flush = true,
         }
     }
@@ -426,6 +433,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::testing::CannedInputs;
     use neuspike_schemas::{Frame, FrameKind, Message};
+    use std::time::Duration;
 
     pub(crate) fn frame(seq: u64) -> Frame {
         Frame {
@@ -532,6 +540,38 @@ pub(crate) mod tests {
             (a.seq.received(), a.seq.missing(), a.seq.stale(), a.ended),
             (5, 0, 1, true)
         );
+    }
+
+    /// A message held for the ones before it does not give up on them while the node computes:
+    /// message 2 comes first and waits; message 0 takes longer than the reorder's wait, and 1,
+    /// queued meanwhile, is still taken in its turn.
+    #[test]
+    fn a_slow_message_does_not_make_the_held_ones_give_up_on_what_is_queued() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut c = CannedInputs::new(dir.path());
+        for seq in [2, 0, 1, 3] {
+            c.message("a", &frame(seq)).expect("a");
+        }
+        c.end::<Frame>("a", 4).expect("a end");
+        let mut seen = Vec::new();
+        let mut inputs = Inputs::new(["a"]);
+        c.run(|node, events| {
+            let mut link = Link::new(node, events)?;
+            receive(&mut link, &mut inputs, |_, msg| {
+                if let Received::Message { meta, data, .. } = msg {
+                    let seq = Frame::from_arrow(meta, data)?.seq;
+                    if seq == 0 {
+                        std::thread::sleep(crate::reorder::MAX_WAIT + Duration::from_millis(200));
+                    }
+                    seen.push(seq);
+                }
+                Ok(Flow::Continue)
+            })
+        })
+        .expect("run");
+        assert_eq!(seen, [0, 1, 2, 3]);
+        let a = inputs.get("a").expect("a");
+        assert_eq!((a.seq.received(), a.seq.missing()), (4, 0));
     }
 
     #[test]

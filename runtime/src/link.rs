@@ -198,7 +198,8 @@ impl Link {
         Ok(None)
     }
 
-    /// The next event for the node, waiting until `deadline` at most.
+    /// The next event for the node, waiting until `deadline` at most. Past the deadline it
+    /// still takes what dora has already queued: [`Polled::Timeout`] means nothing was there.
     pub(crate) fn next_event_until(&mut self, deadline: Instant) -> eyre::Result<Polled> {
         if let Some(e) = self.kept.pop_front() {
             return Ok(Polled::Event(e));
@@ -206,7 +207,16 @@ impl Link {
         loop {
             let now = Instant::now();
             if now >= deadline {
-                return Ok(Polled::Timeout);
+                match self.events.try_recv() {
+                    Ok(e) => {
+                        if let Some(e) = self.absorb(e)? {
+                            return Ok(Polled::Event(e));
+                        }
+                        continue;
+                    }
+                    Err(dora_node_api::TryRecvError::Empty) => return Ok(Polled::Timeout),
+                    Err(dora_node_api::TryRecvError::Closed) => return Ok(Polled::Ended),
+                }
             }
             match self.events.recv_timeout(deadline - now) {
                 Some(Event::Error(e)) if e.contains("timeout") || e.contains("Timeout") => {

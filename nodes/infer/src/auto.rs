@@ -34,6 +34,11 @@ pub const STATS_PLANES: usize = 33;
 /// Weight of the newest run in a method's cost estimate.
 pub const COST_WEIGHT: f64 = 0.1;
 
+/// Rows pooled for a window without events ([`Policy::pooled_class`]): without events the
+/// statistics barely tell a scene's speeds apart, so a window takes the method best on average
+/// over the policy's five speeds at the three nearest light levels and textures.
+pub const NO_EVENT_ROWS: usize = 15;
+
 /// Under a budget, the share of it a frame is planned to take.
 pub const PLAN_SHARE: f64 = 0.7;
 
@@ -96,6 +101,8 @@ pub struct Auto {
     candidates: Vec<Candidate>,
     budget_ms: Option<f64>,
     lum_per_rate: Option<f64>,
+    /// The stream has no events ([`Auto::restrict`]): windows read as eventless to the policy.
+    no_events: bool,
     stats: AutoStats,
 }
 
@@ -191,8 +198,61 @@ impl Auto {
             candidates,
             budget_ms,
             lum_per_rate,
+            no_events: false,
             stats: AutoStats::default(),
         })
+    }
+
+    /// Keeps the candidates this stream can feed: with `spikes_only` (a recording without
+    /// events) none that reads events, and with `max_planes` (align's windows are that long)
+    /// none whose window is longer. Each policy class then chooses among what is left, as the
+    /// fit chose ([`Policy::restricted`]). Without events a window's class is pooled over its
+    /// [`NO_EVENT_ROWS`] nearest rows ([`Policy::pooled_class`]).
+    ///
+    /// # Errors
+    /// Nothing is left, or a class has no method left; the message names it.
+    pub fn restrict(
+        mut self,
+        spikes_only: bool,
+        max_planes: Option<usize>,
+    ) -> Result<Auto, InferError> {
+        if !spikes_only && max_planes.is_none() {
+            return Ok(self);
+        }
+        let reads_events = |c: &Candidate| match &c.engine {
+            Engine::Net(net) => net
+                .inputs()
+                .iter()
+                .any(|i| !matches!(i.representation(), RepresentationKind::SpikeRepr)),
+            _ => false,
+        };
+        self.candidates.retain(|c| {
+            !(spikes_only && reads_events(c)) && max_planes.is_none_or(|m| c.planes <= m)
+        });
+        let why = || {
+            let mut w = Vec::new();
+            if spikes_only {
+                w.push("spikes only".to_string());
+            }
+            if let Some(m) = max_planes {
+                w.push(format!("windows of {m} planes"));
+            }
+            w.join(", ")
+        };
+        if self.candidates.is_empty() || max_planes.is_some_and(|m| m < STATS_PLANES) {
+            return Err(InferError::Wiring(format!(
+                "auto ({}): no method of the policy can run (the statistics need windows of at \
+                 least {STATS_PLANES} planes)",
+                why()
+            )));
+        }
+        let names: Vec<String> = self.candidates.iter().map(|c| c.name.clone()).collect();
+        self.policy = self
+            .policy
+            .restricted(|m| names.iter().any(|n| n == m), spikes_only)
+            .map_err(|e| InferError::Wiring(format!("auto ({}): {e}", why())))?;
+        self.no_events = spikes_only;
+        Ok(self)
     }
 
     /// The planes align must give each window: the longest any candidate reads.
@@ -307,8 +367,13 @@ impl Auto {
             ),
         };
         let central = w.crop(STATS_PLANES).ok_or_else(|| short(STATS_PLANES))?;
-        let s = window_stats(&central);
-        let row = self.policy.nearest_class(&s).clone();
+        let mut s = window_stats(&central);
+        let row = if self.no_events {
+            s.event_rate = 0.0;
+            self.policy.pooled_class(&s, NO_EVENT_ROWS)
+        } else {
+            self.policy.nearest_class(&s).clone()
+        };
         let spent = start.elapsed().as_secs_f64() * 1e3;
         let (i, upkeep) = self.pick(&row, spent);
         let t_upkeep = Instant::now();
@@ -552,6 +617,52 @@ mod tests {
         let s = auto.stats();
         assert_eq!(s.frames.values().sum::<u64>(), 4);
         assert_eq!(s.late, 0);
+    }
+
+    /// A recording without events, in windows of 128 planes: auto chooses among the methods that
+    /// read spikes alone and fit the windows; a bright still scene takes TFP, a dark one TFSTP
+    /// or the spike network (without events their speed is unknown: TFSTP wins the dark row on
+    /// average over speeds).
+    #[test]
+    fn restricted_to_spikes_and_short_windows_auto_chooses_among_what_runs() {
+        let mut auto = shipped(None)
+            .restrict(true, Some(128))
+            .expect("the shipped policy has spike methods for every class");
+        assert!(auto.window_planes() <= 128, "{}", auto.window_planes());
+        for class in &auto.policy().classes {
+            assert!(
+                !class.method.contains("fused") && !class.method.contains("event"),
+                "{}: {}",
+                class.class,
+                class.method
+            );
+        }
+        let frame = |auto: &mut Auto, w: &AlignedWindow| {
+            let mut w = w.crop(128).expect("fits");
+            w.events.truncate(0);
+            auto.frame(&w).expect("frame")
+        };
+        for (w, truth) in windows(1.0, 0.0, 0.2, 2) {
+            let f = frame(&mut auto, &w);
+            assert!(f.method.starts_with("tfp-"), "{}", f.method);
+            assert!(psnr(&f.data, &truth) > 30.0, "{}", psnr(&f.data, &truth));
+        }
+        for (w, _) in windows(0.05, 8_000.0, 0.35, 2) {
+            let f = frame(&mut auto, &w);
+            assert!(
+                f.method == "neuspike-spike-8" || f.method == "tfstp",
+                "{}",
+                f.method
+            );
+            assert!(f.data.iter().all(|v| v.is_finite()));
+        }
+        // Windows too short for the statistics leave nothing to run.
+        let e = shipped(None)
+            .restrict(true, Some(20))
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(e.contains("windows of 20 planes"), "{e}");
     }
 
     #[test]

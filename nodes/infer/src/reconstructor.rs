@@ -64,6 +64,14 @@ pub struct InferConfig {
     /// on this machine as it runs, fits; cheaper ones under load.
     #[arg(long)]
     pub budget_ms: Option<f64>,
+    /// auto: the stream has no events (a spike recording alone): choose among the methods that
+    /// read spikes only.
+    #[arg(long)]
+    pub spikes_only: bool,
+    /// auto: the planes of align's windows, when fewer than the policy's longest method reads
+    /// (a short recording): the methods that need more are left out.
+    #[arg(long)]
+    pub window_planes: Option<usize>,
 }
 
 impl Default for InferConfig {
@@ -83,6 +91,8 @@ impl Default for InferConfig {
             policy: PathBuf::from("models/policy.yml"),
             models: PathBuf::from("models"),
             budget_ms: None,
+            spikes_only: false,
+            window_planes: None,
         }
     }
 }
@@ -134,7 +144,8 @@ impl InferConfig {
                 self.budget_ms,
                 self.lum_per_rate,
                 self.conv,
-            )?;
+            )?
+            .restrict(self.spikes_only, self.window_planes)?;
             let mut r = Reconstructor::new(Engine::Auto(Box::new(auto)), self, vec![], false);
             r.wants_window = true;
             return Ok(r);
