@@ -231,6 +231,27 @@ impl Scene {
         out
     }
 
+    /// How far the content at the view's centre moves from `t_from_ns` to `t_to_ns`, in scene
+    /// pixels `(dx, dy)`: the translation `s(t_to) R(theta(t_to)) v (t_to - t_from)` (rotation and
+    /// zoom turn about the centre, so they move it not). Elsewhere in the view a turning or
+    /// zooming scene moves by this plus its rotation and scale about the centre. Times before the
+    /// motion starts count as its start; finite for any instants.
+    pub fn content_shift(&self, t_from_ns: i64, t_to_ns: i64) -> (f64, f64) {
+        let m = &self.spec.motion;
+        let start = i64::try_from(m.start_ns).unwrap_or(i64::MAX);
+        let motion_s = |t: i64| t.saturating_sub(start).max(0) as f64 / render::NS_PER_S;
+        let (t1, t2) = (motion_s(t_from_ns), motion_s(t_to_ns));
+        let theta = (m.rotation_deg_s * t2).rem_euclid(360.0).to_radians();
+        let (sin, cos) = theta.sin_cos();
+        let s = (m.zoom_per_s * t2)
+            .clamp(-render::MAX_LOG_ZOOM, render::MAX_LOG_ZOOM)
+            .exp();
+        let (dx, dy) = (m.vx_px_s * (t2 - t1), m.vy_px_s * (t2 - t1));
+        let shift = (s * (cos * dx - sin * dy), s * (sin * dx + cos * dy));
+        let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        (finite(shift.0), finite(shift.1))
+    }
+
     /// Whether the image never changes: no translation, rotation or zoom (nothing else in a scene
     /// depends on time).
     pub fn is_static(&self) -> bool {

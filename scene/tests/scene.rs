@@ -534,3 +534,31 @@ fn spec_round_trips_through_yaml_and_builds_programmatically() {
     let e = Scene::from_spec(spec, None).expect_err("light_scale 0");
     assert!(e.to_string().contains("light_scale"), "{e}");
 }
+
+/// The content at the view's centre moves by the motion's translation, turned and scaled as the
+/// view is at the later instant; rotation and zoom alone move it not; before the motion starts
+/// nothing moves.
+#[test]
+fn content_shift_follows_the_translation_turned_with_the_view() {
+    let scene = |motion: &str| {
+        Scene::from_yaml_str(
+            &format!("texture: {{ kind: noise }}\nmotion: {{ {motion} }}\n"),
+            "shift",
+            None,
+        )
+        .unwrap_or_else(|e| panic!("{e}"))
+    };
+    let close = |a: (f64, f64), b: (f64, f64)| (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9;
+    let pan = scene("vx_px_s: 1000, vy_px_s: -500");
+    assert!(close(pan.content_shift(0, 2_000_000), (2.0, -1.0)));
+    assert!(close(pan.content_shift(2_000_000, 0), (-2.0, 1.0)));
+    let turn = scene("rotation_deg_s: 45, zoom_per_s: 0.5");
+    assert!(close(turn.content_shift(0, 500_000_000), (0.0, 0.0)));
+    // After 1 s of 90 deg/s the view is turned a quarter: x motion shows as y.
+    let both = scene("vx_px_s: 1000, rotation_deg_s: 90");
+    let (dx, dy) = both.content_shift(1_000_000_000, 1_001_000_000);
+    assert!(dx.abs() < 2e-3 && (dy - 1.0).abs() < 1e-3, "{dx} {dy}");
+    let late = scene("vx_px_s: 1000, start_ns: 10000000");
+    assert!(close(late.content_shift(0, 10_000_000), (0.0, 0.0)));
+    assert!(close(late.content_shift(0, 11_000_000), (1.0, 0.0)));
+}
