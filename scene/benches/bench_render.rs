@@ -29,6 +29,24 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    // Moving a rendered image by a fraction of a pixel (motion-compensated interpolation).
+    let src = Scene::load("bright-fast")
+        .expect("builtin scene")
+        .render(0, 250 + 20, 400 + 20);
+    let mut scratch = Vec::new();
+    let mut k = 0.0;
+    g.bench_function("shift_cubic", |b| {
+        b.iter(|| {
+            k += 0.37;
+            neuspike_scene::shift::shift_into(
+                src.view(),
+                10,
+                (black_box(k % 3.0), 1.3),
+                dst.view_mut(),
+                &mut scratch,
+            );
+        })
+    });
     g.finish();
 }
 

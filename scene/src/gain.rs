@@ -35,7 +35,10 @@ impl GainMap {
 
     /// Gain at scene point (`x`, `y`). Horizontal: `10^(decades * (x / width - 1/2))`;
     /// radial: `10^(decades * (1/2 - r / r_corner))` with `r` the distance to the view centre.
+    /// Beyond the view (a margin rendered around it) the gain is the nearest edge's: the map
+    /// describes the view's light and is not extrapolated.
     pub fn gain_at(&self, x: f64, y: f64) -> f64 {
+        let (x, y) = (x.clamp(0.0, self.width), y.clamp(0.0, self.height));
         let log10_gain = match self.kind {
             GainMapKind::Horizontal => self.decades * (x / self.width - 0.5),
             GainMapKind::Radial => {

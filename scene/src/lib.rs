@@ -71,6 +71,7 @@ mod error;
 mod fft;
 mod gain;
 mod render;
+pub mod shift;
 mod spec;
 mod texture;
 
@@ -224,6 +225,28 @@ impl Scene {
         render::render_mapped(self, t_ns, map, dst);
     }
 
+    /// Part of what a `sensor_rows x sensor_cols` camera sees, as [`Scene::render_into`] renders
+    /// it: destination pixel `(r, c)` is sensor pixel `(row0 + r, col0 + c)`, which may lie
+    /// beyond the sensor's edges (the scene goes on past the view: a margin for shifting the
+    /// image later).
+    pub fn render_region_into(
+        &self,
+        t_ns: i64,
+        sensor: [usize; 2],
+        origin: [i64; 2],
+        dst: ArrayViewMut2<'_, f32>,
+    ) {
+        let (rows, cols) = dst.dim();
+        let region = render::Region {
+            sensor_rows: sensor[0],
+            sensor_cols: sensor[1],
+            row0: origin[0],
+            col0: origin[1],
+        };
+        let parallel = render::worth_parallel(self, rows, cols);
+        render::render_fast_region(self, t_ns, region, dst, parallel);
+    }
+
     /// [`Scene::render_into`] into a new `rows x cols` array.
     pub fn render(&self, t_ns: i64, rows: usize, cols: usize) -> Array2<f32> {
         let mut out = Array2::zeros((rows, cols));
@@ -291,6 +314,23 @@ fn field_prefixed(message: String) -> String {
 #[doc(hidden)]
 pub fn render_reference(scene: &Scene, t_ns: i64, dst: ArrayViewMut2<'_, f32>) {
     render::render_reference(scene, t_ns, dst);
+}
+
+/// The scalar oracle of [`Scene::render_region_into`].
+pub fn render_reference_region(
+    scene: &Scene,
+    t_ns: i64,
+    sensor: [usize; 2],
+    origin: [i64; 2],
+    dst: ArrayViewMut2<'_, f32>,
+) {
+    let region = render::Region {
+        sensor_rows: sensor[0],
+        sensor_cols: sensor[1],
+        row0: origin[0],
+        col0: origin[1],
+    };
+    render::render_reference_region(scene, t_ns, region, dst);
 }
 
 /// [`Scene::render_into`] with the thread choice forced (tests of the parallel path).

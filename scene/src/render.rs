@@ -98,8 +98,50 @@ fn sample_view(scene: &Scene, map: &ViewMap, x: f64, y: f64) -> f64 {
     }
 }
 
+/// Where a destination grid lies on a camera's sensor: the sensor's `rows x cols` pixels cover
+/// the view, and destination pixel `(r, c)` is sensor pixel `(row0 + r, col0 + c)`, which may lie
+/// outside the sensor (the scene goes on beyond the view: a margin).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Region {
+    pub sensor_rows: usize,
+    pub sensor_cols: usize,
+    pub row0: i64,
+    pub col0: i64,
+}
+
+impl Region {
+    /// The whole sensor of `rows x cols`.
+    pub fn whole(rows: usize, cols: usize) -> Region {
+        Region {
+            sensor_rows: rows,
+            sensor_cols: cols,
+            row0: 0,
+            col0: 0,
+        }
+    }
+
+    /// Scene pixels per sensor pixel, across and down.
+    fn scale(&self, scene: &Scene) -> (f64, f64) {
+        (
+            scene.width() as f64 / self.sensor_cols.max(1) as f64,
+            scene.height() as f64 / self.sensor_rows.max(1) as f64,
+        )
+    }
+}
+
 /// The scalar oracle: every sub-sample computed from scratch in f64.
-pub fn render_reference(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32>) {
+pub fn render_reference(scene: &Scene, t_ns: i64, dst: ArrayViewMut2<'_, f32>) {
+    let (rows, cols) = dst.dim();
+    render_reference_region(scene, t_ns, Region::whole(rows, cols), dst);
+}
+
+/// [`render_reference`] of a region of a sensor.
+pub(crate) fn render_reference_region(
+    scene: &Scene,
+    t_ns: i64,
+    region: Region,
+    mut dst: ArrayViewMut2<'_, f32>,
+) {
     let (rows, cols) = dst.dim();
     if rows == 0 || cols == 0 {
         return;
@@ -107,15 +149,15 @@ pub fn render_reference(scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32
     let map = ViewMap::at(scene, t_ns);
     let n = scene.spec().samples_per_pixel;
     let offsets = sub_offsets(n);
-    let sx = scene.width() as f64 / cols as f64;
-    let sy = scene.height() as f64 / rows as f64;
+    let (sx, sy) = region.scale(scene);
+    let (row0, col0) = (region.row0 as f64, region.col0 as f64);
     for r in 0..rows {
         for c in 0..cols {
             let mut sum = 0.0f64;
             for &oy in &offsets {
-                let y = (r as f64 + oy) * sy;
+                let y = (row0 + r as f64 + oy) * sy;
                 for &ox in &offsets {
-                    sum += sample_view(scene, &map, (c as f64 + ox) * sx, y);
+                    sum += sample_view(scene, &map, (col0 + c as f64 + ox) * sx, y);
                 }
             }
             dst[[r, c]] = finish(scene, (sum / (n * n) as f64) as f32);
@@ -203,6 +245,8 @@ struct Plan<'a> {
     n: usize,
     offsets: Vec<f64>,
     sy: f64,
+    /// The first destination row's sensor row.
+    row0: f64,
     /// Scene x of every column sub-sample, `cols * n` long.
     xs: Vec<f64>,
     /// Axis-aligned maps: the horizontal taps of every column sub-sample.
@@ -216,14 +260,14 @@ struct Plan<'a> {
 }
 
 impl<'a> Plan<'a> {
-    fn new(scene: &'a Scene, t_ns: i64, rows: usize, cols: usize) -> Plan<'a> {
+    fn new(scene: &'a Scene, t_ns: i64, region: Region, cols: usize) -> Plan<'a> {
         let map = ViewMap::at(scene, t_ns);
         let n = scene.spec().samples_per_pixel;
         let offsets = sub_offsets(n);
-        let sx = scene.width() as f64 / cols as f64;
-        let sy = scene.height() as f64 / rows as f64;
+        let (sx, sy) = region.scale(scene);
+        let col0 = region.col0 as f64;
         let xs: Vec<f64> = (0..cols)
-            .flat_map(|c| offsets.iter().map(move |&ox| (c as f64 + ox) * sx))
+            .flat_map(|c| offsets.iter().map(move |&ox| (col0 + c as f64 + ox) * sx))
             .collect();
         let taps = if map.is_axis_aligned() {
             let w = scene.texture.width();
@@ -255,6 +299,7 @@ impl<'a> Plan<'a> {
             n,
             offsets,
             sy,
+            row0: region.row0 as f64,
             xs,
             taps,
             ux,
@@ -272,7 +317,7 @@ impl<'a> Plan<'a> {
         let n = self.n;
         let radial = self.scene.gain.filter(|g| !g.is_horizontal());
         for &oy in &self.offsets {
-            let y = (r as f64 + oy) * self.sy;
+            let y = (self.row0 + r as f64 + oy) * self.sy;
             // Same expression order as the reference, so coordinates agree bit for bit.
             let (u_y, v_y) = (self.map.a12 * y, self.map.a22 * y);
             if self.map.is_axis_aligned() {
@@ -434,9 +479,16 @@ impl<'a> Plan<'a> {
 }
 
 /// The fast path: per-frame tables, per-row invariants, rayon over row blocks when `parallel`.
-pub(crate) fn render_fast(
+pub(crate) fn render_fast(scene: &Scene, t_ns: i64, dst: ArrayViewMut2<'_, f32>, parallel: bool) {
+    let (rows, cols) = dst.dim();
+    render_fast_region(scene, t_ns, Region::whole(rows, cols), dst, parallel);
+}
+
+/// [`render_fast`] of a region of a sensor.
+pub(crate) fn render_fast_region(
     scene: &Scene,
     t_ns: i64,
+    region: Region,
     mut dst: ArrayViewMut2<'_, f32>,
     parallel: bool,
 ) {
@@ -444,7 +496,7 @@ pub(crate) fn render_fast(
     if rows == 0 || cols == 0 {
         return;
     }
-    let plan = Plan::new(scene, t_ns, rows, cols);
+    let plan = Plan::new(scene, t_ns, region, cols);
     if parallel {
         dst.axis_chunks_iter_mut(Axis(0), ROWS_PER_TASK)
             .into_par_iter()

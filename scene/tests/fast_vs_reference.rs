@@ -3,7 +3,7 @@
 //! values exceed 1.
 
 use ndarray::Array2;
-use neuspike_scene::{Scene, render_fast_with, render_reference};
+use neuspike_scene::{Scene, render_fast_with, render_reference, render_reference_region};
 use proptest::prelude::*;
 
 const KINDS: &[&str] = &["noise", "shapes", "grating", "strokes", "checkerboard"];
@@ -65,6 +65,32 @@ proptest! {
         }
         // The public entry point picks one of the two.
         prop_assert!(worst_difference(&scene.render(c.t_ns, c.rows, c.cols), &reference) < 1e-5);
+    }
+
+    /// A region of the sensor, reaching past its edges, against the oracle's region; where it
+    /// lies on the sensor it is the plain render's crop.
+    #[test]
+    fn a_region_with_a_margin_equals_the_reference(
+        c in case(),
+        (r0, c0) in (-12i64..12, -12i64..12),
+        (extra_r, extra_c) in (0usize..24, 0usize..24),
+    ) {
+        let scene = Scene::from_yaml_str(&c.yaml, "proptest", None)
+            .map_err(|e| TestCaseError::fail(e.to_string()))?;
+        let shape = (c.rows + extra_r, c.cols + extra_c);
+        let mut reference = Array2::zeros(shape);
+        render_reference_region(&scene, c.t_ns, [c.rows, c.cols], [r0, c0], reference.view_mut());
+        let mut fast = Array2::zeros(shape);
+        scene.render_region_into(c.t_ns, [c.rows, c.cols], [r0, c0], fast.view_mut());
+        prop_assert!(worst_difference(&fast, &reference) < 1e-5, "case={:?}", c);
+        let whole = scene.render(c.t_ns, c.rows, c.cols);
+        for ((i, j), v) in fast.indexed_iter() {
+            let (r, cc) = (r0 + i as i64, c0 + j as i64);
+            if (0..c.rows as i64).contains(&r) && (0..c.cols as i64).contains(&cc) {
+                let w = whole[[r as usize, cc as usize]];
+                prop_assert!((v - w).abs() <= 1e-5 * w.abs().max(1.0), "{} vs {}", v, w);
+            }
+        }
     }
 }
 

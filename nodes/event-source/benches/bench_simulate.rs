@@ -149,6 +149,19 @@ fn bench(c: &mut Criterion) {
                 black_box(cam.advance_to(t, 0))
             })
         });
+        // The same samples, the scene rendered every 3.2 ms and moved along its motion between.
+        let warped = DvsConfig {
+            warp_step_ns: 3_200_000,
+            ..DvsConfig::default()
+        };
+        let mut cam =
+            EventCamera::new(Scene::load(scene).expect("scene"), warped, 0).expect("camera");
+        g.bench_function(format!("camera_{scene}_adaptive_warp3200us"), |b| {
+            b.iter(|| {
+                let t = cam.time_ns() + SPAN_NS;
+                black_box(cam.advance_to(t, 0))
+            })
+        });
     }
     g.finish();
 }

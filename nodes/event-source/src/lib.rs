@@ -48,6 +48,7 @@
 use ndarray::Array2;
 use neuspike_geometry::Homography;
 use neuspike_scene::Scene;
+use neuspike_scene::shift::Interpolator;
 use neuspike_schemas::{Event, EventBatch};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -121,6 +122,12 @@ pub struct DvsConfig {
     /// timestamp it sends is shifted by it.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub clock_offset_ns: i64,
+    /// Motion-compensated interpolation: render the scene only every this many nanoseconds and
+    /// make the samples between by moving the two nearest renders along the scene's motion
+    /// (`neuspike_scene::shift::Interpolator`); 0 renders every sample. Not with
+    /// `--homography`.
+    #[arg(long, default_value_t = 0)]
+    pub warp_step_ns: i64,
 }
 
 /// `--homography`'s parser: the error names the value.
@@ -149,6 +156,7 @@ impl Default for DvsConfig {
             rig_width: 400,
             rig_height: 250,
             clock_offset_ns: 0,
+            warp_step_ns: 0,
         }
     }
 }
@@ -210,6 +218,20 @@ impl DvsConfig {
         }
         if self.max_step_ns <= 0 {
             return bad("max-step-ns", self.max_step_ns.to_string(), "must be > 0");
+        }
+        if self.warp_step_ns < 0 {
+            return bad(
+                "warp-step-ns",
+                self.warp_step_ns.to_string(),
+                "must be >= 0",
+            );
+        }
+        if self.warp_step_ns > 0 && self.homography.is_some() {
+            return bad(
+                "warp-step-ns",
+                self.warp_step_ns.to_string(),
+                "moves renders of the plain view; a camera seeing it through --homography renders every sample",
+            );
         }
         if self.rig_width == 0 || self.rig_height == 0 {
             return bad(
@@ -966,6 +988,8 @@ pub struct EventCamera {
     frame_next: Array2<f32>,
     t_ns: i64,
     scratch: Vec<Event>,
+    /// Motion-compensated interpolation between renders, when on.
+    warp: Option<Interpolator>,
 }
 
 impl EventCamera {
@@ -992,7 +1016,11 @@ impl EventCamera {
         let mut frame = Array2::zeros((cfg.height, cfg.width));
         render_view(&scene, &cfg, t_start_ns, &mut frame);
         let pixels = DvsPixels::new(&cfg, scene.light_scale() as f32, pixels_of(&frame))?;
+        let warp = (cfg.warp_step_ns > step_ns && !scene.is_static()).then(|| {
+            Interpolator::new(&scene, cfg.height, cfg.width, t_start_ns, cfg.warp_step_ns)
+        });
         Ok(EventCamera {
+            warp,
             frame_next: frame.clone(),
             frame_now: frame,
             scene,
@@ -1007,6 +1035,11 @@ impl EventCamera {
     /// The sampling step, nanoseconds.
     pub fn step_ns(&self) -> i64 {
         self.step_ns
+    }
+
+    /// Nanoseconds between two renders under motion-compensated interpolation, when it is on.
+    pub fn warp_step_ns(&self) -> Option<i64> {
+        self.warp.as_ref().map(Interpolator::step_ns)
     }
 
     /// Simulated time so far.
@@ -1026,7 +1059,10 @@ impl EventCamera {
         while self.t_ns < t_end_ns {
             let t_b = (self.t_ns + self.step_ns).min(t_end_ns);
             if !self.scene.is_static() {
-                render_view(&self.scene, &self.cfg, t_b, &mut self.frame_next);
+                match &mut self.warp {
+                    Some(w) => w.image_into(&self.scene, t_b, self.frame_next.view_mut()),
+                    None => render_view(&self.scene, &self.cfg, t_b, &mut self.frame_next),
+                }
             }
             self.scratch.clear();
             self.pixels.step(
@@ -1148,6 +1184,61 @@ mod tests {
                 "pixel ({x},{y}): events {s} vs dL {dl}"
             );
         }
+    }
+
+    /// `bright-fast` at full size for 5 ms, the scene rendered every sample against every 3.2 ms
+    /// and moved along its motion between: the event counts agree within 10% (the moved images
+    /// are a little smoother: 7% fewer events here) and the per-pixel signed sums (the change of
+    /// log intensity each pixel saw) correlate above 0.9 (0.994). Through a homography the
+    /// option is refused by name.
+    #[test]
+    fn a_warped_dvs_fires_as_a_rendering_one_does() {
+        let s = Scene::load("bright-fast").unwrap();
+        let run = |warp_step_ns: i64| {
+            let c = DvsConfig {
+                warp_step_ns,
+                ..DvsConfig::default()
+            };
+            let mut cam = EventCamera::new(s.clone(), c.clone(), 0).unwrap();
+            let b = cam.advance_to(5_000_000, 0);
+            let mut sum = Array2::<f64>::zeros((c.height, c.width));
+            for i in 0..b.len() {
+                let e = b.get(i);
+                sum[[usize::from(e.y), usize::from(e.x)]] += f64::from(e.polarity);
+            }
+            (b.len() as f64, sum, cam.warp_step_ns())
+        };
+        let (n_plain, plain, none) = run(0);
+        let (n_warped, warped, step) = run(3_200_000);
+        assert_eq!((none, step), (None, Some(3_200_000)));
+        let n = plain.len() as f64;
+        let (ma, mb) = (plain.sum() / n, warped.sum() / n);
+        let cov: f64 = plain
+            .iter()
+            .zip(&warped)
+            .map(|(a, b)| (a - ma) * (b - mb))
+            .sum();
+        let va: f64 = plain.iter().map(|a| (a - ma).powi(2)).sum();
+        let vb: f64 = warped.iter().map(|b| (b - mb).powi(2)).sum();
+        let corr = cov / (va * vb).sqrt();
+        eprintln!("events: rendering {n_plain}, warped {n_warped}; correlation {corr:.3}");
+        assert!(
+            (n_warped / n_plain - 1.0).abs() < 0.1,
+            "{n_plain} vs {n_warped}"
+        );
+        assert!(corr > 0.9, "{corr}");
+        let rig = DvsConfig {
+            warp_step_ns: 3_200_000,
+            homography: Some(
+                Homography::new([1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]).unwrap(),
+            ),
+            ..DvsConfig::default()
+        };
+        let e = EventCamera::new(s, rig, 0).err().unwrap().to_string();
+        assert!(
+            e.contains("warp-step-ns") && e.contains("homography"),
+            "{e}"
+        );
     }
 
     #[test]

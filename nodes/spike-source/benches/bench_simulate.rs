@@ -172,22 +172,43 @@ fn bench(c: &mut Criterion) {
         ),
         term("all", Noise::SCSIM),
     ];
+    // (label, scene, noise, (--render-step-ticks, --warp-step-ticks))
     let mut cases = vec![
-        ("bright-static".to_string(), "bright-static", Noise::OFF),
-        ("bright-slow".to_string(), "bright-slow", Noise::OFF),
-        ("bright-fast".to_string(), "bright-fast", Noise::OFF),
+        (
+            "bright-static".to_string(),
+            "bright-static",
+            Noise::OFF,
+            (0, 1),
+        ),
+        ("bright-slow".to_string(), "bright-slow", Noise::OFF, (0, 1)),
+        ("bright-fast".to_string(), "bright-fast", Noise::OFF, (0, 1)),
+        (
+            "bright-fast_step32".to_string(),
+            "bright-fast",
+            Noise::OFF,
+            (32, 1),
+        ),
+        (
+            "bright-fast_warp64".to_string(),
+            "bright-fast",
+            Noise::OFF,
+            (0, 64),
+        ),
     ];
     for (name, noise) in terms {
         cases.push((
             format!("bright-static_noise_{name}"),
             "bright-static",
             noise,
+            (0, 1),
         ));
     }
-    for (label, scene, noise) in cases {
+    for (label, scene, noise, (render_step_ticks, warp_step_ticks)) in cases {
         let s = Scene::load(scene).expect("builtin scene");
         let cfg = CameraConfig {
             noise: NoiseArgs::from(noise),
+            render_step_ticks,
+            warp_step_ticks,
             ..CameraConfig::default()
         };
         let mut cam = SpikeCamera::new(s, cfg).expect("camera");
