@@ -220,8 +220,8 @@ fn fusion_graph_runs_every_method_and_loses_nothing() {
 /// The same graph on a rig of two sensors (`graphs/fusion.yml` with its event camera at
 /// 346x260, seeing the view through a homography, its clock 3 ms ahead; align given both): every
 /// method still gives every frame, and the event methods still resemble the truth. Each spike
-/// pixel takes the events of the DVS pixel whose centre lands in it, so a DVS with coarser
-/// pixels leaves some spike pixels without events: the floors are below the one-grid graph's.
+/// pixel takes the events of the DVS pixel its centre falls in (SSIM here: hf 0.40, cf 0.45,
+/// fusion 0.51; on one grid hf 0.42).
 #[test]
 fn fusion_graph_runs_on_a_rig_of_two_sensor_sizes_and_clocks() {
     let out = tempfile::tempdir().expect("tempdir");
@@ -260,7 +260,7 @@ fn fusion_graph_runs_on_a_rig_of_two_sensor_sizes_and_clocks() {
     eprintln!("rig: PSNR {psnr:?}, SSIM {ssim:?}");
     assert!(psnr["fusion"] >= psnr["tfi"] - 0.5, "{psnr:?}");
     for m in ["hf", "cf", "fusion"] {
-        assert!(ssim[m] > 0.25, "{m}: {ssim:?}");
+        assert!(ssim[m] > 0.33, "{m}: {ssim:?}");
     }
 }
 

@@ -11,10 +11,13 @@
 //! time plus `event_offset_ns`.
 //!
 //! **Two sensors of different sizes.** With `--homography H` the event camera is another sensor
-//! (a DVS beside the spike camera, behind a beam splitter): each event's pixel centre is mapped
-//! through `H` onto the spike camera's grid and takes the spike pixel it lands in; events that
-//! land outside it are dropped and counted. Events that come before the first spike chunk (which
-//! gives the grid's size) wait for it.
+//! (a DVS beside the spike camera, behind a beam splitter). Each spike pixel takes the events of
+//! the event pixel its centre falls in through `H^-1`: a coarser DVS (a DAVIS346 beside a Vidar)
+//! gives its events to every spike pixel it covers, leaving none without, and a finer one gives
+//! each spike pixel one event pixel's events, not the sum of several. So every spike pixel sees
+//! the log-intensity changes of one place, as the event methods that integrate them need. Events
+//! of event pixels no spike pixel falls in are dropped and counted. Events that come before the
+//! first spike chunk (which gives the grid's size) wait for it.
 //!
 //! A window is emitted once its last plane has arrived and (when the graph has an event camera)
 //! the event batches cover its whole interval. At end of stream the windows whose planes all
@@ -120,6 +123,72 @@ pub struct Aligner {
     pending: Vec<EventBatch>,
     /// Events mapped outside the spike grid.
     dropped_events: u64,
+    /// With a homography: the spike pixels each event pixel feeds.
+    pixel_map: Option<PixelMap>,
+}
+
+/// The spike pixels each event pixel's events go to: spike pixel `(u, v)` takes event pixel
+/// `H^-1 (u + 1/2, v + 1/2)`'s (rounded down), so each spike pixel has at most one event pixel
+/// and an event pixel any number of spike pixels. Laid out as compressed rows.
+#[derive(Debug)]
+struct PixelMap {
+    /// Event sensor and spike grid sizes it was made for.
+    event_size: (usize, usize),
+    grid: (usize, usize),
+    /// Event pixel `i`'s spike pixels are `spike[start[i]..start[i + 1]]`.
+    start: Vec<u32>,
+    spike: Vec<(u16, u16)>,
+}
+
+impl PixelMap {
+    fn new(h: &Homography, grid: (usize, usize), event_size: (usize, usize)) -> PixelMap {
+        let (ew, eh) = event_size;
+        let inverse = h.inverse();
+        let owner = |u: usize, v: usize| {
+            inverse
+                .pixel(u as u32, v as u32, ew, eh)
+                .map(|(x, y)| y * ew + x)
+        };
+        let mut count = vec![0u32; ew * eh + 1];
+        for v in 0..grid.1 {
+            for u in 0..grid.0 {
+                if let Some(i) = owner(u, v) {
+                    count[i + 1] += 1;
+                }
+            }
+        }
+        for i in 0..ew * eh {
+            count[i + 1] += count[i];
+        }
+        let start = count.clone();
+        let mut spike = vec![(0u16, 0u16); start[ew * eh] as usize];
+        let mut next = count;
+        for v in 0..grid.1 {
+            for u in 0..grid.0 {
+                if let Some(i) = owner(u, v) {
+                    // The grid is at most 65535 wide and high (a SpikeChunk's bound).
+                    spike[next[i] as usize] = (u as u16, v as u16);
+                    next[i] += 1;
+                }
+            }
+        }
+        PixelMap {
+            event_size,
+            grid,
+            start,
+            spike,
+        }
+    }
+
+    /// The spike pixels event pixel `(x, y)` feeds (none outside the event sensor).
+    fn targets(&self, x: u16, y: u16) -> &[(u16, u16)] {
+        let (x, y) = (usize::from(x), usize::from(y));
+        if x >= self.event_size.0 || y >= self.event_size.1 {
+            return &[];
+        }
+        let i = y * self.event_size.0 + x;
+        &self.spike[self.start[i] as usize..self.start[i + 1] as usize]
+    }
 }
 
 impl Aligner {
@@ -151,6 +220,7 @@ impl Aligner {
             stream: VecDeque::new(),
             pending: Vec::new(),
             dropped_events: 0,
+            pixel_map: None,
         }
     }
 
@@ -299,20 +369,33 @@ impl Aligner {
         self.event_size = grid
             .filter(|_| map.is_some())
             .unwrap_or((batch.width, batch.height));
+        if let Some((h, grid)) = map {
+            let size = (batch.width, batch.height);
+            if self
+                .pixel_map
+                .as_ref()
+                .is_none_or(|m| m.event_size != size || m.grid != grid)
+            {
+                self.pixel_map = Some(PixelMap::new(&h, grid, size));
+            }
+        }
+        let pixel_map = map.and(self.pixel_map.as_ref());
         for i in 0..batch.len() {
             let mut e = batch.get(i);
             e.t_ns = e.t_ns.saturating_add(off);
-            if let Some((h, (w, hh))) = map {
-                match h.pixel(u32::from(e.x), u32::from(e.y), w, hh) {
-                    // The grid is at most 65535 wide (a SpikeChunk's bound).
-                    Some((x, y)) => (e.x, e.y) = (x as u16, y as u16),
-                    None => {
+            match pixel_map {
+                Some(m) => {
+                    let targets = m.targets(e.x, e.y);
+                    if targets.is_empty() {
                         self.dropped_events += 1;
-                        continue;
+                    }
+                    for &(x, y) in targets {
+                        (e.x, e.y) = (x, y);
+                        self.events.push(e);
                     }
                 }
+                None => self.events.push(e),
             }
-            self.events.push(e);
         }
         self.events_cover_until_ns = self
             .events_cover_until_ns
@@ -468,7 +551,8 @@ mod tests {
     #[test]
     fn a_homography_maps_events_onto_the_spike_grid_and_drops_what_falls_outside() {
         // An 8x4 event sensor at half the spike camera's pitch, shifted one spike pixel left:
-        // event pixel (x, y) lands in spike pixel ((x + 0.5) / 2 - 1, (y + 0.5) / 2).
+        // event pixel (x, y) lands at ((x + 0.5) / 2 - 1, (y + 0.5) / 2), so spike pixel (u, v)
+        // takes event pixel (2u + 3, 2v + 1): one of the four it overlaps, not their sum.
         let h = Homography::scale_translate(0.5, 0.5, -1.0, 0.0).unwrap();
         let cfg = AlignConfig {
             window_planes: 3,
@@ -478,7 +562,7 @@ mod tests {
         };
         let mut a = Aligner::new(cfg, true);
         let mut b = EventBatch::empty(8, 4, 0, 10 * P, 0);
-        for (x, y) in [(0u16, 0u16), (1, 0), (2, 0), (7, 3), (5, 2)] {
+        for (x, y) in [(0u16, 0u16), (1, 0), (3, 1), (7, 3), (5, 2), (9, 1)] {
             b.push(Event {
                 t_ns: P,
                 x,
@@ -495,10 +579,33 @@ mod tests {
         let got: Vec<(u16, u16)> = (0..w.events.len())
             .map(|i| (w.events.get(i).x, w.events.get(i).y))
             .collect();
-        // (0,0) and (1,0) land at x -0.75 and -0.25: outside.
-        assert_eq!(got, vec![(0, 0), (2, 1), (1, 1)]);
-        assert_eq!(a.dropped_events(), 2);
+        // (0,0), (1,0) and (5,2) are no spike pixel's; (9,1) is off the event sensor.
+        assert_eq!(got, vec![(0, 0), (2, 1)]);
+        assert_eq!(a.dropped_events(), 4);
         w.events.validate("mapped").unwrap();
+    }
+
+    /// A coarser event sensor (a 3x2 one over a 4x3 grid): every spike pixel takes the events of
+    /// the event pixel it lies in, so one event feeds every spike pixel its pixel covers and none
+    /// is left without.
+    #[test]
+    fn a_coarser_event_sensor_feeds_every_spike_pixel_it_covers() {
+        let h = Homography::scale_translate(4.0 / 3.0, 1.5, 0.0, 0.0).unwrap();
+        let map = PixelMap::new(&h, (4, 3), (3, 2));
+        let mut fed = vec![0; 12];
+        for y in 0..2u16 {
+            for x in 0..3u16 {
+                for &(u, v) in map.targets(x, y) {
+                    fed[usize::from(v) * 4 + usize::from(u)] += 1;
+                }
+            }
+        }
+        assert_eq!(fed, vec![1; 12], "each spike pixel exactly once");
+        // Spike columns' centres 0.5, 1.5, 2.5, 3.5 fall in event columns 0, 1, 1, 2; rows' 0.5,
+        // 1.5, 2.5 in event rows 0, 1, 1.
+        assert_eq!(map.targets(0, 0), &[(0, 0)]);
+        assert_eq!(map.targets(1, 0), &[(1, 0), (2, 0)]);
+        assert!(map.targets(3, 0).is_empty());
     }
 
     fn events(t0: i64, t1: i64, at: &[i64]) -> EventBatch {
