@@ -14,8 +14,8 @@
 //! The two are only separable when the motion is not a constant pan (a constant pan turns a
 //! clock error into a shift); rotation, zoom, or changes of speed make them so. On a simulated
 //! rig (`tests/rig.rs`) the homography comes within 0.2-1.0 px where both sensors see when the
-//! clock is known, and the clock within 0.17-0.23 ms (late) when the homography is known; both
-//! unknown, 0.2-1.8 px and 0.5-0.7 ms.
+//! clock is known, and the clock within 36-144 us when the homography is known (its search
+//! takes only the events within bursts, [`BURST_NS`]); both unknown, 0.4-1.3 px and 0.27-0.31 ms.
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
@@ -200,9 +200,15 @@ impl ChangeVideo {
 /// taken as this long.
 const MAX_INTERVAL_NS: i64 = 4_000_000;
 
-/// The events of the sample: every `stride`-th event that has an earlier one at its pixel, at
-/// the middle of the interval since that one.
-fn sample_events(events: &EventBatch) -> Sample {
+/// Within a burst: an event whose previous one at its pixel is at most this long before it.
+/// The change that fired such an event took the whole interval, so the interval's middle is
+/// its time; the first event of a burst fires at the start of a change the spike camera sees
+/// centred later, and would pull the clock late.
+pub const BURST_NS: i64 = 1_000_000;
+
+/// The events of the sample: every `stride`-th event that has an earlier one at its pixel (at
+/// most `max_since_ns` earlier, when given), at the middle of the interval since that one.
+fn sample_events(events: &EventBatch, max_since_ns: Option<i64>) -> Sample {
     let (w, h) = (events.width.max(1), events.height.max(1));
     let mut last = vec![i64::MIN; w * h];
     let stride = events.len().div_ceil(MAX_EVENTS).max(1);
@@ -222,7 +228,11 @@ fn sample_events(events: &EventBatch) -> Sample {
         if prev == i64::MIN || i % stride != 0 {
             continue;
         }
-        let since = t.saturating_sub(prev).clamp(0, MAX_INTERVAL_NS);
+        let since = t.saturating_sub(prev).max(0);
+        if max_since_ns.is_some_and(|m| since > m) {
+            continue;
+        }
+        let since = since.min(MAX_INTERVAL_NS);
         ev.x.push(x as f64 + 0.5);
         ev.y.push(y as f64 + 0.5);
         ev.t.push(t as f64 - since as f64 / 2.0);
@@ -456,7 +466,7 @@ pub fn estimate_offset(
 ) -> Result<i64, RigError> {
     let video = ChangeVideo::new(spikes)
         .ok_or_else(|| RigError::TooLittle(format!("{} spike planes", spikes.n_planes)))?;
-    let ev = sample_events(events);
+    let ev = sample_events(events, Some(BURST_NS));
     if ev.x.len() < 300 {
         return Err(RigError::TooLittle(format!("{} usable events", ev.x.len())));
     }
@@ -478,7 +488,7 @@ pub fn agreement(spikes: &SpikeChunk, events: &EventBatch, h: &Homography, offse
     let Some(video) = ChangeVideo::new(spikes) else {
         return 0.0;
     };
-    score(&video, &sample_events(events), h, offset_ns as f64)
+    score(&video, &sample_events(events, None), h, offset_ns as f64)
 }
 
 /// Estimates the rig from a stretch of both recordings: `spikes` (at least 100 planes, the
@@ -511,13 +521,17 @@ pub fn estimate(
             events.len()
         )));
     }
-    let ev = sample_events(events);
+    let ev = sample_events(events, None);
     if ev.x.len() < 300 {
         return Err(RigError::TooLittle(format!(
             "{} events follow an earlier one at their pixel; at least 300 are needed",
             ev.x.len()
         )));
     }
+    // The clock's fine search takes the events within bursts (see [`BURST_NS`]), when there are
+    // enough of them.
+    let bursts = sample_events(events, Some(BURST_NS));
+    let clock_ev = if bursts.x.len() >= 300 { &bursts } else { &ev };
     let with_shift = |h: &Homography, dx: f64, dy: f64| {
         let mut c = h.coefficients();
         c[0] += dx * c[6];
@@ -533,7 +547,7 @@ pub fn estimate(
         (-k..=k)
             .map(|j| {
                 let o = center + j as f64 * step;
-                (o, score(&video, &ev, h, o))
+                (o, score(&video, clock_ev, h, o))
             })
             .max_by(|a, b| a.1.total_cmp(&b.1))
             .unwrap_or((center, 0.0))
@@ -651,7 +665,7 @@ pub fn estimate(
     }
     h = refine(h, offset, 4);
     if known.is_none() {
-        offset = fine_offset(&video, &ev, &h, offset);
+        offset = fine_offset(&video, clock_ev, &h, offset);
     }
     let score = score(&video, &ev, &h, offset);
     Ok(RigEstimate {
