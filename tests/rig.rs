@@ -280,6 +280,69 @@ fn the_rig_is_estimated_from_what_the_two_sensors_recorded() {
     }
 }
 
+/// align estimates the rig itself when none is given (`--estimate-rig-planes`): from the first
+/// 600 planes of a turning, zooming scene and the events over them it finds the homography
+/// (within 1.5 px where both sensors see) and the clock (within 0.4 ms), then lets every window
+/// through: as many as with the rig given, carrying as many events within 5%.
+#[test]
+fn align_estimates_the_rig_when_none_is_given() {
+    let (chunk, events) = rig_recording(9);
+    let run = |cfg: AlignConfig| {
+        let mut a = Aligner::new(cfg, true);
+        a.push_events(events.clone());
+        a.push_spikes(chunk.clone()).expect("spikes");
+        a.close_spikes();
+        a.close_events();
+        assert!(a.take_rig_error().is_none());
+        let (mut windows, mut n) = (0, 0);
+        while let Some(w) = a.pop_ready() {
+            windows += 1;
+            n += w.events.len();
+        }
+        (windows, n, a.rig())
+    };
+    let base = AlignConfig {
+        window_planes: 33,
+        stride_planes: 20,
+        ..Default::default()
+    };
+    let (windows, n, (h, offset)) = run(AlignConfig {
+        estimate_rig_planes: Some(600),
+        ..base.clone()
+    });
+    let (given_windows, given_n, _) = run(AlignConfig {
+        homography: Some(rig()),
+        event_offset_ns: -OFFSET_NS,
+        ..base
+    });
+    let h = h.expect("estimated");
+    eprintln!(
+        "align's estimate: {:.3} px, {} ns off; {windows} windows, {n} events (given: {given_windows}, {given_n})",
+        worst_error(&h),
+        offset + OFFSET_NS
+    );
+    assert!(worst_error(&h) < 1.5, "{h}");
+    assert!((offset + OFFSET_NS).abs() < 400_000, "{offset}");
+    assert_eq!(windows, given_windows);
+    assert!(
+        (n as f64 / given_n as f64 - 1.0).abs() < 0.05,
+        "{n} vs {given_n}"
+    );
+    // Too little to estimate from: a clear error, not a guess.
+    let mut a = Aligner::new(
+        AlignConfig {
+            estimate_rig_planes: Some(600),
+            ..Default::default()
+        },
+        true,
+    );
+    a.push_spikes(chunk.clone()).expect("held");
+    a.close_spikes();
+    a.close_events();
+    let e = a.take_rig_error().expect("no events: an error").to_string();
+    assert!(e.contains("--estimate-rig-planes"), "{e}");
+}
+
 /// As a user runs it: `neuspike simulate` writes the rig's two recordings (the DVS at its own
 /// size, through the homography, 3 ms ahead), `neuspike calibrate-rig` reads them back with the
 /// clock known and prints the homography and the arguments for the two nodes.

@@ -17,7 +17,9 @@
 //! each spike pixel one event pixel's events, not the sum of several. So every spike pixel sees
 //! the log-intensity changes of one place, as the event methods that integrate them need. Events
 //! of event pixels no spike pixel falls in are dropped and counted. Events that come before the
-//! first spike chunk (which gives the grid's size) wait for it.
+//! first spike chunk (which gives the grid's size) wait for it. Without a homography,
+//! `--estimate-rig-planes N` holds the first `N` planes and the events over them, estimates the
+//! homography and the clock offset from them ([`rig::estimate`]), and then aligns everything.
 //!
 //! A window is emitted once its last plane has arrived and (when the graph has an event camera)
 //! the event batches cover its whole interval. At end of stream the windows whose planes all
@@ -51,6 +53,15 @@ pub struct AlignConfig {
     /// spike grid.
     #[arg(long, value_parser = parse_homography, allow_hyphen_values = true)]
     pub homography: Option<Homography>,
+    /// Without `--homography`: estimate the homography and the clock offset from the first this
+    /// many spike planes and the events over them (`rig::estimate`; the scene must move in more
+    /// ways than a steady pan), then align everything with them. Windows start once they are
+    /// known.
+    #[arg(long)]
+    pub estimate_rig_planes: Option<u32>,
+    /// The clock offsets `--estimate-rig-planes` searches, either way, nanoseconds.
+    #[arg(long, default_value_t = 5_000_000)]
+    pub estimate_max_offset_ns: i64,
 }
 
 /// `--homography`'s parser: the error names the value.
@@ -66,6 +77,8 @@ impl Default for AlignConfig {
             fps: None,
             event_offset_ns: 0,
             homography: None,
+            estimate_rig_planes: None,
+            estimate_max_offset_ns: 5_000_000,
         }
     }
 }
@@ -81,6 +94,9 @@ pub enum AlignError {
         /// What is wrong.
         why: String,
     },
+    /// The rig could not be estimated (`--estimate-rig-planes`).
+    #[error("align: --estimate-rig-planes: {0}")]
+    Rig(String),
     /// A chunk's geometry differs from the stream's.
     #[error("spike chunk {seq}: geometry {got} differs from the stream's {expected}")]
     Geometry {
@@ -125,6 +141,20 @@ pub struct Aligner {
     dropped_events: u64,
     /// With a homography: the spike pixels each event pixel feeds.
     pixel_map: Option<PixelMap>,
+    /// With `--estimate-rig-planes`: what is held until the rig is known.
+    estimating: Option<Estimating>,
+    /// The rig estimate's failure, until taken.
+    rig_error: Option<AlignError>,
+}
+
+/// The streams' beginnings, held while the rig is estimated from them.
+#[derive(Debug, Default)]
+struct Estimating {
+    chunks: Vec<SpikeChunk>,
+    batches: Vec<EventBatch>,
+    planes: usize,
+    /// End of the events held, on the event camera's clock.
+    events_until_ns: i64,
 }
 
 /// The spike pixels each event pixel's events go to: spike pixel `(u, v)` takes event pixel
@@ -221,7 +251,128 @@ impl Aligner {
             pending: Vec::new(),
             dropped_events: 0,
             pixel_map: None,
+            estimating: None,
+            rig_error: None,
         }
+        .estimating_if_asked(with_events)
+    }
+
+    fn estimating_if_asked(mut self, with_events: bool) -> Self {
+        if self.cfg.estimate_rig_planes.is_some() && self.cfg.homography.is_none() && with_events {
+            self.estimating = Some(Estimating {
+                events_until_ns: i64::MIN,
+                ..Estimating::default()
+            });
+        }
+        self
+    }
+
+    /// The rig this aligner maps events with: the homography and `--event-offset-ns` (given,
+    /// or estimated once `--estimate-rig-planes` planes have come).
+    pub fn rig(&self) -> (Option<Homography>, i64) {
+        (self.cfg.homography, self.cfg.event_offset_ns)
+    }
+
+    /// Whether the rig is still being estimated (the streams are held).
+    pub fn estimating(&self) -> bool {
+        self.estimating.is_some()
+    }
+
+    /// Why the rig could not be estimated, once (the streams are then held for good).
+    pub fn take_rig_error(&mut self) -> Option<AlignError> {
+        self.rig_error.take()
+    }
+
+    /// Estimates the rig once enough is held (or, with `force`, from whatever is), then lets
+    /// what was held through.
+    fn try_estimate(&mut self, force: bool) -> Result<(), AlignError> {
+        let Some(est) = &self.estimating else {
+            return Ok(());
+        };
+        let need = self.cfg.estimate_rig_planes.unwrap_or(0) as usize;
+        let last_ns = est
+            .chunks
+            .last()
+            .map_or(i64::MIN, |c| c.plane_time_ns(c.n_planes.saturating_sub(1)));
+        let covered = est.events_until_ns
+            >= last_ns.saturating_add(self.cfg.estimate_max_offset_ns.max(0))
+            || self.events_closed;
+        if !(force || (est.planes >= need && covered)) {
+            return Ok(());
+        }
+        let Some(est) = self.estimating.take() else {
+            return Ok(());
+        };
+        let (Some(first), Some(batch0)) = (est.chunks.first(), est.batches.first()) else {
+            return Err(AlignError::Rig(format!(
+                "{} spike chunks and {} event batches came: both are needed",
+                est.chunks.len(),
+                est.batches.len()
+            )));
+        };
+        // One chunk of the contiguous planes from the first, one batch of every event.
+        let per = bytes_per_plane(first.width, first.height);
+        let mut spikes = SpikeChunk {
+            bits: Vec::new(),
+            n_planes: 0,
+            ..first.clone()
+        };
+        for c in &est.chunks {
+            if c.first_plane != spikes.first_plane + spikes.n_planes as u64
+                || (c.width, c.height) != (first.width, first.height)
+            {
+                break;
+            }
+            spikes
+                .bits
+                .extend_from_slice(c.bits.get(..c.n_planes * per).unwrap_or(&[]));
+            spikes.n_planes += c.n_planes;
+        }
+        let mut events = EventBatch::empty(
+            batch0.width,
+            batch0.height,
+            batch0.t_start_ns,
+            est.events_until_ns,
+            0,
+        );
+        for b in &est.batches {
+            for i in 0..b.len() {
+                events.push(b.get(i));
+            }
+        }
+        // From the sensors' sizes: the same view, the frames' centres together.
+        let k = first.width as f64 / batch0.width.max(1) as f64;
+        let init = Homography::scale_translate(
+            k,
+            k,
+            first.width as f64 / 2.0 - batch0.width as f64 / 2.0 * k,
+            first.height as f64 / 2.0 - batch0.height as f64 / 2.0 * k,
+        )
+        .map_err(|e| AlignError::Rig(e.to_string()))?;
+        let found = rig::estimate(
+            &spikes,
+            &events,
+            init,
+            rig::Clock::Within(self.cfg.estimate_max_offset_ns.max(0)),
+        )
+        .map_err(|e| AlignError::Rig(format!("{e} (from {} planes)", spikes.n_planes)))?;
+        tracing::info!(
+            homography = %found.homography,
+            event_offset_ns = -found.offset_ns,
+            score = found.score,
+            events = found.events,
+            planes = spikes.n_planes,
+            "align: the rig estimated"
+        );
+        self.cfg.homography = Some(found.homography);
+        self.cfg.event_offset_ns = found.offset_ns.saturating_neg();
+        for c in est.chunks {
+            self.push_spikes(c)?;
+        }
+        for b in est.batches {
+            self.push_events(b);
+        }
+        Ok(())
     }
 
     /// Events the homography mapped outside the spike grid (dropped).
@@ -292,6 +443,14 @@ impl Aligner {
     /// A chunk after a gap (lost planes) restarts the buffer there; windows
     /// that needed the lost planes are skipped and counted.
     pub fn push_spikes(&mut self, chunk: SpikeChunk) -> Result<(), AlignError> {
+        if let Some(e) = self.rig_error.take() {
+            return Err(e);
+        }
+        if let Some(est) = &mut self.estimating {
+            est.planes += chunk.n_planes;
+            est.chunks.push(chunk);
+            return self.try_estimate(false);
+        }
         let geo = (chunk.width, chunk.height, chunk.plane_period_ns);
         match self.geometry {
             None => {
@@ -355,6 +514,14 @@ impl Aligner {
     /// Adds an event batch (its timestamps are shifted onto the spike clock and, with a
     /// homography, its pixels mapped onto the spike grid).
     pub fn push_events(&mut self, batch: EventBatch) {
+        if let Some(est) = &mut self.estimating {
+            est.events_until_ns = est.events_until_ns.max(batch.t_end_ns);
+            est.batches.push(batch);
+            if let Err(e) = self.try_estimate(false) {
+                self.rig_error = Some(e);
+            }
+            return;
+        }
         if self.cfg.homography.is_some() && self.geometry.is_none() {
             self.pending.push(batch);
             return;
@@ -402,14 +569,20 @@ impl Aligner {
             .max(batch.t_end_ns.saturating_add(off));
     }
 
-    /// No more spikes will come.
+    /// No more spikes will come (a rig being estimated is estimated from what came).
     pub fn close_spikes(&mut self) {
         self.spikes_closed = true;
+        if let Err(e) = self.try_estimate(true) {
+            self.rig_error = Some(e);
+        }
     }
 
     /// No more events will come.
     pub fn close_events(&mut self) {
         self.events_closed = true;
+        if let Err(e) = self.try_estimate(false) {
+            self.rig_error = Some(e);
+        }
     }
 
     /// Whether no further window can ever be emitted.
@@ -632,6 +805,7 @@ mod tests {
                 fps: None,
                 event_offset_ns: 0,
                 homography: None,
+                ..Default::default()
             };
             let mut a = Aligner::new(cfg, true).with_event_stream();
             let at: Vec<i64> = (0..400).map(|k| k * 9_999).collect();
@@ -676,6 +850,7 @@ mod tests {
             fps: None,
             event_offset_ns: 0,
             homography: None,
+            ..Default::default()
         };
         let mut a = Aligner::new(cfg, false);
         a.push_spikes(chunk(0, 20, 0)).unwrap();
@@ -701,6 +876,7 @@ mod tests {
             fps: None,
             event_offset_ns: 0,
             homography: None,
+            ..Default::default()
         };
         let mut a = Aligner::new(cfg, false);
         a.push_spikes(chunk(1001, 20, 0)).unwrap();
@@ -723,6 +899,7 @@ mod tests {
             fps: None,
             event_offset_ns: 1_000,
             homography: None,
+            ..Default::default()
         };
         let mut a = Aligner::new(cfg, true);
         a.push_spikes(chunk(0, 12, 0)).unwrap();
@@ -753,6 +930,7 @@ mod tests {
                 fps: None,
                 event_offset_ns: 0,
                 homography: None,
+                ..Default::default()
             },
             true,
         );
@@ -774,6 +952,7 @@ mod tests {
                 fps: None,
                 event_offset_ns: 0,
                 homography: None,
+                ..Default::default()
             },
             false,
         );
@@ -798,6 +977,7 @@ mod tests {
             fps: Some(3000.0),
             event_offset_ns: 0,
             homography: None,
+            ..Default::default()
         };
         let mut a = Aligner::new(cfg, false);
         a.push_spikes(chunk(0, 36, 0)).unwrap();

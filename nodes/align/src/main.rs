@@ -69,6 +69,9 @@ fn run(node: DoraNode, events: EventStream, mut aligner: Aligner) -> eyre::Resul
             } => aligner.close_spikes(),
             Received::End { .. } => aligner.close_events(),
         }
+        if let Some(e) = aligner.take_rig_error() {
+            return Err(e.into());
+        }
         send_ready(out, &mut aligner)?;
         Ok(if aligner.finished() {
             Flow::Stop
@@ -78,6 +81,9 @@ fn run(node: DoraNode, events: EventStream, mut aligner: Aligner) -> eyre::Resul
     })?;
     aligner.close_spikes();
     aligner.close_events();
+    if let Some(e) = aligner.take_rig_error() {
+        return Err(e.into());
+    }
     send_ready(&mut out, &mut aligner)?;
     // Windows skipped for missing planes count as sent-and-lost: the markers cover them.
     out.at_least("windows", aligner.next_seq())?;

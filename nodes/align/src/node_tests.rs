@@ -32,6 +32,7 @@ fn windows_then_end_of_stream() {
         fps: None,
         event_offset_ns: 0,
         homography: None,
+        ..Default::default()
     };
     let out = c
         .run(|node, events| run(node, events, Aligner::new(cfg, true)))
@@ -67,6 +68,7 @@ fn event_stream_follows_each_window_and_ends() {
         fps: None,
         event_offset_ns: 0,
         homography: None,
+        ..Default::default()
     };
     let out = c
         .run(|node, events| run(node, events, Aligner::new(cfg, true).with_event_stream()))
