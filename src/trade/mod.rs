@@ -56,6 +56,11 @@ pub struct BenchOptions {
     /// Only these scene classes (names as in the tables, comma-separated).
     #[arg(long, value_delimiter = ',')]
     pub classes: Vec<String>,
+    /// The spike camera's noise (a profile and per-term overrides, as `spike-source` takes them):
+    /// how the methods fare when the camera differs from the one the networks were trained on.
+    /// Give each setting its own `--out`.
+    #[command(flatten)]
+    pub noise: neuspike_spike_source::NoiseArgs,
     /// The folder of the networks (`*.onnx`).
     #[arg(long, default_value = "models")]
     pub models: PathBuf,
@@ -291,7 +296,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             if let Some(b) = &bar {
                 b.set_message(format!("{} texture {t}: simulating", class.name));
             }
-            let (rec, label) = run::simulate(class, opts.set, *t)
+            let (rec, label) = run::simulate(class, opts.set, *t, &opts.noise)
                 .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
             let stats = run::window_stats(&rec);
             let template = with_stats(

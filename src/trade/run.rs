@@ -242,7 +242,7 @@ pub fn window_stats(rec: &Recording) -> Vec<(WindowStats, f64)> {
         .collect()
 }
 
-/// Simulates texture `texture` of `class` with both cameras.
+/// Simulates texture `texture` of `class` with both cameras, the spike camera with `noise`.
 ///
 /// # Errors
 /// A scene or camera setting out of range.
@@ -250,6 +250,7 @@ pub fn simulate(
     class: &SceneClass,
     set: TextureSet,
     texture: usize,
+    noise: &neuspike_spike_source::NoiseArgs,
 ) -> eyre::Result<(Recording, String)> {
     let (scene, label) = grid::scene(class, set, texture)?;
     let seed = 1_000 + texture as u64;
@@ -260,6 +261,7 @@ pub fn simulate(
             height: grid::HEIGHT,
             rate_hz: grid::RATE_HZ,
             seed,
+            noise: noise.clone(),
             ..CameraConfig::default()
         },
     )
