@@ -264,24 +264,19 @@ fn fusion_graph_runs_on_a_rig_of_two_sensor_sizes_and_clocks() {
     }
 }
 
-/// A paired recording from `neuspike simulate` (both cameras 400x250, on one clock, ground truth
-/// every 20 planes), played back by `neuspike reconstruct --events` for each method that reads
-/// events, the learned fused network included (`--method learned --model`): every window becomes
-/// a frame, nothing is lost, the recorded ground truth (found beside the spike file, or for `cf`
-/// its copy as APS frames in the AEDAT 4 file) scores every frame, and the frames resemble it (the
-/// SSIM floor of the simulated graph's test).
-#[test]
-fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
-    use neuspike::reconstruct::{Method, ReconstructOptions, reconstruct};
-    let dir = tempfile::tempdir().expect("tempdir");
-    let rec = dir.path().join("rec");
+/// `neuspike simulate` of `scene` into `dir/rec`: 600 planes, both cameras 400x250 on one clock
+/// (the DVS's thresholds `theta`), ground truth every 20 planes.
+fn paired_recording(dir: &Path, scene: &str, theta: f64) -> PathBuf {
+    let rec = dir.join("rec");
     let dvs = neuspike_event_source::DvsConfig {
         width: 400,
         height: 250,
+        theta_on: theta,
+        theta_off: theta,
         ..Default::default()
     };
     neuspike::record::simulate(&neuspike::record::SimulateOptions {
-        scene: "bright-slow".into(),
+        scene: scene.into(),
         out: rec.clone(),
         planes: Some(600),
         gt_every_planes: 20,
@@ -292,6 +287,20 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
         progress: false,
     })
     .expect("simulate");
+    rec
+}
+
+/// A paired recording from `neuspike simulate` (both cameras 400x250, on one clock, ground truth
+/// every 20 planes), played back by `neuspike reconstruct --events` for each method that reads
+/// events, the learned fused network included (`--method learned --model`): every window becomes
+/// a frame, nothing is lost, the recorded ground truth (found beside the spike file, or for `cf`
+/// its copy as APS frames in the AEDAT 4 file) scores every frame, and the frames resemble it (the
+/// SSIM floor of the simulated graph's test).
+#[test]
+fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
+    use neuspike::reconstruct::{Method, ReconstructOptions, reconstruct};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = paired_recording(dir.path(), "bright-slow", 0.2);
     let fused = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/neuspike-fused-8.onnx");
     // Two of the methods play the events from the AEDAT 4 copy, two from the EVT 2.0 one; one
     // is scored against the truth's copy as APS frames in the AEDAT 4 file (as a DAVIS's frames
@@ -372,26 +381,7 @@ fn reconstruct_plays_a_paired_recording_through_the_event_methods() {
 fn reconstruct_auto_chooses_per_window_with_or_without_events() {
     use neuspike::reconstruct::{Method, ReconstructOptions, reconstruct};
     let dir = tempfile::tempdir().expect("tempdir");
-    let rec = dir.path().join("rec");
-    let dvs = neuspike_event_source::DvsConfig {
-        width: 400,
-        height: 250,
-        theta_on: 0.35,
-        theta_off: 0.35,
-        ..Default::default()
-    };
-    neuspike::record::simulate(&neuspike::record::SimulateOptions {
-        scene: "dark-slow".into(),
-        out: rec.clone(),
-        planes: Some(600),
-        gt_every_planes: 20,
-        chunk_planes: 200,
-        events: true,
-        spike: Default::default(),
-        dvs,
-        progress: false,
-    })
-    .expect("simulate");
+    let rec = paired_recording(dir.path(), "dark-slow", 0.35);
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     for events in [Some(rec.join("events.raw")), None] {
         let out = dir
