@@ -219,20 +219,11 @@ fn wrap(i: i64, period: usize) -> usize {
     }
 }
 
-/// `x.floor()` for finite `x` with `|x| < 2^63`, without the C library call `floor` is on the
-/// baseline x86-64 target (no SSE4.1 rounding): truncate, then step down where that rounded up.
-#[inline]
-fn floor_fast(x: f64) -> f64 {
-    let t = x as i64 as f64;
-    if t > x { t - 1.0 } else { t }
-}
-
 /// Floor, fraction and the two wrapped texel indices of coordinate `u` (texel centres at +1/2).
 #[inline]
 fn split(u: f64, period: usize) -> (usize, usize, f32) {
     let x = if u.is_finite() { u - 0.5 } else { 0.0 };
-    // Beyond 2^62 an f64 holds only integers: its own floor.
-    let x0 = if x.abs() < 4.6e18 { floor_fast(x) } else { x };
+    let x0 = x.floor();
     let i0 = wrap(x0 as i64, period);
     let i1 = if i0 + 1 == period { 0 } else { i0 + 1 };
     (i0, i1, (x - x0) as f32)
@@ -251,10 +242,6 @@ struct Plan<'a> {
     xs: Vec<f64>,
     /// Axis-aligned maps: the horizontal taps of every column sub-sample.
     taps: Vec<ColumnTap>,
-    /// Other maps: `a11 x` and `a21 x` of every column sub-sample (the reference's products, so
-    /// that coordinates agree bit for bit).
-    ux: Vec<f64>,
-    vx: Vec<f64>,
     /// Horizontal gain maps: the gain of every column sub-sample.
     column_gain: Vec<f32>,
 }
@@ -281,14 +268,6 @@ impl<'a> Plan<'a> {
         } else {
             Vec::new()
         };
-        let (ux, vx) = if map.is_axis_aligned() {
-            (Vec::new(), Vec::new())
-        } else {
-            (
-                xs.iter().map(|&x| map.a11 * x).collect(),
-                xs.iter().map(|&x| map.a21 * x).collect(),
-            )
-        };
         let column_gain = match &scene.gain {
             Some(g) if g.is_horizontal() => xs.iter().map(|&x| g.gain_at(x, 0.0) as f32).collect(),
             _ => Vec::new(),
@@ -302,8 +281,6 @@ impl<'a> Plan<'a> {
             row0: region.row0 as f64,
             xs,
             taps,
-            ux,
-            vx,
             column_gain,
         }
     }
@@ -337,40 +314,29 @@ impl<'a> Plan<'a> {
                     *a += s;
                 }
             } else {
-                let (bu, bv) = (self.map.b1, self.map.b2);
-                // One bilinear sample at column sub-sample `i`.
-                let sample = |i: usize| {
-                    let u = self.ux[i] + u_y + bu;
-                    let v = self.vx[i] + v_y + bv;
-                    let (c0, c1, wx1) = split(u, tw);
-                    let (r0, r1, wy1) = split(v, th);
-                    let wx0 = 1.0 - wx1;
-                    let (row0, row1) = (r0 * tw, r1 * tw);
-                    let top = data[row0 + c0] * wx0 + data[row0 + c1] * wx1;
-                    let bottom = data[row1 + c0] * wx0 + data[row1 + c1] * wx1;
-                    top * (1.0 - wy1) + bottom * wy1
-                };
-                if radial.is_none()
+                let walked = radial.is_none()
                     && self.column_gain.is_empty()
-                    && self.row_fixed_point(u_y, v_y, acc)
-                {
-                    // Done on the fixed-point walk.
-                } else if radial.is_none() && self.column_gain.is_empty() {
-                    for (c, a) in acc.iter_mut().enumerate() {
-                        let mut s = 0.0f32;
-                        for i in c * n..(c + 1) * n {
-                            s += sample(i);
-                        }
-                        *a += s;
+                    && self.row_fixed_point(u_y, v_y, acc);
+                if walked {
+                    continue;
+                }
+                for (c, a) in acc.iter_mut().enumerate() {
+                    let mut s = 0.0f32;
+                    for k in 0..n {
+                        let i = c * n + k;
+                        let x = self.xs[i];
+                        let u = self.map.a11 * x + u_y + self.map.b1;
+                        let v = self.map.a21 * x + v_y + self.map.b2;
+                        let (c0, c1, wx1) = split(u, tw);
+                        let (r0, r1, wy1) = split(v, th);
+                        let wx0 = 1.0 - wx1;
+                        let top = data[r0 * tw + c0] * wx0 + data[r0 * tw + c1] * wx1;
+                        let bottom = data[r1 * tw + c0] * wx0 + data[r1 * tw + c1] * wx1;
+                        let mut val = top * (1.0 - wy1) + bottom * wy1;
+                        val *= self.gain_factor(radial.as_ref(), i, y);
+                        s += val;
                     }
-                } else {
-                    for (c, a) in acc.iter_mut().enumerate() {
-                        let mut s = 0.0f32;
-                        for i in c * n..(c + 1) * n {
-                            s += sample(i) * self.gain_factor(radial.as_ref(), i, y);
-                        }
-                        *a += s;
-                    }
+                    *a += s;
                 }
             }
         }

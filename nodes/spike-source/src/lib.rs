@@ -379,18 +379,17 @@ impl SpikeCamera {
         let period = self.period_ns;
         let t = move |k: u64| mid_tick_ns(period, k);
         let kb = key_tick + self.render_step;
+        // The scene at `t_ns`: rendered, or moved from the nearest renders.
+        let image = |warp: &mut Option<Interpolator>, t_ns: i64, dst: &mut Array2<f32>| match warp {
+            Some(w) => w.image_into(&self.scene, t_ns, dst.view_mut()),
+            None => self.scene.render_into(t_ns, dst.view_mut()),
+        };
         if key_tick == 0 || key_tick != self.key_tick + self.render_step {
-            match &mut self.warp {
-                Some(w) => w.image_into(&self.scene, t(key_tick), self.key_a.view_mut()),
-                None => self.scene.render_into(t(key_tick), self.key_a.view_mut()),
-            }
+            image(&mut self.warp, t(key_tick), &mut self.key_a);
         } else {
             std::mem::swap(&mut self.key_a, &mut self.key_b);
         }
-        match &mut self.warp {
-            Some(w) => w.image_into(&self.scene, t(kb), self.key_b.view_mut()),
-            None => self.scene.render_into(t(kb), self.key_b.view_mut()),
-        }
+        image(&mut self.warp, t(kb), &mut self.key_b);
         self.key_tick = key_tick;
         // Light per tick, clamped to >= 0 (NaN -> 0) at both ends, so the linear path between
         // them stays >= 0 up to rounding.
