@@ -42,6 +42,7 @@ use neuspike_infer::{luminance_from_isi_into, luminance_from_rate_into};
 use neuspike_represent::{RepresentConfig, Representer};
 use neuspike_scene::Scene;
 use neuspike_schemas::{AlignedWindow, RepresentationKind};
+use neuspike_spike_source::noise::{Noise, NoiseArgs};
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -109,6 +110,123 @@ pub struct DatasetOptions {
     /// `<kind>.npy` with represent's default settings (5 time bins, a 500 us time surface).
     #[arg(long, value_delimiter = ',')]
     pub also: Vec<RepresentationKind>,
+    /// The spike camera's noise for every sample (a profile such as `vidar`, and per-term
+    /// overrides); the paper's model by default.
+    #[command(flatten)]
+    pub noise: NoiseArgs,
+    /// Draw each sample's spike camera at random (domain randomisation, [`CameraDraw`]): each
+    /// noise term on or off and its value, the initial charge, the fixed-pattern cap, and the
+    /// light scale within its cell. `--profile` and the overrides are then ignored.
+    #[arg(long)]
+    pub randomise_camera: bool,
+}
+
+/// One sample's spike camera under `--randomise-camera`: what the network must not depend on.
+///
+/// A share [`CLEAN_SHARE`] of the samples keep the paper's camera (no noise term; the initial
+/// charge and the cap as the default camera has them), so that a network stays as good on clean
+/// spikes. In the others each noise term is on with probability [`TERM_ON`] and then drawn over a
+/// range that spans the paper's model (0) to about twice the `vidar` profile's value, so a
+/// network sees cameras cleaner and noisier than the real one it will meet. The light scale is the cell's times a
+/// log-uniform factor in `[1/1.4, 1.4]`: a threshold `phi` other than 1 changes a pixel's rate as
+/// a light scale does, so this also covers the threshold.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraDraw {
+    /// The noise terms.
+    pub noise: Noise,
+    /// Random initial accumulators (on with probability 0.9).
+    pub random_init: bool,
+    /// The fixed-pattern ISI cap (on with probability 0.8), its mean and spread in ticks.
+    pub fpn_cap: bool,
+    /// Mean of the cap, ticks, in `[120, 260)`.
+    pub fpn_mu: f64,
+    /// Spread of the cap, ticks, in `[20, 80)`.
+    pub fpn_sigma: f64,
+    /// The light scale the sample is made with (the cell's, times the factor).
+    pub light: f64,
+}
+
+/// The share of `--randomise-camera` samples that keep the paper's camera.
+pub const CLEAN_SHARE: f64 = 0.25;
+/// The probability that `--randomise-camera` turns a noise term on (outside the clean share).
+pub const TERM_ON: f64 = 0.7;
+
+impl CameraDraw {
+    /// Draws a camera for a sample of the cell of light `light`.
+    pub fn draw(rng: &mut ChaCha8Rng, light: f64) -> CameraDraw {
+        let log_uniform =
+            |rng: &mut ChaCha8Rng, lo: f64, hi: f64| (rng.random_range(lo.ln()..hi.ln())).exp();
+        if rng.random_bool(CLEAN_SHARE) {
+            let light = light * log_uniform(rng, 1.0 / 1.4, 1.4);
+            return CameraDraw::fixed(Noise::OFF, light);
+        }
+        let on = |rng: &mut ChaCha8Rng| rng.random_bool(TERM_ON);
+        let electrons_per_phi = if on(rng) {
+            log_uniform(rng, 200.0, 100_000.0)
+        } else {
+            0.0
+        };
+        let threshold_jitter = if on(rng) {
+            rng.random_range(0.0..0.18)
+        } else {
+            0.0
+        };
+        let threshold_offset = if on(rng) {
+            rng.random_range(0.0..0.1)
+        } else {
+            0.0
+        };
+        let prnu = if on(rng) {
+            rng.random_range(0.0..0.12)
+        } else {
+            0.0
+        };
+        let (dark_current_hz, dark_current_spread) = if on(rng) {
+            (log_uniform(rng, 1.0, 300.0), rng.random_range(0.0..0.8))
+        } else {
+            (0.0, 0.0)
+        };
+        let reset_delay_ticks = if on(rng) {
+            rng.random_range(0.0..0.05)
+        } else {
+            0.0
+        };
+        let random_init = rng.random_bool(0.9);
+        let fpn_cap = rng.random_bool(0.8);
+        let fpn_mu = rng.random_range(120.0..260.0);
+        let fpn_sigma = rng.random_range(20.0..80.0);
+        let light = light * log_uniform(rng, 1.0 / 1.4, 1.4);
+        CameraDraw {
+            noise: Noise {
+                electrons_per_phi,
+                threshold_jitter,
+                threshold_offset,
+                prnu,
+                dark_current_hz,
+                dark_current_spread,
+                reset_delay_ticks,
+            },
+            random_init,
+            fpn_cap,
+            fpn_mu,
+            fpn_sigma,
+            light,
+        }
+    }
+
+    /// The camera of `opts` without randomisation: its noise, the paper's initial charge and cap,
+    /// the cell's light.
+    fn fixed(noise: Noise, light: f64) -> CameraDraw {
+        let d = CameraConfig::default();
+        CameraDraw {
+            noise,
+            random_init: d.random_init,
+            fpn_cap: d.fpn_cap,
+            fpn_mu: d.fpn_mu,
+            fpn_sigma: d.fpn_sigma,
+            light,
+        }
+    }
 }
 
 /// What one sample was made of (a row of `samples.csv`).
@@ -132,6 +250,8 @@ pub struct SampleInfo {
     pub events: usize,
     /// Dark or fast.
     pub complex: bool,
+    /// The spike camera it was seen by.
+    pub camera: CameraDraw,
 }
 
 /// One generated sample.
@@ -203,6 +323,7 @@ fn check(opts: &DatasetOptions) -> eyre::Result<()> {
     if opts.shard == 0 {
         return bad("shard", "0".into(), "must be at least 1");
     }
+    opts.noise.resolve().map_err(|e| eyre!("dataset: {e}"))?;
     Ok(())
 }
 
@@ -322,6 +443,18 @@ pub fn sample(
     };
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     rng.set_stream(stream * (1 << 32) + index as u64);
+    // The camera draws from a stream of its own, so that a set made without randomisation is
+    // the same sample for sample as before it existed.
+    let cam = if opts.randomise_camera {
+        let mut cam_rng = ChaCha8Rng::seed_from_u64(opts.seed);
+        cam_rng.set_stream((1 << 48) + stream * (1 << 32) + index as u64);
+        CameraDraw::draw(&mut cam_rng, light)
+    } else {
+        let noise = opts.noise.resolve().map_err(|e| eyre!("dataset: {e}"))?;
+        CameraDraw::fixed(noise, light)
+    };
+    let cell_light = light;
+    let light = cam.light;
     let (yaml, texture, angle_deg) = scene_yaml(opts, &mut rng, photos, light, speed)?;
     let scene = Scene::from_yaml_str(&yaml, &format!("dataset sample {index}"), None)?;
 
@@ -332,6 +465,11 @@ pub fn sample(
         height: s,
         rate_hz: opts.rate_hz,
         seed: rng.random(),
+        random_init: cam.random_init,
+        fpn_cap: cam.fpn_cap,
+        fpn_mu: cam.fpn_mu,
+        fpn_sigma: cam.fpn_sigma,
+        noise: NoiseArgs::from(cam.noise),
         ..CameraConfig::default()
     };
     let mut camera = SpikeCamera::new(scene.clone(), spike_cfg)?;
@@ -396,14 +534,15 @@ pub fn sample(
     truth.mapv_inplace(|v| v.clamp(0.0, 1.0));
     let info = SampleInfo {
         texture,
-        light,
+        light: cell_light,
         speed_px_s: speed,
         angle_deg,
         theta_on,
         theta_off,
         lum_per_rate: camera.lum_per_rate(),
         events: window.events.t_ns.len(),
-        complex: light <= COMPLEX_MAX_LIGHT || speed >= COMPLEX_MIN_SPEED_PX_S,
+        complex: cell_light <= COMPLEX_MAX_LIGHT || speed >= COMPLEX_MIN_SPEED_PX_S,
+        camera: cam,
     };
     Ok(Sample {
         spike,
@@ -469,7 +608,9 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
     );
     writeln!(
         csv,
-        "index,shard,texture,light,speed_px_s,angle_deg,theta_on,theta_off,lum_per_rate,events,complex"
+        "index,shard,texture,light,speed_px_s,angle_deg,theta_on,theta_off,lum_per_rate,events,complex,\
+         camera_light,electrons_per_phi,threshold_jitter,threshold_offset,prnu,dark_current_hz,\
+         dark_current_spread,reset_delay_ticks,random_init,fpn_cap,fpn_mu,fpn_sigma"
     )?;
     let mut summary = DatasetSummary {
         samples: 0,
@@ -516,9 +657,10 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         }
         for (i, s) in (start..end).zip(&samples) {
             let f = &s.info;
+            let (c, n) = (&f.camera, &f.camera.noise);
             writeln!(
                 csv,
-                "{i},{shard},{},{},{},{:.3},{:.5},{:.5},{},{},{}",
+                "{i},{shard},{},{},{},{:.3},{:.5},{:.5},{},{},{},{:.5},{:.1},{:.5},{:.5},{:.5},{:.3},{:.4},{:.5},{},{},{:.2},{:.2}",
                 f.texture,
                 f.light,
                 f.speed_px_s,
@@ -527,7 +669,19 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
                 f.theta_off,
                 f.lum_per_rate,
                 f.events,
-                u8::from(f.complex)
+                u8::from(f.complex),
+                c.light,
+                n.electrons_per_phi,
+                n.threshold_jitter,
+                n.threshold_offset,
+                n.prnu,
+                n.dark_current_hz,
+                n.dark_current_spread,
+                n.reset_delay_ticks,
+                u8::from(c.random_init),
+                u8::from(c.fpn_cap),
+                c.fpn_mu,
+                c.fpn_sigma,
             )?;
             summary.complex += usize::from(f.complex);
         }
@@ -539,10 +693,24 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
     if let Some(bar) = bar {
         bar.finish_and_clear();
     }
+    let camera = if opts.randomise_camera {
+        "randomised (each sample's in samples.csv)".to_string()
+    } else {
+        let n = opts.noise.resolve().map_err(|e| eyre!("dataset: {e}"))?;
+        format!(
+            "\"profile {}: {}\"",
+            opts.noise.profile,
+            serde_yaml::to_string(&n)
+                .unwrap_or_default()
+                .trim()
+                .replace('\n', ", ")
+        )
+    };
     let yml = format!(
         "# neuspike dataset: see src/dataset.rs\nsplit: {:?}\nsamples: {}\nshards: {}\ncomplex: {}\n\
          per_cell: {}\nsize: {}\nwindow_planes: {}\nreference_plane: {}\nchannels: {}\ntau_ns: {}\n\
-         rate_hz: {}\nphi: {}\nlight_scales: {:?}\nspeeds_px_s: {:?}\nphotos: {}\nseed: {}\nalso: [{}]\n",
+         rate_hz: {}\nphi: {}\nlight_scales: {:?}\nspeeds_px_s: {:?}\nphotos: {}\nseed: {}\nalso: [{}]\n\
+         camera: {}\n",
         opts.split,
         summary.samples,
         summary.shards,
@@ -563,7 +731,8 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
             .iter()
             .map(|k| k.name())
             .collect::<Vec<_>>()
-            .join(", ")
+            .join(", "),
+        camera
     );
     let yml_path = out.join("dataset.yml");
     fs::write(&yml_path, yml).wrap_err_with(|| format!("cannot write {}", yml_path.display()))?;
@@ -588,6 +757,8 @@ mod tests {
             shard: 10,
             seed: 7,
             also: Vec::new(),
+            noise: NoiseArgs::default(),
+            randomise_camera: false,
         }
     }
 
@@ -656,6 +827,97 @@ mod tests {
         // Another index is another sample.
         let c = sample(&o, &[], 48, light, speed).expect("sample 48");
         assert_ne!(a.truth, c.truth);
+    }
+
+    #[test]
+    fn a_randomised_camera_is_drawn_per_sample_and_leaves_the_scene_as_it_was() {
+        let plain = opts(Split::Train, PathBuf::from("unused"));
+        let random = DatasetOptions {
+            randomise_camera: true,
+            ..plain.clone()
+        };
+        let (light, speed) = cell_of(23);
+        let a = sample(&random, &[], 23, light, speed).expect("sample");
+        assert_eq!(
+            a.info,
+            sample(&random, &[], 23, light, speed).expect("again").info
+        );
+        // The scene draws are the plain set's: the same texture, direction and truth up to the
+        // light, which the draw scales within [1/1.4, 1.4].
+        let p = sample(&plain, &[], 23, light, speed).expect("plain");
+        assert_eq!(
+            (a.info.texture.as_str(), a.info.angle_deg),
+            (p.info.texture.as_str(), p.info.angle_deg)
+        );
+        assert_eq!(p.info.camera, CameraDraw::fixed(Noise::OFF, light));
+        let ratio = a.info.camera.light / light;
+        assert!((1.0 / 1.4..=1.4).contains(&ratio), "{ratio}");
+        assert_eq!(a.info.light, light);
+        assert!((a.info.lum_per_rate * a.info.camera.light - 1.0).abs() < 1e-9);
+        // Over many samples every term is sometimes on, sometimes off, and always in range.
+        let draws: Vec<CameraDraw> = (0..200)
+            .map(|i| {
+                let mut rng = ChaCha8Rng::seed_from_u64(i);
+                CameraDraw::draw(&mut rng, 0.5)
+            })
+            .collect();
+        for (name, f) in [
+            (
+                "electrons",
+                (|d: &CameraDraw| d.noise.electrons_per_phi) as fn(&CameraDraw) -> f64,
+            ),
+            ("jitter", |d| d.noise.threshold_jitter),
+            ("offset", |d| d.noise.threshold_offset),
+            ("prnu", |d| d.noise.prnu),
+            ("dark", |d| d.noise.dark_current_hz),
+            ("reset", |d| d.noise.reset_delay_ticks),
+        ] {
+            let on = draws.iter().filter(|d| f(d) > 0.0).count();
+            // 0.75 x 0.7 of them on average: 105.
+            assert!((75..=140).contains(&on), "{name}: {on} of 200 on");
+        }
+        let clean = draws.iter().filter(|d| d.noise == Noise::OFF).count();
+        assert!((30..=75).contains(&clean), "{clean} of 200 clean");
+        assert!(draws.iter().all(|d| d.noise.check().is_ok()));
+        assert!(draws.iter().any(|d| !d.random_init) && draws.iter().any(|d| !d.fpn_cap));
+    }
+
+    /// A profile without overrides, as the command line gives it.
+    fn profile_only(name: &str) -> NoiseArgs {
+        NoiseArgs {
+            profile: name.into(),
+            electrons_per_phi: None,
+            threshold_jitter: None,
+            threshold_offset: None,
+            prnu: None,
+            dark_current_hz: None,
+            dark_current_spread: None,
+            reset_delay_ticks: None,
+        }
+    }
+
+    #[test]
+    fn a_profile_reaches_the_spike_camera_and_a_bad_one_is_refused() {
+        let plain = opts(Split::Train, PathBuf::from("unused"));
+        let vidar = DatasetOptions {
+            noise: profile_only("vidar"),
+            ..plain.clone()
+        };
+        let (light, speed) = cell_of(12);
+        let a = sample(&plain, &[], 12, light, speed).expect("paper");
+        let b = sample(&vidar, &[], 12, light, speed).expect("vidar");
+        assert_eq!(a.truth, b.truth);
+        assert_ne!(a.spike, b.spike);
+        assert_eq!(
+            b.info.camera.noise,
+            neuspike_spike_source::noise::profile("vidar").unwrap()
+        );
+        let bad = DatasetOptions {
+            noise: profile_only("no-such-camera"),
+            ..plain
+        };
+        let err = generate(&bad, false).expect_err("bad profile").to_string();
+        assert!(err.contains("no-such-camera"), "{err}");
     }
 
     #[test]

@@ -10,6 +10,7 @@ pub mod bench_model;
 pub mod calibrate;
 pub mod cluster;
 pub mod dataset;
+pub mod frames_to_events;
 pub mod graph;
 pub mod memory;
 pub mod publish_file;

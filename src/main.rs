@@ -88,6 +88,10 @@ enum Command {
     /// integration of one window, its ground truth and the TFP/TFI baselines, as .npy shards
     /// (see training/README.md).
     Dataset(neuspike::dataset::DatasetOptions),
+    /// Run the DVS on a sequence of intensity frames (a float32 [T, H, W] .npy), as v2e runs
+    /// its emulator on video frames: events as text, and a one-line JSON summary (counts and
+    /// the emulation's time).
+    FramesToEvents(neuspike::frames_to_events::FramesToEventsOptions),
     /// Stream the spike-only live graph paced to a camera's clock (default 30 s of a 20 kHz camera
     /// at 1,000 TFP frames/s) and report the wall time against the camera time, the frames lost
     /// and the latency, one Markdown row a run.
@@ -387,6 +391,11 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 r.new_rows,
                 r.rows - r.new_rows
             );
+            Ok(())
+        }
+        Command::FramesToEvents(opts) => {
+            let s = neuspike::frames_to_events::run(&opts)?;
+            println!("{}", s.json());
             Ok(())
         }
         Command::Dataset(opts) => {

@@ -59,6 +59,19 @@ def load(folder: pathlib.Path) -> Split:
     )
 
 
+def camera_of(folder: pathlib.Path) -> str:
+    """The spike camera a set was made with, from its `dataset.yml`: `random` (made with
+    `--randomise-camera`), `profile <name>` for a profile other than the paper's, else `paper`."""
+    path = pathlib.Path(folder) / "dataset.yml"
+    line = next((l for l in path.read_text().splitlines() if l.startswith("camera:")), "") if path.exists() else ""
+    value = line.removeprefix("camera:").strip().strip('"')
+    if value.startswith("randomised"):
+        return "random"
+    if value.startswith("profile ") and not value.startswith("profile paper"):
+        return value.split(":")[0]
+    return "paper"
+
+
 def psnr(x: np.ndarray, y: np.ndarray) -> float:
     """docs/definitions.md: data range 1, MSE over the frame; identical frames give +inf."""
     mse = float(np.mean((x.astype(np.float64) - y.astype(np.float64)) ** 2))

@@ -3,6 +3,9 @@ into normal and complex (dark or fast) scenes, with REFERENCE.md's PSNR and SSIM
 
     python training/evaluate.py --test data/test runs/fused-8.pt runs/spike-8.pt --json eval.json
 
+A model is a training checkpoint (`.pt`) or an exported network (`.onnx`, run by onnxruntime one
+sample at a time: how a shipped model is scored against a retrained one on the same set).
+
 Each model's rate is turned into luminance with the sample's calibration (`lum_per_rate`; an
 event-only model predicts luminance itself) and clipped to [0, 1], exactly as the infer node does; TFP (whole window) and TFI come from the set.
 """
@@ -39,6 +42,25 @@ def predict(model: NeuSpikeNet, split: data.Split, batch: int = 32) -> np.ndarra
     return np.concatenate(frames)
 
 
+def predict_onnx(path: pathlib.Path, split: data.Split) -> np.ndarray:
+    """An exported model's luminance frames: its inputs by name (`spike`, `events`), its output
+    `rate` (times `lum_per_rate`) or `luminance`, clipped to [0, 1] as the infer node does."""
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    names = [i.name for i in session.get_inputs()]
+    output = session.get_outputs()[0].name
+    if output not in ("rate", "luminance") or not set(names) <= {"spike", "events"}:
+        raise SystemExit(f"{path}: inputs {names}, output {output}: not a NeuSpike-Net export")
+    frames = []
+    for i in range(len(split)):
+        feeds = {n: getattr(split, n)[i : i + 1].float().numpy() for n in names}
+        out = session.run([output], feeds)[0][0, 0]
+        gain = float(split.lum_per_rate[i]) if output == "rate" else 1.0
+        frames.append(np.clip(out * gain, 0, 1))
+    return np.stack(frames)
+
+
 def score(frames: np.ndarray, split: data.Split) -> dict:
     truth = split.truth[:, 0].numpy()
     p = np.array([data.psnr(f, t) for f, t in zip(frames, truth)])
@@ -56,6 +78,9 @@ def main() -> None:
     test = data.load(args.test)
     results = {"tfp": score(test.tfp, test), "tfi": score(test.tfi, test)}
     for path in args.models:
+        if path.suffix == ".onnx":
+            results[path.stem] = score(predict_onnx(path, test), test) | {"config": {"onnx": str(path)}}
+            continue
         model, cfg = load_model(path)
         results[path.stem] = score(predict(model, test), test) | {"config": cfg}
     print(f"held-out: {args.test} ({len(test)} samples, {int(test.complex.sum())} complex)")

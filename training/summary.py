@@ -26,7 +26,8 @@ def main() -> None:
         if "config" in r:
             c = r["config"]
             l2 = c.get("l2", "mean")
-            key = (c["mode"], c["base"], c["aux"], c["steps"], "val" in c, l2, c.get("gated", False))
+            key = (c["mode"], c["base"], c["aux"], c["steps"], "val" in c, l2, c.get("gated", False),
+                   c.get("camera", "paper"))
             groups[key].append((name, r))
     order = {"fused": 0, "spike": 1, "event": 2}
     print("| configuration | run | device | PSNR normal | PSNR complex | SSIM normal | SSIM complex |")
@@ -34,13 +35,15 @@ def main() -> None:
     for k in ("tfp", "tfi"):
         print(f"| {k.upper()} (classical) | | | {fmt(ev[k])} |")
     def key(g):
-        mode, base, aux, steps, val, l2, gated = g[0]
-        return order[mode], base, ["ssim", "grad", "none"].index(aux), steps, val, l2, gated
+        mode, base, aux, steps, val, l2, gated, camera = g[0]
+        return order[mode], base, ["ssim", "grad", "none"].index(aux), steps, val, l2, gated, camera
 
-    for (mode, base, aux, steps, val, l2, gated), runs in sorted(groups.items(), key=key):
+    for (mode, base, aux, steps, val, l2, gated, camera), runs in sorted(groups.items(), key=key):
         label = f"{mode}, base {base}, aux {aux}, {steps / 1000:g}k steps" + (", best on validation" if val else "")
         label += ", L2 weighted by 1/MSE" if l2 == "psnr" else ""
         label += ", motion path gated from 0" if gated else ""
+        label += {"paper": "", "random": ", cameras drawn at random",
+                  "random, no clean share": ", cameras drawn at random, none clean"}.get(camera, f", {camera}")
         for name, r in sorted(runs, key=lambda x: (x[1]["config"]["seed"], x[0])):
             c = r["config"]
             print(f"| {label} | {name} (seed {c['seed']}) | {c['device']} | {fmt(r)} |")

@@ -204,6 +204,7 @@ def main() -> None:
         "seed": args.seed,
         "train": str(args.train),
         "train_samples": len(train),
+        "camera": data.camera_of(args.train),
         "parameters": parameters(model),
         "train_seconds": round(seconds, 1),
         # CPU time of every thread: on a machine shared with builds, the wall clock overstates.

@@ -29,10 +29,10 @@
 //! - *shot-noise events* (`--shot-noise-rate-hz`): in each step, pixels fire ON or OFF (equally
 //!   likely) at random at the rate times `1 - 0.75 i`, `i = clamp((255 I + 20) / 275, 0, 1)` the
 //!   pixel's light on v2e's 8-bit scale (the full rate in the dark, a quarter in full light),
-//!   times the nominal threshold over the pixel's. As in v2e, the fluctuation that crossed a
-//!   threshold comes back: each such event is followed one step later by its echo of the other
-//!   polarity, so a still pixel in the dark gives twice the rate in events. Drawn as a Poisson
-//!   count of candidates for the whole array, each kept with that probability.
+//!   times the nominal threshold over the pixel's. As in v2e (1.5), a pixel that fires a noise
+//!   event forgets the change it had seen: its reference becomes its present log intensity.
+//!   Drawn as a Poisson count of candidates per group of pixels of like thresholds, each kept
+//!   with that probability.
 //! - *photoreceptor bandwidth* (`--cutoff-hz`): the log intensity goes through a first-order
 //!   low-pass, `lp += eps (L - lp)` each step with `eps = min(1, i dt 2 pi cutoff)`: slower in
 //!   the dark.
@@ -98,6 +98,11 @@ pub struct DvsConfig {
     /// Relative standard deviation of the per-pixel leak rate (v2e's `leak_jitter_fraction`).
     #[arg(long, default_value_t = 0.1)]
     pub leak_jitter: f64,
+    /// Where each pixel starts its leak cycle: `random` (a camera that has been running: each
+    /// reference up to one ON threshold below its level) or `level` (every reference at its
+    /// first level, as v2e starts: no leak event before `1 / rate` seconds).
+    #[arg(long, value_enum, default_value_t = LeakStart::Random)]
+    pub leak_start: LeakStart,
     /// Shot-noise events: a pixel in the dark fires ON or OFF at random at this rate, a quarter
     /// of it in full light (v2e's `shot_noise_rate_hz`; 0 = off).
     #[arg(long, default_value_t = 0.0)]
@@ -130,6 +135,16 @@ pub struct DvsConfig {
     pub warp_step_ns: i64,
 }
 
+/// Where each pixel starts its leak cycle (`--leak-start`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LeakStart {
+    /// Each reference up to one ON threshold below its level, uniformly: a camera that has been
+    /// running, whose still pixels do not fire together.
+    Random,
+    /// Every reference at its first level, as v2e starts.
+    Level,
+}
+
 /// `--homography`'s parser: the error names the value.
 fn parse_homography(text: &str) -> Result<Homography, String> {
     Homography::parse(text).map_err(|e| e.to_string())
@@ -150,6 +165,7 @@ impl Default for DvsConfig {
             seed: 0,
             leak_rate_hz: 0.0,
             leak_jitter: 0.1,
+            leak_start: LeakStart::Random,
             shot_noise_rate_hz: 0.0,
             cutoff_hz: 0.0,
             homography: None,
@@ -328,9 +344,12 @@ struct NoiseState {
     rng: ChaCha8Rng,
     /// The nominal ON and OFF thresholds, and the largest ratio of nominal to a pixel's.
     theta_nominal: (f32, f32),
-    shot_max_ratio: f32,
-    /// Shot-noise echoes still to come: pixel, time, polarity.
-    echoes: Vec<(usize, i64, i8)>,
+    /// The pixels grouped by polarity and by their ratio of nominal to own threshold (within a
+    /// factor `SHOT_BUCKET_SPREAD`), so that each group draws candidates at its own largest
+    /// ratio and few are rejected.
+    shot_buckets: Vec<ShotBucket>,
+    /// Scratch of a step's shot-noise candidates: pixel, bucket, keep draw, time.
+    shot_candidates: Vec<(u32, u32, f32, i64)>,
 }
 
 impl NoiseState {
@@ -338,6 +357,47 @@ impl NoiseState {
     fn log_path(&self) -> bool {
         !self.leak.is_empty() || self.cutoff_hz > 0.0
     }
+}
+
+/// The pixels of one polarity whose ratio of nominal to own threshold lies within a factor
+/// [`SHOT_BUCKET_SPREAD`]: shot noise draws their candidates at `max_ratio` and keeps each with
+/// its own ratio over it.
+#[derive(Clone, Debug, Default)]
+struct ShotBucket {
+    polarity: i8,
+    max_ratio: f32,
+    pixels: Vec<u32>,
+}
+
+/// The largest ratio between two pixels' shot-noise rates in one bucket: at most this share of
+/// the candidates is rejected for the threshold (a single bucket at a threshold spread of 25%
+/// rejected 19 of 20).
+const SHOT_BUCKET_SPREAD: f32 = 1.25;
+
+/// The shot-noise buckets of the pixels `state` (see [`ShotBucket`]).
+fn shot_buckets(state: &[PixelState], (on, off): (f32, f32)) -> Vec<ShotBucket> {
+    let mut out: Vec<ShotBucket> = Vec::new();
+    for polarity in [1i8, -1] {
+        let ratio = |p: &PixelState| {
+            if polarity > 0 {
+                on / p.theta_on
+            } else {
+                off / p.theta_off
+            }
+        };
+        let mut by_key: std::collections::BTreeMap<i32, ShotBucket> = Default::default();
+        for (i, p) in state.iter().enumerate() {
+            let r = ratio(p);
+            // Thresholds are at least MIN_THRESHOLD, so the ratio is finite and > 0.
+            let key = (r.ln() / SHOT_BUCKET_SPREAD.ln()).floor() as i32;
+            let b = by_key.entry(key).or_default();
+            b.polarity = polarity;
+            b.max_ratio = b.max_ratio.max(r);
+            b.pixels.push(i as u32);
+        }
+        out.extend(by_key.into_values());
+    }
+    out
 }
 
 /// A leak ramp larger than this (log units) is folded into the reference levels.
@@ -393,23 +453,51 @@ struct ScanLevels<'a> {
 /// One bit per pixel that may cross, [`CANDIDATE_BLOCK`] to a mask.
 #[inline(always)]
 fn scan_logs(s: &ScanLevels, masks: &mut [u32]) {
-    let n = s.next.len();
-    for (b, mask) in masks.iter_mut().enumerate() {
-        let r = b * CANDIDATE_BLOCK..((b + 1) * CANDIDATE_BLOCK).min(n);
-        let (nx, up, lo) = (&s.next[r.clone()], &s.upper[r.clone()], &s.lower[r.clone()]);
-        let mut m = 0u32;
-        if s.leak.is_empty() {
-            for (j, ((&l, &u), &d)) in nx.iter().zip(up).zip(lo).enumerate() {
-                m |= (u32::from(l >= u) | u32::from(l <= d)) << j;
-            }
-        } else {
-            for (j, (((&l, &u), &d), &k)) in nx.iter().zip(up).zip(lo).zip(&s.leak[r]).enumerate() {
-                let l = l + k * s.tau_b;
+    // Whole blocks have a fixed length, so the compiler turns each into vector compares whose
+    // results are the mask; the last, shorter block takes the plain loop.
+    let (nx, nx_tail) = s.next.as_chunks::<CANDIDATE_BLOCK>();
+    let (up, up_tail) = s.upper.as_chunks::<CANDIDATE_BLOCK>();
+    let (lo, lo_tail) = s.lower.as_chunks::<CANDIDATE_BLOCK>();
+    let whole = nx.len();
+    if s.leak.is_empty() {
+        for (mask, ((nx, up), lo)) in masks.iter_mut().zip(nx.iter().zip(up).zip(lo)) {
+            *mask = level_mask(nx, up, lo, None, 0.0);
+        }
+        if let Some(mask) = masks.get_mut(whole) {
+            *mask = level_mask(nx_tail, up_tail, lo_tail, None, 0.0);
+        }
+    } else {
+        let (lk, lk_tail) = s.leak.as_chunks::<CANDIDATE_BLOCK>();
+        for (mask, (((nx, up), lo), lk)) in masks.iter_mut().zip(nx.iter().zip(up).zip(lo).zip(lk))
+        {
+            *mask = level_mask(nx, up, lo, Some(lk), s.tau_b);
+        }
+        if let Some(mask) = masks.get_mut(whole) {
+            *mask = level_mask(nx_tail, up_tail, lo_tail, Some(lk_tail), s.tau_b);
+        }
+    }
+}
+
+/// The mask of the pixels of one block whose level (plus its leak ramp `leak * tau`) is at or
+/// past a pre-check level.
+#[inline(always)]
+fn level_mask(next: &[f32], upper: &[f32], lower: &[f32], leak: Option<&[f32]>, tau: f32) -> u32 {
+    let mut m = 0u32;
+    match leak {
+        None => {
+            for (j, ((&l, &u), &d)) in next.iter().zip(upper).zip(lower).enumerate() {
                 m |= (u32::from(l >= u) | u32::from(l <= d)) << j;
             }
         }
-        *mask = m;
+        Some(leak) => {
+            for (j, (((&l, &u), &d), &k)) in next.iter().zip(upper).zip(lower).zip(leak).enumerate()
+            {
+                let l = l + k * tau;
+                m |= (u32::from(l >= u) | u32::from(l <= d)) << j;
+            }
+        }
     }
+    m
 }
 
 /// One pixel's thresholds, reference level and refractory clock.
@@ -551,7 +639,11 @@ impl DvsPixels {
                     (f64::from(on) * rate) as f32
                 })
                 .collect();
-            let phase: Vec<f32> = (0..n).map(|_| rand::Rng::random::<f32>(&mut rng)).collect();
+            // Drawn either way, so that the draws after them do not depend on the start.
+            let mut phase: Vec<f32> = (0..n).map(|_| rand::Rng::random::<f32>(&mut rng)).collect();
+            if cfg.leak_start == LeakStart::Level {
+                phase.fill(0.0);
+            }
             (leak, phase)
         } else {
             (Vec::new(), Vec::new())
@@ -594,26 +686,23 @@ impl DvsPixels {
                 next: Vec::new(),
                 rng: noise_rng,
                 theta_nominal: (cfg.theta_on as f32, cfg.theta_off as f32),
-                shot_max_ratio: 1.0,
-                echoes: Vec::new(),
+                shot_buckets: Vec::new(),
+                shot_candidates: Vec::new(),
             },
         };
         for (i, &v) in frame_start.iter().enumerate() {
             let l = px.log_of(v);
-            // With the leak, each pixel starts at a random phase of its cycle: its reference
-            // up to one ON threshold below its level.
+            // With the leak, each pixel starts at a random phase of its cycle (its reference
+            // up to one ON threshold below its level), or at its level (`LeakStart::Level`).
             let below = phase.get(i).map_or(0.0, |p| p * px.state[i].theta_on);
             px.set_reference(i, f64::from(l - below));
         }
         if px.noise.log_path() {
             px.noise.lp = frame_start.iter().map(|&v| px.log_of(v)).collect();
         }
-        let (on, off) = px.noise.theta_nominal;
-        px.noise.shot_max_ratio = px
-            .state
-            .iter()
-            .map(|p| (on / p.theta_on).max(off / p.theta_off))
-            .fold(1.0f32, f32::max);
+        if cfg.shot_noise_rate_hz > 0.0 {
+            px.noise.shot_buckets = shot_buckets(&px.state, px.noise.theta_nominal);
+        }
         Ok(px)
     }
 
@@ -819,60 +908,75 @@ impl DvsPixels {
 
     /// The shot-noise events of a step, as v2e makes them: a Poisson count of candidates over
     /// the array, each kept with probability `(1 - 0.75 i) theta / theta_i` (its light at `t_b`,
-    /// the nominal over the pixel's threshold of the polarity drawn), ON or OFF equally, at a
-    /// uniform time in the step. A noise fluctuation that crossed a threshold comes back: each
-    /// event has its echo of the other polarity one step later (v2e's next frame), and neither
-    /// moves the reference. Echoes due in this step are emitted first.
+    /// the nominal over the pixel's threshold of the polarity), each polarity at half the rate,
+    /// at a uniform time in the step; the count is drawn per bucket of pixels of like
+    /// thresholds ([`ShotBucket`]). As in v2e (1.5), a pixel that fires a noise event forgets its
+    /// change so far: its reference becomes its (filtered) log intensity at `t_b`.
     fn shot_noise(&mut self, frame_b: &[f32], t_a_ns: i64, t_b_ns: i64, out: &mut Vec<Event>) {
-        let n = self.state.len();
         let dt = t_b_ns.saturating_sub(t_a_ns);
+        if self.noise.shot_rate_hz <= 0.0 || dt <= 0 {
+            return;
+        }
         let width = self.width;
-        let at = |i: usize, t_ns: i64, polarity: i8| Event {
-            t_ns,
-            x: (i % width) as u16,
-            y: (i / width) as u16,
-            polarity,
-        };
-        let mut echoes = std::mem::take(&mut self.noise.echoes);
-        echoes.retain(|&(i, t, p)| {
-            if t < t_b_ns {
-                out.push(at(i, t.max(t_a_ns), p));
-                false
-            } else {
-                true
-            }
-        });
-        self.noise.echoes = echoes;
-        if self.noise.shot_rate_hz <= 0.0 || n == 0 || dt <= 0 {
-            return;
-        }
-        let most = self.noise.shot_max_ratio;
-        let mean = n as f64 * self.noise.shot_rate_hz * dt as f64 * 1e-9 * f64::from(most);
-        let Ok(poisson) = rand_distr::Poisson::new(mean) else {
-            return;
-        };
-        let count = poisson.sample(&mut self.noise.rng) as u64;
-        for _ in 0..count {
-            let i = rand::Rng::random_range(&mut self.noise.rng, 0..n);
-            let light = 1.0 - 0.75 * inten01(self.scaled(frame_b[i]));
-            let rng = &mut self.noise.rng;
-            let on = rand::Rng::random_bool(rng, 0.5);
-            let px = self.state[i];
-            let theta = if on { px.theta_on } else { px.theta_off };
-            let nominal = if on {
-                self.noise.theta_nominal.0
-            } else {
-                self.noise.theta_nominal.1
-            };
-            let keep = light * (nominal / theta) / most;
-            if rand::Rng::random::<f32>(rng) >= keep {
+        // The leak's ramp at `t_b`, as `step_logs` left it.
+        let tau_b = self
+            .noise
+            .ramp_origin_ns
+            .map_or(0.0, |o| (t_b_ns.saturating_sub(o) as f64 * 1e-9) as f32);
+        // Each polarity at half the rate; a bucket's candidates at its largest ratio. First every
+        // candidate's pixel and draws, then their light and thresholds gathered (independent
+        // loads, so their cache misses overlap), then the kept ones' events and references.
+        let per_pixel = 0.5 * self.noise.shot_rate_hz * dt as f64 * 1e-9;
+        let buckets = std::mem::take(&mut self.noise.shot_buckets);
+        let mut c = std::mem::take(&mut self.noise.shot_candidates);
+        c.clear();
+        for (k, b) in buckets.iter().enumerate() {
+            let mean = b.pixels.len() as f64 * per_pixel * f64::from(b.max_ratio);
+            let Ok(poisson) = rand_distr::Poisson::new(mean) else {
                 continue;
+            };
+            let count = poisson.sample(&mut self.noise.rng) as u64;
+            let rng = &mut self.noise.rng;
+            for _ in 0..count {
+                let i = b.pixels[rand::Rng::random_range(&mut *rng, 0..b.pixels.len())];
+                let u: f32 = rand::Rng::random(&mut *rng);
+                let t = t_a_ns + rand::Rng::random_range(&mut *rng, 0..dt);
+                c.push((i, k as u32, u, t));
             }
-            let t = t_a_ns + rand::Rng::random_range(rng, 0..dt);
-            let p = if on { 1 } else { -1 };
-            out.push(at(i, t, p));
-            self.noise.echoes.push((i, t.saturating_add(dt), -p));
         }
+        let (nominal_on, nominal_off) = self.noise.theta_nominal;
+        let keep: Vec<bool> = c
+            .iter()
+            .map(|&(i, k, u, _)| {
+                let i = i as usize;
+                let b = &buckets[k as usize];
+                let px = &self.state[i];
+                let ratio = if b.polarity > 0 {
+                    nominal_on / px.theta_on
+                } else {
+                    nominal_off / px.theta_off
+                };
+                let light = 1.0 - 0.75 * inten01(self.scaled(frame_b[i]));
+                u < light * ratio / b.max_ratio
+            })
+            .collect();
+        for (&(i, k, _, t), _) in c.iter().zip(&keep).filter(|(_, kept)| **kept) {
+            let i = i as usize;
+            out.push(Event {
+                t_ns: t,
+                x: (i % width) as u16,
+                y: (i / width) as u16,
+                polarity: buckets[k as usize].polarity,
+            });
+            let level = if self.noise.log_path() {
+                self.noise.lp[i] + self.noise.leak.get(i).map_or(0.0, |k| k * tau_b)
+            } else {
+                self.log_of(frame_b[i])
+            };
+            self.set_reference(i, f64::from(level));
+        }
+        self.noise.shot_candidates = c;
+        self.noise.shot_buckets = buckets;
     }
 
     /// [`DvsPixels::step`] as the plain loop over every pixel (the oracle): the log of every
@@ -1410,17 +1514,39 @@ mod tests {
     }
 
     #[test]
+    fn a_leak_started_at_the_level_waits_one_cycle_as_v2e_does() {
+        let c = DvsConfig {
+            leak_rate_hz: 50.0,
+            leak_jitter: 0.1,
+            leak_start: LeakStart::Level,
+            ..cfg()
+        };
+        let b = still_events(c, 1.0, 400);
+        // No pixel fires before most of its first cycle (20 ms at 50 Hz, 10% spread), and over
+        // the whole run each still fires at its rate: about 512 x 50 x 0.4 less the first
+        // cycle's share, 512 x 19 or 20 events.
+        assert!(
+            b.t_ns.iter().all(|&t| t > 12_000_000),
+            "{:?}",
+            b.t_ns.iter().min()
+        );
+        let n = b.len() as f64;
+        assert!((9_000.0..=10_500.0).contains(&n), "{n} events");
+        assert!(b.polarity.iter().all(|&p| p == 1));
+    }
+
+    #[test]
     fn shot_noise_is_the_rate_in_the_dark_and_a_quarter_in_full_light() {
         let c = DvsConfig {
             shot_noise_rate_hz: 20.0,
             ..cfg()
         };
-        // Each event and its echo: twice the rate, times 1 - 0.75 i of each pixel's light.
+        // The rate, times 1 - 0.75 i of each pixel's light (no echo: the reference moves instead).
         let want = |light: f64| {
             let frame = scene("", light).render(0, 16, 32);
             frame
                 .iter()
-                .map(|&v| 2.0 * 20.0 * 0.5 * f64::from(1.0 - 0.75 * inten01(v * light as f32)))
+                .map(|&v| 20.0 * 0.5 * f64::from(1.0 - 0.75 * inten01(v * light as f32)))
                 .sum::<f64>()
         };
         for light in [1e-3, 4.0] {
