@@ -297,10 +297,10 @@ mod tests {
         let a = run(&o).expect("noisy");
         let b = run(&o).expect("again");
         assert_eq!(a.on + a.off, b.on + b.off);
-        // 400 pixels x 0.1 s x 5 Hz x (1 - 0.75 x inten01(0.2)): 161 events, each followed by
-        // its echo of the other polarity (the event camera's model, as v2e's): 322.
+        // 400 pixels x 0.1 s x 5 Hz x (1 - 0.75 x inten01(0.2)): 161 events on average (a
+        // Poisson count: standard deviation 13), half of each polarity, as v2e's count.
         let n = a.on + a.off;
-        assert!((240..=420).contains(&n), "{a:?}");
+        assert!((110..=215).contains(&n), "{a:?}");
         assert!(a.on > 0 && a.off > 0);
     }
 
