@@ -17,7 +17,7 @@ use std::time::Instant;
 use eyre::{WrapErr, bail, eyre};
 use ndarray::{ArrayView3, Axis};
 use ndarray_npy::ViewNpyExt;
-use neuspike_event_source::{DvsConfig, DvsPixels, LeakStart, sort_by_time};
+use neuspike_event_source::{DvsConfig, DvsPixels, sort_by_time};
 use neuspike_formats::Resolution;
 use neuspike_formats::text::TextWriter;
 use neuspike_schemas::Event;
@@ -37,40 +37,11 @@ pub struct FramesToEventsOptions {
     /// The light scale the frames are seen at (intensity multiplier before the log).
     #[arg(long, default_value_t = 1.0)]
     pub light_scale: f32,
-    /// ON contrast threshold (v2e `pos_thres`).
-    #[arg(long, default_value_t = 0.2)]
-    pub theta_on: f64,
-    /// OFF contrast threshold (v2e `neg_thres`).
-    #[arg(long, default_value_t = 0.2)]
-    pub theta_off: f64,
-    /// Per-pixel threshold mismatch, relative standard deviation (v2e `sigma_thres` / 0.2).
-    #[arg(long, default_value_t = 0.03)]
-    pub theta_sigma: f64,
-    /// Refractory period, ns (v2e `refractory_period_s`).
-    #[arg(long, default_value_t = 0)]
-    pub refractory_ns: i64,
-    /// Leak events a second (v2e `leak_rate_hz`).
-    #[arg(long, default_value_t = 0.0)]
-    pub leak_rate_hz: f64,
-    /// Relative spread of the leak rate (v2e `leak_jitter_fraction`).
-    #[arg(long, default_value_t = 0.1)]
-    pub leak_jitter: f64,
-    /// Where each pixel starts its leak cycle: `random` (a camera that has been running) or
-    /// `level` (as v2e starts).
-    #[arg(long, value_enum, default_value_t = LeakStart::Random)]
-    pub leak_start: LeakStart,
-    /// Shot-noise events a second in the dark (v2e `shot_noise_rate_hz`).
-    #[arg(long, default_value_t = 0.0)]
-    pub shot_noise_rate_hz: f64,
-    /// Photoreceptor bandwidth in full light, Hz (v2e `cutoff_hz`; 0 = off).
-    #[arg(long, default_value_t = 0.0)]
-    pub cutoff_hz: f64,
-    /// Intensity floor before the log.
-    #[arg(long, default_value_t = 1e-4)]
-    pub log_floor: f64,
-    /// Seed of the mismatch and noise draws.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// The pixel array's settings, as the event source takes them (v2e's names in
+    /// docs/camera.md); the frames give the size, and the rig and sampling settings do not
+    /// apply.
+    #[command(flatten)]
+    pub dvs: DvsConfig,
 }
 
 /// What a run made.
@@ -112,24 +83,23 @@ impl FramesToEventsSummary {
     }
 }
 
-/// The DVS configuration of the options for frames of `width x height`.
-fn config(o: &FramesToEventsOptions, width: usize, height: usize) -> DvsConfig {
-    DvsConfig {
+/// The DVS configuration of the options for frames of `width x height`: the rig and the
+/// sampling (a scene's) are refused by name.
+fn config(o: &FramesToEventsOptions, width: usize, height: usize) -> eyre::Result<DvsConfig> {
+    let d = &o.dvs;
+    let scene_only = [
+        ("--homography", d.homography.is_some()),
+        ("--clock-offset-ns", d.clock_offset_ns != 0),
+        ("--warp-step-ns", d.warp_step_ns != 0),
+    ];
+    if let Some((name, _)) = scene_only.iter().find(|(_, set)| *set) {
+        bail!("frames-to-events: {name} applies to a simulated scene, not to frames");
+    }
+    Ok(DvsConfig {
         width,
         height,
-        theta_on: o.theta_on,
-        theta_off: o.theta_off,
-        theta_sigma: o.theta_sigma,
-        refractory_ns: o.refractory_ns,
-        leak_rate_hz: o.leak_rate_hz,
-        leak_jitter: o.leak_jitter,
-        leak_start: o.leak_start,
-        shot_noise_rate_hz: o.shot_noise_rate_hz,
-        cutoff_hz: o.cutoff_hz,
-        log_floor: o.log_floor,
-        seed: o.seed,
-        ..DvsConfig::default()
-    }
+        ..d.clone()
+    })
 }
 
 /// The frames of a `.npy` file's bytes, checked: float32, three axes, at least two frames, every
@@ -180,7 +150,7 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     drop(bytes);
     let frames = frames_of(&bytemuck::cast_slice::<u32, u8>(&words)[..n], &o.frames)?;
     let (t, h, w) = frames.dim();
-    let cfg = config(o, w, h);
+    let cfg = config(o, w, h)?;
     let contiguous = |k: usize| {
         frames
             .index_axis(Axis(0), k)
@@ -249,17 +219,11 @@ mod tests {
             dt_ns: 1_000_000,
             out: dir.join("events.txt"),
             light_scale: 1.0,
-            theta_on: 0.2,
-            theta_off: 0.2,
-            theta_sigma: 0.0,
-            refractory_ns: 0,
-            leak_rate_hz: 0.0,
-            leak_jitter: 0.1,
-            leak_start: LeakStart::Random,
-            shot_noise_rate_hz: 0.0,
-            cutoff_hz: 0.0,
-            log_floor: 1e-4,
-            seed: 3,
+            dvs: DvsConfig {
+                theta_sigma: 0.0,
+                seed: 3,
+                ..DvsConfig::default()
+            },
         }
     }
 
@@ -293,7 +257,7 @@ mod tests {
         let f = Array3::<f32>::from_elem((101, 20, 20), 0.2);
         let mut o = options(dir.path(), &f);
         assert_eq!(run(&o).expect("clean").on, 0);
-        o.shot_noise_rate_hz = 5.0;
+        o.dvs.shot_noise_rate_hz = 5.0;
         let a = run(&o).expect("noisy");
         let b = run(&o).expect("again");
         assert_eq!(a.on + a.off, b.on + b.off);
@@ -334,10 +298,12 @@ mod tests {
             e.contains("frames.npy") && e.contains("not a float32"),
             "{e}"
         );
-        let o = FramesToEventsOptions {
-            theta_on: -1.0,
-            ..options(dir.path(), &Array3::<f32>::zeros((2, 2, 2)))
-        };
+        let mut o = options(dir.path(), &Array3::<f32>::zeros((2, 2, 2)));
+        o.dvs.theta_on = -1.0;
         assert!(run(&o).expect_err("theta").to_string().contains("theta"));
+        o.dvs.theta_on = 0.2;
+        o.dvs.warp_step_ns = 1_000;
+        let e = run(&o).expect_err("warp").to_string();
+        assert!(e.contains("--warp-step-ns"), "{e}");
     }
 }
