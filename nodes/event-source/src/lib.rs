@@ -342,7 +342,7 @@ struct NoiseState {
     next: Vec<f32>,
     /// The draws of the shot noise.
     rng: ChaCha8Rng,
-    /// The nominal ON and OFF thresholds, and the largest ratio of nominal to a pixel's.
+    /// The nominal ON and OFF thresholds.
     theta_nominal: (f32, f32),
     /// The pixels grouped by polarity and by their ratio of nominal to own threshold (within a
     /// factor `SHOT_BUCKET_SPREAD`), so that each group draws candidates at its own largest
@@ -369,9 +369,9 @@ struct ShotBucket {
     pixels: Vec<u32>,
 }
 
-/// The largest ratio between two pixels' shot-noise rates in one bucket: at most this share of
-/// the candidates is rejected for the threshold (a single bucket at a threshold spread of 25%
-/// rejected 19 of 20).
+/// The largest ratio between two pixels' shot-noise rates in one bucket, so that at most a fifth
+/// of a bucket's candidates are rejected for their threshold (one bucket for the whole array, at
+/// a threshold spread of 25%, rejected 19 of 20).
 const SHOT_BUCKET_SPREAD: f32 = 1.25;
 
 /// The shot-noise buckets of the pixels `state` (see [`ShotBucket`]).
