@@ -116,7 +116,7 @@ pub struct DatasetOptions {
     pub noise: NoiseArgs,
     /// Draw each sample's spike camera at random (domain randomisation, [`CameraDraw`]): each
     /// noise term on or off and its value, the initial charge, the fixed-pattern cap, and the
-    /// light scale within its cell. `--profile` and the overrides are then ignored.
+    /// light scale within its cell. Not with `--profile` or a per-term override.
     #[arg(long)]
     pub randomise_camera: bool,
 }
@@ -125,11 +125,11 @@ pub struct DatasetOptions {
 ///
 /// A share [`CLEAN_SHARE`] of the samples keep the paper's camera (no noise term; the initial
 /// charge and the cap as the default camera has them), so that a network stays as good on clean
-/// spikes. In the others each noise term is on with probability [`TERM_ON`] and then drawn over a
-/// range that spans the paper's model (0) to about twice the `vidar` profile's value, so a
-/// network sees cameras cleaner and noisier than the real one it will meet. The light scale is the cell's times a
-/// log-uniform factor in `[1/1.4, 1.4]`: a threshold `phi` other than 1 changes a pixel's rate as
-/// a light scale does, so this also covers the threshold.
+/// spikes. In the others each noise term is on with probability [`TERM_ON`] and then drawn over
+/// a range that spans the paper's model (0) to about twice the `vidar` profile's value, so a
+/// network sees cameras cleaner and noisier than the real one it will meet. The light scale is
+/// the cell's times a log-uniform factor in `[1/1.4, 1.4]`: a threshold `phi` other than 1
+/// changes a pixel's rate as a light scale does, so this also covers the threshold.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CameraDraw {
     /// The noise terms.
@@ -324,6 +324,41 @@ fn check(opts: &DatasetOptions) -> eyre::Result<()> {
         return bad("shard", "0".into(), "must be at least 1");
     }
     opts.noise.resolve().map_err(|e| eyre!("dataset: {e}"))?;
+    if opts.randomise_camera {
+        let n = &opts.noise;
+        let overrides = [
+            ("profile", (n.profile != "paper").then(|| n.profile.clone())),
+            (
+                "electrons-per-phi",
+                n.electrons_per_phi.map(|v| v.to_string()),
+            ),
+            (
+                "threshold-jitter",
+                n.threshold_jitter.map(|v| v.to_string()),
+            ),
+            (
+                "threshold-offset",
+                n.threshold_offset.map(|v| v.to_string()),
+            ),
+            ("prnu", n.prnu.map(|v| v.to_string())),
+            ("dark-current-hz", n.dark_current_hz.map(|v| v.to_string())),
+            (
+                "dark-current-spread",
+                n.dark_current_spread.map(|v| v.to_string()),
+            ),
+            (
+                "reset-delay-ticks",
+                n.reset_delay_ticks.map(|v| v.to_string()),
+            ),
+        ];
+        if let Some((name, Some(value))) = overrides.into_iter().find(|(_, v)| v.is_some()) {
+            return bad(
+                name,
+                value,
+                "--randomise-camera draws every sample's camera; give one or the other",
+            );
+        }
+    }
     Ok(())
 }
 
@@ -834,8 +869,22 @@ mod tests {
         let plain = opts(Split::Train, PathBuf::from("unused"));
         let random = DatasetOptions {
             randomise_camera: true,
+            noise: profile_only("paper"),
             ..plain.clone()
         };
+        check(&random).expect("random camera, no profile");
+        // With a profile or an override it is refused by name.
+        for (noise, name) in [
+            (profile_only("vidar"), "--profile"),
+            (NoiseArgs::default(), "--electrons-per-phi"),
+        ] {
+            let bad = DatasetOptions {
+                noise,
+                ..random.clone()
+            };
+            let e = check(&bad).expect_err(name).to_string();
+            assert!(e.contains(name) && e.contains("--randomise-camera"), "{e}");
+        }
         let (light, speed) = cell_of(23);
         let a = sample(&random, &[], 23, light, speed).expect("sample");
         assert_eq!(
