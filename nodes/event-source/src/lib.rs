@@ -924,8 +924,9 @@ impl DvsPixels {
             .ramp_origin_ns
             .map_or(0.0, |o| (t_b_ns.saturating_sub(o) as f64 * 1e-9) as f32);
         // Each polarity at half the rate; a bucket's candidates at its largest ratio. First every
-        // candidate's pixel and draws, then their light and thresholds gathered (independent
-        // loads, so their cache misses overlap), then the kept ones' events and references.
+        // candidate's pixel and draws, then those kept for their light and threshold (loads
+        // independent of each other, so their cache misses overlap), then the kept ones' events
+        // and references.
         let per_pixel = 0.5 * self.noise.shot_rate_hz * dt as f64 * 1e-9;
         let buckets = std::mem::take(&mut self.noise.shot_buckets);
         let mut c = std::mem::take(&mut self.noise.shot_candidates);
@@ -945,22 +946,19 @@ impl DvsPixels {
             }
         }
         let (nominal_on, nominal_off) = self.noise.theta_nominal;
-        let keep: Vec<bool> = c
-            .iter()
-            .map(|&(i, k, u, _)| {
-                let i = i as usize;
-                let b = &buckets[k as usize];
-                let px = &self.state[i];
-                let ratio = if b.polarity > 0 {
-                    nominal_on / px.theta_on
-                } else {
-                    nominal_off / px.theta_off
-                };
-                let light = 1.0 - 0.75 * inten01(self.scaled(frame_b[i]));
-                u < light * ratio / b.max_ratio
-            })
-            .collect();
-        for (&(i, k, _, t), _) in c.iter().zip(&keep).filter(|(_, kept)| **kept) {
+        c.retain(|&(i, k, u, _)| {
+            let i = i as usize;
+            let b = &buckets[k as usize];
+            let px = &self.state[i];
+            let ratio = if b.polarity > 0 {
+                nominal_on / px.theta_on
+            } else {
+                nominal_off / px.theta_off
+            };
+            let light = 1.0 - 0.75 * inten01(self.scaled(frame_b[i]));
+            u < light * ratio / b.max_ratio
+        });
+        for &(i, k, _, t) in &c {
             let i = i as usize;
             out.push(Event {
                 t_ns: t,
