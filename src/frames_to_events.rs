@@ -151,14 +151,15 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     let frames = frames_of(&bytemuck::cast_slice::<u32, u8>(&words)[..n], &o.frames)?;
     let (t, h, w) = frames.dim();
     let cfg = config(o, w, h)?;
-    let contiguous = |k: usize| {
-        frames
-            .index_axis(Axis(0), k)
-            .as_standard_layout()
-            .into_owned()
+    // A C-order file's frames are read where they lie; another layout is copied once.
+    let copy = (!frames.is_standard_layout()).then(|| frames.as_standard_layout().into_owned());
+    let all = copy.as_ref().map_or(frames, |a| a.view());
+    let frame = |k: usize| {
+        all.index_axis_move(Axis(0), k)
+            .to_slice()
+            .unwrap_or_default()
     };
-    let first = contiguous(0);
-    let mut pixels = DvsPixels::new(&cfg, o.light_scale, first.as_slice().unwrap_or_default())
+    let mut pixels = DvsPixels::new(&cfg, o.light_scale, frame(0))
         .map_err(|e| eyre!("frames-to-events: {e}"))?;
     let file = std::fs::File::create(&o.out)
         .wrap_err_with(|| format!("cannot create {}", o.out.display()))?;
@@ -176,20 +177,12 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
         wall_s: 0.0,
     };
     let mut events: Vec<Event> = Vec::new();
-    let mut prev = first;
     for k in 1..t {
-        let next = contiguous(k);
         let t_a = (k as i64 - 1).saturating_mul(o.dt_ns);
         let t_b = (k as i64).saturating_mul(o.dt_ns);
         events.clear();
         let start = Instant::now();
-        pixels.step(
-            prev.as_slice().unwrap_or_default(),
-            next.as_slice().unwrap_or_default(),
-            t_a,
-            t_b,
-            &mut events,
-        );
+        pixels.step(frame(k - 1), frame(k), t_a, t_b, &mut events);
         sort_by_time(&mut events);
         summary.wall_s += start.elapsed().as_secs_f64();
         for e in &events {
@@ -200,7 +193,6 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
             }
             writer.write_event(e)?;
         }
-        prev = next;
     }
     writer.finish()?;
     Ok(summary)
@@ -249,6 +241,13 @@ mod tests {
         assert_eq!(rows.len() as u64, s.on);
         assert!(rows.iter().all(|r| r.ends_with(" 0 1 1")), "{rows:?}");
         assert!(s.json().contains(&format!("\"events\": {}", s.on)));
+        // The same frames stored in Fortran order give the same events.
+        let fortran = f.t().as_standard_layout().t().to_owned();
+        assert!(!fortran.is_standard_layout());
+        let o2 = options(dir.path(), &fortran);
+        let s2 = run(&o2).expect("fortran");
+        assert_eq!((s2.on, s2.off, s2.frames), (s.on, s.off, s.frames));
+        assert_eq!(std::fs::read_to_string(&o2.out).expect("events"), text);
     }
 
     #[test]
