@@ -41,7 +41,7 @@ pub use kind::{RepresentationKind, UnknownKind};
 pub use meta::{Meta, MetaExt, Parameter, SchemaError};
 pub use spikes::{SpikeChunk, bytes_per_plane, fired_pixels, pack_planes, unpack_planes_into};
 pub use stream::{SeqStatus, SeqTracker, end_of_stream, end_of_stream_header, is_end_of_stream};
-pub use window::AlignedWindow;
+pub use window::{AlignedWindow, Central};
 
 /// Re-exported so that nodes name the exact Arrow dora uses.
 pub use arrow;

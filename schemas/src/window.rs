@@ -30,6 +30,20 @@ pub struct AlignedWindow {
     pub events: EventBatch,
 }
 
+/// Where a window of fewer planes around the same reference plane lies inside a window
+/// ([`AlignedWindow::central`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Central {
+    /// Its first plane, as an index into the window's planes.
+    pub first: usize,
+    /// The start of its events' span, nanoseconds (one plane period before its first plane).
+    pub t_start_ns: i64,
+    /// The end (exclusive) of its events' span: its last plane's time, nanoseconds.
+    pub t_end_ns: i64,
+    /// Its events, as indices into the window's events.
+    pub events: std::ops::Range<usize>,
+}
+
 impl AlignedWindow {
     /// Sequence number of the window.
     pub fn seq(&self) -> u64 {
@@ -45,41 +59,66 @@ impl AlignedWindow {
     /// planes (`ref - n/2 ..= ref + n - 1 - n/2`, the events of `[t_first - T, t_last)`); `None`
     /// when this window does not hold those planes (or `n` is 0).
     pub fn crop(&self, n: usize) -> Option<AlignedWindow> {
-        let s = &self.spikes;
-        let c = self.ref_index();
-        if n == 0 || c < n / 2 || c + (n - 1 - n / 2) >= s.n_planes {
-            return None;
-        }
-        let first = c - n / 2;
-        let per = bytes_per_plane(s.width, s.height);
-        let bits = s.bits.get(first * per..(first + n) * per)?.to_vec();
-        let t_first = s.plane_time_ns(first);
-        let (t_start, t_end) = (
-            t_first.saturating_sub(s.plane_period_ns),
-            s.plane_time_ns(first + n - 1),
-        );
+        let span = self.central(n)?;
         let ev = &self.events;
-        let lo = ev.t_ns.partition_point(|&t| t < t_start);
-        let hi = ev.t_ns.partition_point(|&t| t < t_end);
+        let r = span.events;
+        let mut out = self.crop_spikes(n)?;
+        out.events.t_ns = ev.t_ns[r.clone()].to_vec();
+        out.events.x = ev.x[r.clone()].to_vec();
+        out.events.y = ev.y[r.clone()].to_vec();
+        out.events.polarity = ev.polarity[r].to_vec();
+        Some(out)
+    }
+
+    /// [`Self::crop`] without the events: the same planes, and an event batch of the same span
+    /// and size that holds none. For what reads spikes alone: copying the events of a busy
+    /// window costs more than the spikes (a million events are 12 MB).
+    pub fn crop_spikes(&self, n: usize) -> Option<AlignedWindow> {
+        let span = self.central(n)?;
+        let s = &self.spikes;
+        let per = bytes_per_plane(s.width, s.height);
+        let first = span.first;
+        let bits = s.bits.get(first * per..(first + n) * per)?.to_vec();
+        let ev = &self.events;
         Some(AlignedWindow {
             t_ref_ns: self.t_ref_ns,
             ref_plane: self.ref_plane,
             spikes: SpikeChunk {
                 first_plane: s.first_plane + first as u64,
                 n_planes: n,
-                t_first_ns: t_first,
+                t_first_ns: s.plane_time_ns(first),
                 bits,
                 ..s.header_only()
             },
-            events: EventBatch {
-                t_start_ns: t_start.max(ev.t_start_ns),
-                t_end_ns: t_end.min(ev.t_end_ns),
-                t_ns: ev.t_ns[lo..hi].to_vec(),
-                x: ev.x[lo..hi].to_vec(),
-                y: ev.y[lo..hi].to_vec(),
-                polarity: ev.polarity[lo..hi].to_vec(),
-                ..EventBatch::empty(ev.width, ev.height, 0, 0, ev.seq)
-            },
+            events: EventBatch::empty(
+                ev.width,
+                ev.height,
+                span.t_start_ns.max(ev.t_start_ns),
+                span.t_end_ns.min(ev.t_end_ns),
+                ev.seq,
+            ),
+        })
+    }
+
+    /// Where [`Self::crop`]'s window of `n` planes lies in this one, without copying anything;
+    /// `None` when this window does not hold those planes (or `n` is 0).
+    pub fn central(&self, n: usize) -> Option<Central> {
+        let s = &self.spikes;
+        let c = self.ref_index();
+        if n == 0 || c < n / 2 || c + (n - 1 - n / 2) >= s.n_planes {
+            return None;
+        }
+        let first = c - n / 2;
+        let t_start_ns = s.plane_time_ns(first).saturating_sub(s.plane_period_ns);
+        let t_end_ns = s.plane_time_ns(first + n - 1);
+        let ev = &self.events.t_ns;
+        let lo = ev.partition_point(|&t| t < t_start_ns);
+        let hi = ev.partition_point(|&t| t < t_end_ns);
+        Some(Central {
+            first,
+            t_start_ns,
+            t_end_ns,
+            events: lo..hi,
         })
     }
 
@@ -300,5 +339,16 @@ mod tests {
         assert_eq!(w.crop(8).expect("whole"), w);
         assert_eq!(w.crop(9), None);
         assert_eq!(w.crop(0), None);
+        // Where it lies, without a copy: planes from index 3, events 3..5 of the window's.
+        let span = w.central(3).expect("fits");
+        assert_eq!((span.first, span.events.clone()), (3, 3..5));
+        assert_eq!((span.t_start_ns, span.t_end_ns), (1_020, 1_050));
+        assert_eq!(w.central(9), None);
+        // Without the events: the same planes and span, no event.
+        let s = w.crop_spikes(3).expect("fits");
+        assert_eq!(s.spikes, c.spikes);
+        assert_eq!((s.events.t_start_ns, s.events.t_end_ns), (1_020, 1_050));
+        assert_eq!((s.events.width, s.events.height, s.events.len()), (8, 1, 0));
+        assert_eq!(w.crop_spikes(0), None);
     }
 }

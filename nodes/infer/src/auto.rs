@@ -2,8 +2,10 @@
 //! `neuspike bench` (`neuspike_policy`). The stage reads align's windows itself and computes only
 //! what the chosen method reads: a window that needs TFP never pays for a network's inputs.
 //!
-//! Per window: the statistics of its 33 central planes ([`neuspike_represent::window_stats`]),
-//! the policy's nearest row, and that row's method. Candidates are TFP over any window, TFI,
+//! Per window: the statistics of its 33 central planes ([`neuspike_represent::central_window_stats`],
+//! read where they lie, the events counted, not copied), the policy's nearest row, and that row's
+//! method; the method reads a crop of the window, with the events copied only for a network that
+//! reads them. Candidates are TFP over any window, TFI,
 //! TFSTP and the networks in `--models`; TFSTP's synapses are fed every window whether chosen or
 //! not, so that it is current when chosen (its cost counts on every window).
 //!
@@ -22,7 +24,7 @@ use std::time::Instant;
 
 use ndarray::{Array2, Axis};
 use neuspike_policy::{MethodName, Policy};
-use neuspike_represent::{RepresentConfig, Representer, window_stats};
+use neuspike_represent::{RepresentConfig, Representer, central_window_stats};
 use neuspike_schemas::{AlignedWindow, RepresentationKind};
 
 use crate::learned::{ConvPath, LearnedModel, LearnedOutput};
@@ -219,13 +221,8 @@ impl Auto {
         if !spikes_only && max_planes.is_none() {
             return Ok(self);
         }
-        let reads_events = |c: &Candidate| match &c.engine {
-            Engine::Net(net) => net
-                .inputs()
-                .iter()
-                .any(|i| !matches!(i.representation(), RepresentationKind::SpikeRepr)),
-            _ => false,
-        };
+        let reads_events =
+            |c: &Candidate| matches!(&c.engine, Engine::Net(net) if net.reads_events());
         self.candidates.retain(|c| {
             !(spikes_only && reads_events(c)) && max_planes.is_none_or(|m| c.planes <= m)
         });
@@ -366,8 +363,7 @@ impl Auto {
                 w.spikes.n_planes
             ),
         };
-        let central = w.crop(STATS_PLANES).ok_or_else(|| short(STATS_PLANES))?;
-        let mut s = window_stats(&central);
+        let mut s = central_window_stats(w, STATS_PLANES).ok_or_else(|| short(STATS_PLANES))?;
         let row = if self.no_events {
             s.event_rate = 0.0;
             self.policy.pooled_class(&s, NO_EVENT_ROWS)
@@ -378,13 +374,18 @@ impl Auto {
         let (i, upkeep) = self.pick(&row, spent);
         let t_upkeep = Instant::now();
         // Feed every TFSTP that is not the choice (its synapses must see every plane), timed:
-        // its estimate follows what the upkeep costs here.
+        // its estimate follows what the upkeep costs here. Spikes alone: events are not copied.
+        let mut central = None;
         for k in 0..self.candidates.len() {
             if upkeep && k != i && matches!(self.candidates[k].engine, Engine::Tfstp) {
                 let t = Instant::now();
+                if central.is_none() {
+                    central = w.crop_spikes(STATS_PLANES);
+                }
+                let central = central.as_ref().ok_or_else(|| short(STATS_PLANES))?;
                 let c = &mut self.candidates[k];
                 c.represent
-                    .represent(RepresentationKind::Stp, &central)
+                    .represent(RepresentationKind::Stp, central)
                     .map_err(|e| window_error(w, e))?;
                 c.update_cost(t.elapsed().as_secs_f64() * 1e3);
             }
@@ -393,11 +394,13 @@ impl Auto {
         let t0 = Instant::now();
         let gain = self.lum_per_rate.or(w.spikes.lum_per_rate);
         let c = &mut self.candidates[i];
-        let win = if c.planes == STATS_PLANES {
-            central
-        } else {
-            w.crop(c.planes).ok_or_else(|| short(c.planes))?
-        };
+        // The window it reads: events copied only for a network that reads them.
+        let win = match (&c.engine, central) {
+            (Engine::Net(net), _) if net.reads_events() => w.crop(c.planes),
+            (_, Some(central)) if c.planes == STATS_PLANES => Some(central),
+            _ => w.crop_spikes(c.planes),
+        }
+        .ok_or_else(|| short(c.planes))?;
         let need_gain = || {
             gain.ok_or_else(|| InferError::Window {
                 seq: w.seq(),

@@ -291,6 +291,11 @@ impl LearnedModel {
         &self.inputs
     }
 
+    /// Whether it reads the events (an event integration input).
+    pub fn reads_events(&self) -> bool {
+        self.inputs.contains(&LearnedInput::Events)
+    }
+
     /// What [`run`](Self::run) returns: a rate or luminance.
     pub fn output(&self) -> LearnedOutput {
         self.output

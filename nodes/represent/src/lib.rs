@@ -49,7 +49,7 @@ pub use spike::{
     spike_representation_packed_into, spike_representation_reference, tfi_into, tfi_reference,
     tfp_into, tfp_packed_into, tfp_packed_into_with, tfp_reference,
 };
-pub use stats::{BLOCK, WindowStats, window_stats, window_stats_reference};
+pub use stats::{BLOCK, WindowStats, central_window_stats, window_stats, window_stats_reference};
 pub use stp::{StpFilter, StpParams};
 pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_reference};
 pub use voxel::{

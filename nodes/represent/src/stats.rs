@@ -15,7 +15,7 @@
 //!   logarithm defined for dark blocks (a block that never fired reads as one spike).
 
 use ndarray::Array2;
-use neuspike_schemas::{AlignedWindow, bytes_per_plane};
+use neuspike_schemas::{AlignedWindow, SpikeChunk, bytes_per_plane};
 
 use crate::tfp_packed_into;
 
@@ -41,8 +41,13 @@ pub struct WindowStats {
 /// Each half's per-pixel counts come from the bit-sliced TFP kernel ([`tfp_packed_into`]: the
 /// rate over `m` planes times `m`, exact in `f32` for `m <= MAX_PLANES`), then summed per block.
 fn block_counts(w: &AlignedWindow) -> Vec<(u64, u64, u64)> {
-    let s = &w.spikes;
-    let (width, height, n) = (s.width, s.height, s.n_planes);
+    block_counts_of(&w.spikes, 0..w.spikes.n_planes)
+}
+
+/// [`block_counts`] of the planes `planes` of `s`.
+fn block_counts_of(s: &SpikeChunk, planes: std::ops::Range<usize>) -> Vec<(u64, u64, u64)> {
+    let (width, height) = (s.width, s.height);
+    let (p0, n) = (planes.start, planes.len());
     let bx = width.div_ceil(BLOCK);
     let by = height.div_ceil(BLOCK);
     let mut out: Vec<(u64, u64, u64)> = (0..by * bx)
@@ -53,9 +58,9 @@ fn block_counts(w: &AlignedWindow) -> Vec<(u64, u64, u64)> {
             (0, 0, (h * wd) as u64)
         })
         .collect();
-    let half = n / 2;
+    let half = p0 + n / 2;
     let mut rate = Array2::<f32>::zeros((height, width));
-    for (range, second) in [(0..half, false), (half..n, true)] {
+    for (range, second) in [(p0..half, false), (half..p0 + n, true)] {
         let m = range.len();
         if m == 0 || width == 0 || height == 0 {
             continue;
@@ -136,6 +141,21 @@ fn stats_from_blocks(
         spread_decades: ((q(0.9) + 1.0) / (q(0.1) + 1.0)).log10(),
         events: events > 0,
     }
+}
+
+/// The statistics of the `n` central planes of `w`, as [`window_stats`] gives them for
+/// `w.crop(n)`, without copying the crop (its events are only counted); `None` when `w` does not
+/// hold `n` planes around its reference plane (or `n` is 0).
+pub fn central_window_stats(w: &AlignedWindow, n: usize) -> Option<WindowStats> {
+    let span = w.central(n)?;
+    let s = &w.spikes;
+    let blocks = block_counts_of(s, span.first..span.first + n);
+    Some(stats_from_blocks(
+        &blocks,
+        (s.width * s.height) as f64,
+        n as f64,
+        span.events.len(),
+    ))
 }
 
 /// The scalar reference of [`window_stats`]: every pixel unpacked and counted one by one.
@@ -222,6 +242,26 @@ mod tests {
             let bits: Vec<u8> = (0..n * per).map(|_| { x ^= x << 13; x ^= x >> 7; x ^= x << 17; x as u8 }).collect();
             let w = window(width, height, n, bits, events);
             prop_assert_eq!(window_stats(&w), window_stats_reference(&w));
+        }
+
+        #[test]
+        fn central_statistics_are_those_of_the_crop(
+            width in 1usize..70, height in 1usize..40, n in 1usize..9, m in 0usize..10,
+            seed in any::<u64>(), events in 0usize..12,
+        ) {
+            let per = bytes_per_plane(width, height);
+            let mut x = seed | 1;
+            let bits: Vec<u8> = (0..n * per).map(|_| { x ^= x << 13; x ^= x >> 7; x ^= x << 17; x as u8 }).collect();
+            let mut w = window(width, height, n, bits, 0);
+            // Events every 30 us from one plane before the first: some in the crop, some not.
+            for i in 0..events {
+                w.events.t_ns.push(i as i64 * 30_000 - 50_000);
+                w.events.x.push(0);
+                w.events.y.push(0);
+                w.events.polarity.push(1);
+            }
+            w.events.t_start_ns = -50_000;
+            prop_assert_eq!(central_window_stats(&w, m), w.crop(m).map(|c| window_stats(&c)));
         }
     }
 
