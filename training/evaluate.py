@@ -1,5 +1,5 @@
 """Scores trained models and the classical baselines on a held-out `neuspike dataset` set, split
-into normal and complex (dark or fast) scenes, with REFERENCE.md's PSNR and SSIM.
+into normal and complex (dark or fast) scenes and by light scale, with REFERENCE.md's PSNR and SSIM.
 
     python training/evaluate.py --test data/test runs/fused-8.pt runs/spike-8.pt --json eval.json
 
@@ -66,6 +66,9 @@ def score(frames: np.ndarray, split: data.Split) -> dict:
     p = np.array([data.psnr(f, t) for f, t in zip(frames, truth)])
     s = np.array([data.ssim(f, t) for f, t in zip(frames, truth)])
     groups = {"all": np.ones(len(split), bool), "normal": ~split.complex, "complex": split.complex}
+    light = np.array([float(r["light"]) for r in split.rows])
+    for v in sorted(set(light)):
+        groups[f"light {v:g}"] = light == v
     return {g: {"psnr": float(p[m].mean()), "ssim": float(s[m].mean()), "n": int(m.sum())} for g, m in groups.items()}
 
 
@@ -89,6 +92,12 @@ def main() -> None:
     for name, r in results.items():
         n, c = r["normal"], r["complex"]
         print(f"| {name} | {n['psnr']:.2f} | {c['psnr']:.2f} | {n['ssim']:.3f} | {c['ssim']:.3f} |")
+    lights = [g for g in next(iter(results.values())) if g.startswith("light ")]
+    print("\nPSNR per light scale:\n")
+    print("| method | " + " | ".join(lights) + " |")
+    print("|---|" + "---|" * len(lights))
+    for name, r in results.items():
+        print(f"| {name} | " + " | ".join(f"{r[g]['psnr']:.2f}" for g in lights) + " |")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
 

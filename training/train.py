@@ -10,6 +10,9 @@ REFERENCE.md's window), `grad` (L1 between image gradients) or `none`. Augmentat
 and quarter turns, the same for every input and the target. Everything is seeded; the step count,
 not the wall clock, ends training, so a run repeats (on a CPU; CUDA kernels are not bit-exact).
 
+`--init FILE` starts from the weights of a checkpoint (`.pt`) or an exported network (`.onnx`, its
+initializers by parameter name) of the same architecture, to fine-tune it (e.g. on larger crops).
+
 `--val DIR` (a set made like the training set with another `--seed`, never the held-out set)
 scores the model every `--val-every` steps and keeps the weights of the best mean PSNR: the
 checkpoint is chosen without looking at the held-out set.
@@ -111,6 +114,38 @@ def validation_psnr(model: NeuSpikeNet, val: data.Split, batch: int = 50) -> flo
     return total / len(val)
 
 
+def initial_weights(path: pathlib.Path, model: NeuSpikeNet) -> dict[str, torch.Tensor]:
+    """The weights of `path` (`.pt` checkpoint or `.onnx` export) for every tensor of `model`'s
+    state; a shape that differs, or a missing tensor, is an error naming it. An export holds only
+    what its forward pass reads (the deepest fusion's spatial attention is never used): a tensor
+    missing from an `.onnx` keeps its initial value, and is named, unless none matched at all."""
+    if path.suffix == ".onnx":
+        import onnx
+        from onnx import numpy_helper
+
+        graph = onnx.load(str(path)).graph
+        found = {i.name: torch.from_numpy(numpy_helper.to_array(i).copy()) for i in graph.initializer}
+    else:
+        found = torch.load(path, map_location="cpu", weights_only=True)["state"]
+    state, kept = {}, []
+    for name, want in model.state_dict().items():
+        got = found.get(name)
+        if got is None and path.suffix == ".onnx":
+            kept.append(name)
+            state[name] = want
+            continue
+        if got is None:
+            raise SystemExit(f"--init {path}: no tensor `{name}` (another architecture?)")
+        if tuple(got.shape) != tuple(want.shape):
+            raise SystemExit(f"--init {path}: `{name}` is {tuple(got.shape)}, the model's {tuple(want.shape)}")
+        state[name] = got.to(want.dtype)
+    if len(kept) == len(state):
+        raise SystemExit(f"--init {path}: none of the model's tensors is there (another architecture?)")
+    if kept:
+        print(f"--init {path}: not in the export (unused by the forward pass), kept as initialised: {', '.join(kept)}")
+    return state
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--train", type=pathlib.Path, required=True)
@@ -137,6 +172,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
     ap.add_argument("--val", type=pathlib.Path, help="validation set: keep the best checkpoint on it")
     ap.add_argument("--val-every", type=int, default=500)
+    ap.add_argument("--init", type=pathlib.Path, help="start from these weights (.pt or .onnx)")
     ap.add_argument("--out", type=pathlib.Path, required=True)
     args = ap.parse_args()
     if args.gated and args.mode != "fused":
@@ -149,6 +185,8 @@ def main() -> None:
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     train = data.load(args.train).to(device)
     model = NeuSpikeNet(base=args.base, channels=train.spike.shape[1], mode=args.mode, gated=args.gated).to(device)
+    if args.init:
+        model.load_state_dict(initial_weights(args.init, model))
     names = model.inputs()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.steps, pct_start=0.05)
@@ -204,6 +242,7 @@ def main() -> None:
         "seed": args.seed,
         "train": str(args.train),
         "train_samples": len(train),
+        **({"init": str(args.init)} if args.init else {}),
         "camera": data.camera_of(args.train),
         "parameters": parameters(model),
         "train_seconds": round(seconds, 1),
