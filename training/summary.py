@@ -27,7 +27,7 @@ def main() -> None:
             c = r["config"]
             l2 = c.get("l2", "mean")
             key = (c["mode"], c["base"], c["aux"], c["steps"], "val" in c, l2, c.get("gated", False),
-                   c.get("camera", "paper"))
+                   c.get("camera", "paper"), c.get("init", ""), c.get("train", ""))
             groups[key].append((name, r))
     order = {"fused": 0, "spike": 1, "event": 2}
     print("| configuration | run | device | PSNR normal | PSNR complex | SSIM normal | SSIM complex |")
@@ -35,11 +35,13 @@ def main() -> None:
     for k in ("tfp", "tfi"):
         print(f"| {k.upper()} (classical) | | | {fmt(ev[k])} |")
     def key(g):
-        mode, base, aux, steps, val, l2, gated, camera = g[0]
-        return order[mode], base, ["ssim", "grad", "none"].index(aux), steps, val, l2, gated, camera
+        mode, base, aux, steps, val, l2, gated, camera, init, _ = g[0]
+        return order[mode], base, ["ssim", "grad", "none"].index(aux), bool(init), steps, val, l2, gated, camera
 
-    for (mode, base, aux, steps, val, l2, gated, camera), runs in sorted(groups.items(), key=key):
+    for (mode, base, aux, steps, val, l2, gated, camera, init, train), runs in sorted(groups.items(), key=key):
         label = f"{mode}, base {base}, aux {aux}, {steps / 1000:g}k steps" + (", best on validation" if val else "")
+        # A fine-tune (`train.py --init`): where its weights started and what it trained on.
+        label += f", fine-tuning `{init}` on `{train}`" if init else ""
         label += ", L2 weighted by 1/MSE" if l2 == "psnr" else ""
         label += ", motion path gated from 0" if gated else ""
         label += {"paper": "", "random": ", cameras drawn at random",
