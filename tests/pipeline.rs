@@ -5,6 +5,7 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
 
 /// One row of the sink's metrics.csv.
@@ -82,7 +83,17 @@ fn graph(name: &str) -> PathBuf {
         .join(name)
 }
 
+/// One whole graph at a time: each is a dozen processes, and ten of them at once on two cores
+/// starve one another.
+static ONE_GRAPH: Mutex<()> = Mutex::new(());
+
+fn one_graph() -> MutexGuard<'static, ()> {
+    // A test that failed while holding it poisons nothing the next one needs.
+    ONE_GRAPH.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn run(name: &str, out: &Path, extra: &[(&str, &str)]) {
+    let _one = one_graph();
     let mut overrides = vec![("sink".to_string(), format!("--out {}", out.display()))];
     overrides.extend(extra.iter().map(|(n, a)| (n.to_string(), a.to_string())));
     let report = neuspike::graph::run(
@@ -445,6 +456,7 @@ fn learned_graph_runs_the_network_and_beats_tfp_in_the_dark() {
 fn a_users_rust_node_takes_infers_place() {
     let out = tempfile::tempdir().expect("tempdir");
     let graph = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/rust-node/graph.yml");
+    let _one = one_graph();
     let report = neuspike::graph::run(
         &graph,
         &[(
