@@ -27,7 +27,9 @@ def main() -> None:
             c = r["config"]
             l2 = c.get("l2", "mean")
             key = (c["mode"], c["base"], c["aux"], c["steps"], "val" in c, l2, c.get("gated", False),
-                   c.get("camera", "paper"), c.get("init", ""), c.get("train", ""))
+                   c.get("camera", "paper"), c.get("init", ""),
+                   # the data matters to the label only for a fine-tune (paths differ by machine)
+                   c.get("train", "") if c.get("init") else "")
             groups[key].append((name, r))
     order = {"fused": 0, "spike": 1, "event": 2}
     print("| configuration | run | device | PSNR normal | PSNR complex | SSIM normal | SSIM complex |")
