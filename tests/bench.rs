@@ -95,8 +95,9 @@ fn a_small_grid_fits_a_policy_that_auto_then_runs_on_held_out_textures_and_runs_
     args.extend(["--methods", "tfp-33,tfp-256,neuspike-fused-8,auto"]);
     bench(&args);
     let r = rows(&held);
-    // 3 methods, auto, and budget mode (the infer node's stage at 5 ms) per class.
-    assert_eq!(r.len(), 2 * 5, "{r:?}");
+    // 3 methods, auto, budget mode (the infer node's stage at 5 ms) and per-region auto per
+    // class.
+    assert_eq!(r.len(), 2 * 6, "{r:?}");
     let get = |class: &str, m: &str| {
         r.iter()
             .find(|x| x.class == class && x.method == m)
@@ -135,6 +136,15 @@ fn a_small_grid_fits_a_policy_that_auto_then_runs_on_held_out_textures_and_runs_
         "{dark:?} {cheap:?}"
     );
 
+    // Per region: the still scene's tiles keep their pixels after the first frame, as good as
+    // auto's; the dark fast one's take the network, far above the cheap method.
+    let still = get("light1-speed0", "auto-regions");
+    assert!(still.label.contains("reused x"), "{}", still.label);
+    assert!(still.psnr > bright.psnr - 0.5, "{still:?} {bright:?}");
+    let fast = get("light0.05-speed8000", "auto-regions");
+    assert!(fast.label.contains("neuspike-"), "{}", fast.label);
+    assert!(fast.psnr > cheap.psnr + 5.0, "{fast:?} {cheap:?}");
+
     // Budget mode: no network fits 5 ms, and the frames keep to it.
     for class in ["light1-speed0", "light0.05-speed8000"] {
         let b = get(class, "auto-5ms");
@@ -143,14 +153,15 @@ fn a_small_grid_fits_a_policy_that_auto_then_runs_on_held_out_textures_and_runs_
     }
     // Run again: everything is there, nothing is measured twice.
     let out = bench(&args);
-    assert!(out.contains("10 rows (0 new,"), "{out}");
-    assert_eq!(rows(&held).len(), 10);
+    assert!(out.contains("12 rows (0 new,"), "{out}");
+    assert_eq!(rows(&held).len(), 12);
     let md = std::fs::read_to_string(held.join("summary.md")).expect("summary");
     for want in [
         "Which method for which scene",
         "Pareto front",
         "auto: the method each window needs",
         "of the oracle",
+        "Per region (`auto-regions`",
     ] {
         assert!(md.contains(want), "summary lacks {want:?}:\n{md}");
     }

@@ -503,12 +503,16 @@ fn the_auto_graph_chooses_per_window_and_keeps_a_budget() {
     assert_eq!(n, 37, "{rows:?}");
     let md = std::fs::read_to_string(out.path().join("summary.md")).expect("summary");
     assert!(md.contains("| auto | 37 | 37 | 37 | 0 | yes |"), "{md}");
+    // dark-slow moves at 100 px/s, below the grid's slowest motion: the policy's dark classes
+    // up to 300 px/s take TFSTP (or, where its rows say faster, a network).
     assert!(
-        md.contains("`auto`: the methods chosen") && md.contains("| neuspike-"),
+        md.contains("`auto`: the methods chosen")
+            && (md.contains("| tfstp |") || md.contains("| neuspike-")),
         "{md}"
     );
     assert!(md.contains("saved"), "{md}");
-    // TFP over 33 planes scores about 12.7 dB on this scene (README); a network far more.
+    // TFP over 33 planes scores about 12.7 dB on this scene (README); TFSTP and the networks
+    // far more.
     assert!(psnr["auto"] > 22.0, "{psnr:?}");
 
     let budget = tempfile::tempdir().expect("tempdir");
@@ -519,4 +523,16 @@ fn the_auto_graph_chooses_per_window_and_keeps_a_budget() {
     assert!(md.contains("| auto | 37 | 37 | 37 | 0 | yes |"), "{md}");
     assert!(!md.contains("| neuspike-"), "a network in 5 ms? {md}");
     assert!(md.contains("Budget 5.000 ms a frame:"), "{md}");
+
+    // Per region: every frame still comes, each tile's method in the `chosen` key.
+    let regions = tempfile::tempdir().expect("tempdir");
+    let mut extra = scene.to_vec();
+    extra.push(("infer-auto", "--regions 80x50"));
+    run("auto.yml", regions.path(), &extra);
+    let rows = read_metrics(regions.path());
+    let (n, psnr, _) = per_method_means(&rows);
+    assert_eq!(n, 37, "{rows:?}");
+    assert!(psnr["auto"] > 22.0, "{psnr:?}");
+    let md = std::fs::read_to_string(regions.path().join("summary.md")).expect("summary");
+    assert!(md.contains("`auto`: the methods chosen"), "{md}");
 }

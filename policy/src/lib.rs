@@ -12,12 +12,16 @@
 //! | feature | from | edge |
 //! |---|---|---|
 //! | `log10(rate + 1e-4)` | spikes per pixel per plane | no spikes reads as `-4` |
-//! | `log10(event_rate + 1e-6)` | events per pixel per plane | no events reads as `-6` |
+//! | `log10((event_rate + 1e-6) / (edge + 0.01))` | motion: events per unit of texture | no events reads as `-6 - log10(edge + 0.01)` |
 //! | `change` | change between the window's halves | in [0, 1] |
 //! | `spread_decades` | dynamic range | `>= 0` |
+//! | `log10(edge + 0.01)` | texture ([`WindowStats::edge`]) | a flat view reads as `-2` |
 //!
-//! each divided by its `scale` (the file holds it; [`DEFAULT_SCALE`]: a factor of 2 in light or
-//! in event rate, or 0.3 decades of spread, is one unit; `change`, which Poisson noise dominates,
+//! (a moving scene's events grow with its speed and with how much texture it holds: the second
+//! feature divides the texture out, so a flat scene moving fast is told from a busy one moving
+//! slowly; the `0.01` floor keeps a flat view from reading as infinitely fast)
+//! each divided by its `scale` (the file holds it; [`DEFAULT_SCALE`]: a factor of 2 in light,
+//! in motion or in texture, or 0.3 decades of spread, is one unit; `change`, which Poisson noise dominates,
 //! weighs little). Rows per recording rather than per class let the table cover how textures
 //! move the statistics. The file is YAML with a format version and its provenance (command,
 //! data, date); loading checks it whole, and that every method it chooses is installed.
@@ -28,13 +32,16 @@ use neuspike_represent::WindowStats;
 use serde::{Deserialize, Serialize};
 
 /// The format version this crate reads and writes.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// Largest policy file read, bytes: a table of a few hundred rows is well under this.
 pub const MAX_FILE_BYTES: u64 = 4 << 20;
 
 /// The features' default scales (see the crate's documentation).
-pub const DEFAULT_SCALE: [f64; 4] = [0.3, 0.3, 1.0, 0.3];
+pub const DEFAULT_SCALE: [f64; FEATURES] = [0.3, 0.3, 1.0, 0.3, 0.3];
+
+/// How many features a window has.
+pub const FEATURES: usize = 5;
 
 /// The default number of rows that vote.
 pub const DEFAULT_NEIGHBOURS: usize = 3;
@@ -89,6 +96,8 @@ pub struct Row {
     pub change: f64,
     /// Mean spread, decades.
     pub spread_decades: f64,
+    /// Mean texture ([`WindowStats::edge`]).
+    pub edge: f64,
 }
 
 /// A scene class of the training grid, and its method.
@@ -132,7 +141,7 @@ pub struct Policy {
     /// frame (0: the most accurate method, whatever it costs).
     pub db_per_ms: f64,
     /// The features' scales: a difference of one scale counts as one unit of distance.
-    pub scale: [f64; 4],
+    pub scale: [f64; FEATURES],
     /// How many nearest rows vote.
     pub neighbours: usize,
     /// The classes and their methods.
@@ -142,20 +151,39 @@ pub struct Policy {
 }
 
 /// The features of a window (or of a row's means), unscaled.
-pub fn features(rate: f64, event_rate: f64, change: f64, spread_decades: f64) -> [f64; 4] {
+pub fn features(
+    rate: f64,
+    event_rate: f64,
+    change: f64,
+    spread_decades: f64,
+    edge: f64,
+) -> [f64; FEATURES] {
     // Negative or NaN inputs read as 0: log10 of the floor is the edge.
     let pos = |v: f64| if v.is_finite() && v > 0.0 { v } else { 0.0 };
+    let texture = (pos(edge) + 0.01).log10();
     [
         (pos(rate) + 1e-4).log10(),
-        (pos(event_rate) + 1e-6).log10(),
+        (pos(event_rate) + 1e-6).log10() - texture,
         pos(change),
         pos(spread_decades),
+        texture,
     ]
 }
 
+/// [`features`] of a window's statistics.
+pub fn window_features(s: &WindowStats) -> [f64; FEATURES] {
+    features(s.rate, s.event_rate, s.change, s.spread_decades, s.edge)
+}
+
 impl Row {
-    fn features(&self) -> [f64; 4] {
-        features(self.rate, self.event_rate, self.change, self.spread_decades)
+    fn features(&self) -> [f64; FEATURES] {
+        features(
+            self.rate,
+            self.event_rate,
+            self.change,
+            self.spread_decades,
+            self.edge,
+        )
     }
 }
 
@@ -272,6 +300,7 @@ impl Policy {
                 ("event_rate", r.event_rate),
                 ("change", r.change),
                 ("spread_decades", r.spread_decades),
+                ("edge", r.edge),
             ] {
                 if !(v.is_finite() && v >= 0.0) {
                     return Err(format!(
@@ -368,7 +397,7 @@ impl Policy {
 
     /// The rows nearest to a window's statistics, nearest first (at most `neighbours`).
     fn nearest_rows(&self, s: &WindowStats) -> Vec<(f64, &Row)> {
-        let f = features(s.rate, s.event_rate, s.change, s.spread_decades);
+        let f = window_features(s);
         let mut d: Vec<(f64, &Row)> = self
             .rows
             .iter()
@@ -568,6 +597,7 @@ mod tests {
             event_rate,
             change: 0.1,
             spread_decades: 0.2,
+            edge: 0.05,
         }
     }
 
@@ -738,7 +768,13 @@ mod tests {
         );
         let text = std::fs::read_to_string(&path).expect("read");
         for (bad, want) in [
-            (text.replace("version: 1", "version: 9"), "version 9"),
+            (text.replace("version: 2", "version: 9"), "version 9"),
+            // A policy of the earlier format (four features): fit again.
+            (
+                text.replace("version: 2", "version: 1"),
+                "fit the policy again",
+            ),
+            (text.replace("edge: 0.05", "edge: -1.0"), "edge = -1"),
             (
                 text.replace("db_per_ms: 0.04", "db_per_ms: -1.0"),
                 "db_per_ms = -1",
@@ -790,7 +826,45 @@ mod tests {
         assert_eq!(best_value(&c, 0.0).map(|x| x.0.as_str()), Some("a"));
         assert_eq!(best_value(&c, 10.0).map(|x| x.0.as_str()), Some("c"));
         assert_eq!(best_value(&c[3..], 0.5), None);
-        let f = features(0.0, f64::NAN, -1.0, f64::INFINITY);
-        assert_eq!(f, [-4.0, -6.0, 0.0, 0.0]);
+        // No spikes, no events, no texture: each feature at its floor.
+        let f = features(0.0, f64::NAN, -1.0, f64::INFINITY, f64::NAN);
+        assert_eq!(f, [-4.0, -4.0, 0.0, 0.0, -2.0]);
+    }
+
+    #[test]
+    fn motion_divides_the_texture_out() {
+        // A flat scene moving fast and a busy one moving slowly fire the same events; the
+        // motion feature tells them apart, and a busy scene with as many events per unit of
+        // texture (the edge plus its floor: 0.21 against 0.03) reads as moving at the same speed.
+        let flat_fast = features(0.2, 0.01, 0.03, 0.1, 0.02);
+        let busy_slow = features(0.2, 0.01, 0.03, 0.1, 0.2);
+        assert!(
+            flat_fast[1] - busy_slow[1] > 0.8,
+            "{flat_fast:?} {busy_slow:?}"
+        );
+        let busy_fast = features(0.2, 0.07, 0.03, 0.1, 0.2);
+        assert!((busy_fast[1] - flat_fast[1]).abs() < 0.01, "{busy_fast:?}");
+        // The nearest row follows the motion, not the raw event rate.
+        let mut p = policy();
+        p.neighbours = 1;
+        p.rows = vec![
+            Row {
+                edge: 0.02,
+                ..row("bright static", 0.2, 0.0005)
+            },
+            Row {
+                edge: 0.02,
+                ..row("dark fast", 0.2, 0.01)
+            },
+        ];
+        let busy = WindowStats {
+            rate: 0.2,
+            event_rate: 0.01,
+            change: 0.1,
+            spread_decades: 0.2,
+            events: true,
+            edge: 0.4,
+        };
+        assert_eq!(p.nearest_class(&busy).class, "bright static");
     }
 }

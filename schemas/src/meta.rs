@@ -54,7 +54,8 @@ pub const CHANNELS: &str = "channels";
 pub const METHOD: &str = "method";
 /// Wall-clock compute time of a frame, in nanoseconds.
 pub const COMPUTE_NS: &str = "compute_ns";
-/// Frame (optional): the method `auto` chose.
+/// Frame (optional): the method `auto` chose (choosing per region: its tiles' methods joined by
+/// `+`, most tiles first, `reused` for tiles that kept the last frame's pixels).
 pub const CHOSEN: &str = "chosen";
 /// Frame (optional): `auto`'s budget per frame, nanoseconds.
 pub const BUDGET_NS: &str = "budget_ns";

@@ -100,6 +100,76 @@ impl AlignedWindow {
         })
     }
 
+    /// The part of the window over the rectangle `x0..x0 + width`, `y0..y0 + height` of the
+    /// spike grid, every plane: the spikes repacked at that size, and (with `events`) the events
+    /// that fall in it, shifted by `(-x0, -y0)` (without, an empty batch of the same span). The
+    /// event batch takes the rectangle's size when the window has events of the grid's size (0x0
+    /// stays 0x0). `None` when the rectangle is empty or does not lie in the grid.
+    pub fn region(
+        &self,
+        x0: usize,
+        y0: usize,
+        width: usize,
+        height: usize,
+        events: bool,
+    ) -> Option<AlignedWindow> {
+        let s = &self.spikes;
+        if width == 0
+            || height == 0
+            || x0.checked_add(width)? > s.width
+            || y0.checked_add(height)? > s.height
+        {
+            return None;
+        }
+        let per = bytes_per_plane(s.width, s.height);
+        let per_out = bytes_per_plane(width, height);
+        if s.bits.len() < s.n_planes * per {
+            return None;
+        }
+        let mut bits = vec![0u8; s.n_planes * per_out];
+        for p in 0..s.n_planes {
+            let src = &s.bits[p * per..(p + 1) * per];
+            let dst = &mut bits[p * per_out..(p + 1) * per_out];
+            for y in 0..height {
+                copy_bits(src, (y0 + y) * s.width + x0, dst, y * width, width);
+            }
+        }
+        let ev = &self.events;
+        let sized = |n: usize| if ev.width == 0 { 0 } else { n };
+        let mut out_ev = EventBatch::empty(
+            sized(width),
+            sized(height),
+            ev.t_start_ns,
+            ev.t_end_ns,
+            ev.seq,
+        );
+        if events {
+            let (xr, yr) = (x0..x0 + width, y0..y0 + height);
+            for i in 0..ev.t_ns.len() {
+                let (x, y) = (usize::from(ev.x[i]), usize::from(ev.y[i]));
+                if xr.contains(&x) && yr.contains(&y) {
+                    out_ev.t_ns.push(ev.t_ns[i]);
+                    // Inside a rectangle of the grid: below the grid's size, which fits in u16
+                    // as the events' own coordinates did.
+                    out_ev.x.push((x - x0) as u16);
+                    out_ev.y.push((y - y0) as u16);
+                    out_ev.polarity.push(ev.polarity[i]);
+                }
+            }
+        }
+        Some(AlignedWindow {
+            t_ref_ns: self.t_ref_ns,
+            ref_plane: self.ref_plane,
+            spikes: SpikeChunk {
+                width,
+                height,
+                bits,
+                ..s.header_only()
+            },
+            events: out_ev,
+        })
+    }
+
     /// Where [`Self::crop`]'s window of `n` planes lies in this one, without copying anything;
     /// `None` when this window does not hold those planes (or `n` is 0).
     pub fn central(&self, n: usize) -> Option<Central> {
@@ -135,6 +205,23 @@ impl AlignedWindow {
                 false,
             ),
         ])
+    }
+}
+
+/// Copies `n` bits from bit `from` of `src` to bit `to` of `dst` (bit `k` is bit `k % 8` of
+/// byte `k / 8`, as the planes are packed); whole bytes at once where both offsets are
+/// byte-aligned.
+fn copy_bits(src: &[u8], from: usize, dst: &mut [u8], to: usize, n: usize) {
+    let mut k = 0;
+    if from.is_multiple_of(8) && to.is_multiple_of(8) {
+        let bytes = n / 8;
+        dst[to / 8..to / 8 + bytes].copy_from_slice(&src[from / 8..from / 8 + bytes]);
+        k = bytes * 8;
+    }
+    for k in k..n {
+        let (a, b) = (from + k, to + k);
+        let bit = (src[a / 8] >> (a % 8)) & 1;
+        dst[b / 8] = (dst[b / 8] & !(1 << (b % 8))) | (bit << (b % 8));
     }
 }
 
@@ -350,5 +437,62 @@ mod tests {
         assert_eq!((s.events.t_start_ns, s.events.t_end_ns), (1_020, 1_050));
         assert_eq!((s.events.width, s.events.height, s.events.len()), (8, 1, 0));
         assert_eq!(w.crop_spikes(0), None);
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn a_region_holds_the_pixels_and_events_that_fall_in_it(
+            width in 1usize..40, height in 1usize..12, n in 1usize..4, seed in proptest::prelude::any::<u64>(),
+            x0 in 0usize..40, y0 in 0usize..12, rw in 1usize..40, rh in 1usize..12,
+        ) {
+            let per = bytes_per_plane(width, height);
+            let mut r = seed | 1;
+            let mut next = || { r ^= r << 13; r ^= r >> 7; r ^= r << 17; r };
+            let bits: Vec<u8> = (0..n * per).map(|_| next() as u8).collect();
+            let mut events = EventBatch::empty(width, height, 0, 1_000, 3);
+            for i in 0..20 {
+                events.push(Event {
+                    t_ns: i * 10,
+                    x: (next() % width as u64) as u16,
+                    y: (next() % height as u64) as u16,
+                    polarity: if next() % 2 == 0 { 1 } else { -1 },
+                });
+            }
+            let w = AlignedWindow {
+                t_ref_ns: 0,
+                ref_plane: 0,
+                spikes: SpikeChunk {
+                    width, height, first_plane: 0, n_planes: n, t_first_ns: 0,
+                    plane_period_ns: 50, seq: 3, bits, lum_per_rate: None,
+                },
+                events,
+            };
+            let got = w.region(x0, y0, rw, rh, true);
+            proptest::prop_assert_eq!(got.is_some(), x0 + rw <= width && y0 + rh <= height);
+            let Some(got) = got else { return Ok(()) };
+            let bit = |b: &[u8], k: usize| (b[k / 8] >> (k % 8)) & 1;
+            let per_out = bytes_per_plane(rw, rh);
+            for p in 0..n {
+                for y in 0..rh {
+                    for x in 0..rw {
+                        proptest::prop_assert_eq!(
+                            bit(&got.spikes.bits[p * per_out..], y * rw + x),
+                            bit(&w.spikes.bits[p * per..], (y0 + y) * width + x0 + x)
+                        );
+                    }
+                }
+            }
+            let inside: Vec<(i64, u16, u16, i8)> = (0..w.events.len())
+                .filter(|&i| (x0..x0 + rw).contains(&usize::from(w.events.x[i]))
+                    && (y0..y0 + rh).contains(&usize::from(w.events.y[i])))
+                .map(|i| (w.events.t_ns[i], w.events.x[i] - x0 as u16, w.events.y[i] - y0 as u16, w.events.polarity[i]))
+                .collect();
+            let kept: Vec<(i64, u16, u16, i8)> = (0..got.events.len())
+                .map(|i| (got.events.t_ns[i], got.events.x[i], got.events.y[i], got.events.polarity[i]))
+                .collect();
+            proptest::prop_assert_eq!(kept, inside);
+            proptest::prop_assert_eq!((got.events.width, got.events.height), (rw, rh));
+            proptest::prop_assert_eq!(w.region(x0, y0, rw, rh, false).map(|r| r.events.len()), Some(0));
+        }
     }
 }

@@ -25,8 +25,16 @@ pub const NAME: &str = "auto";
 /// Whether a row's method is `auto` or budget mode (`auto-<X>ms`): not a method of its own, so
 /// left out of the oracle, the choices and the fit.
 pub fn is_auto(method: &str) -> bool {
-    method == NAME || (method.starts_with("auto-") && method.ends_with("ms"))
+    method == NAME
+        || method == REGIONS_NAME
+        || (method.starts_with("auto-") && method.ends_with("ms"))
 }
+
+/// The name of per-region `auto`'s rows.
+pub const REGIONS_NAME: &str = "auto-regions";
+
+/// The tiles per-region `auto` cuts the 400x250 grid into (5 x 5).
+pub const REGIONS_TILE: (usize, usize) = (80, 50);
 
 /// The default policy file, under the models folder.
 pub const DEFAULT_POLICY: &str = "policy.yml";
@@ -152,16 +160,32 @@ pub fn budget_name(budget_ms: f64) -> String {
 }
 
 /// Budget mode on one recording, run by the infer node's own stage ([`neuspike_infer::auto`])
-/// on one thread, as a node runs it: 256-plane windows every 20 planes from plane 140 (the first
-/// a 256-plane window fits), the scored ones kept. Its cost is the stage's own measure of each
-/// scored frame (statistics, upkeep, representation, reconstruction); a frame is late when that
-/// exceeds the budget (`exact` counts nothing here; `windows` is the scored frames).
+/// on one thread, as a node runs it ([`stage_row`]); a frame is late when its cost exceeds the
+/// budget.
 ///
 /// # Errors
 /// The stage refused a window.
 pub fn budget_row(
     stage: &mut neuspike_infer::auto::Auto,
     budget_ms: f64,
+    rec: &Recording,
+    template: &Row,
+) -> eyre::Result<(Row, usize)> {
+    stage_row(stage, &budget_name(budget_ms), rec, template)
+}
+
+/// A row of the infer node's own `auto` stage on one recording, on one thread, as a node runs
+/// it: 256-plane windows every 20 planes from plane 140 (the first a 256-plane window fits), the
+/// scored ones kept. Its cost is the stage's own measure of each scored frame (statistics,
+/// upkeep, representation, reconstruction); its label gives the frames per choice (per region:
+/// the tiles per method) and the frames late (`exact` counts nothing here; `windows` is the
+/// scored frames).
+///
+/// # Errors
+/// The stage refused a window.
+pub fn stage_row(
+    stage: &mut neuspike_infer::auto::Auto,
+    name: &str,
     rec: &Recording,
     template: &Row,
 ) -> eyre::Result<(Row, usize)> {
@@ -185,7 +209,13 @@ pub fn budget_row(
                 .map_err(|e| eyre!("auto: window at plane {c}: {e}"))?;
             if rec.scored.contains(&c) {
                 ms.push(f.compute_ns as f64 / 1e6);
-                *mix.entry(f.method).or_default() += 1;
+                if f.regions.is_empty() {
+                    *mix.entry(f.method).or_default() += 1;
+                } else {
+                    for (m, n) in f.regions {
+                        *mix.entry(m).or_default() += n;
+                    }
+                }
                 late += usize::from(f.late);
                 frames.push(f.data);
             }
@@ -194,7 +224,7 @@ pub fn budget_row(
         Ok((frames, ms, mix, late))
     })?;
     let mut row = Row {
-        method: budget_name(budget_ms),
+        method: name.to_string(),
         p50_1t_ms: table::percentile(&ms, 50.0),
         p99_1t_ms: table::percentile(&ms, 99.0),
         windows: ms.len(),
@@ -318,6 +348,7 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
                 event_rate: round6(r.event_rate),
                 change: round6(r.change),
                 spread_decades: round6(r.spread_decades),
+                edge: round6(r.edge),
             });
         }
     }
@@ -376,6 +407,7 @@ pub fn summary(md: &mut String, rows: &[Row], policy: Option<&Policy>) {
         ))
     );
     let (mut a, mut o, mut f, mut ac, mut fc) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut per_region: Vec<RegionCompare> = Vec::new();
     for (class, methods) in table::by(&scored, |r| r.class.clone()) {
         let per: Vec<(String, table::Summary)> = methods
             .iter()
@@ -413,6 +445,9 @@ pub fn summary(md: &mut String, rows: &[Row], policy: Option<&Policy>) {
             table::fmt(fused.p50_1t_ms, 2),
             chosen.join("; ")
         );
+        if let Some(r) = get(REGIONS_NAME) {
+            per_region.push((class.clone(), auto.clone(), r, oracle.psnr));
+        }
         a.push(auto.psnr);
         o.push(oracle.psnr);
         f.push(fused.psnr);
@@ -463,5 +498,79 @@ pub fn summary(md: &mut String, rows: &[Row], policy: Option<&Policy>) {
         mac,
         100.0 * mac / mfc,
         mfc
+    );
+    regions_summary(md, rows, &per_region);
+}
+
+/// Per-region auto against auto: over the grid, and the classes where it gains and loses most.
+/// A class's auto and per-region auto, and its oracle's PSNR.
+type RegionCompare = (String, table::Summary, table::Summary, f64);
+
+fn regions_summary(md: &mut String, rows: &[Row], per_region: &[RegionCompare]) {
+    if per_region.is_empty() {
+        return;
+    }
+    let mean = |f: &dyn Fn(&RegionCompare) -> f64| table::mean(per_region.iter().map(f));
+    let (pa, pr, po) = (mean(&|c| c.1.psnr), mean(&|c| c.2.psnr), mean(&|c| c.3));
+    let (ca, cr) = (mean(&|c| c.1.p50_1t_ms), mean(&|c| c.2.p50_1t_ms));
+    // Tiles per method over every recording, from the rows' labels (`m xN`).
+    let mut tiles: BTreeMap<String, usize> = BTreeMap::new();
+    for r in rows
+        .iter()
+        .filter(|r| r.method == REGIONS_NAME && r.set != "real")
+    {
+        let inside = r.label.split_once(" [").map_or("", |x| x.1);
+        let words: Vec<&str> = inside.trim_end_matches(']').split_whitespace().collect();
+        for pair in words.windows(2) {
+            if let Some(n) = pair[1]
+                .strip_prefix('x')
+                .and_then(|n| n.parse::<usize>().ok())
+                && pair[0] != "late"
+            {
+                *tiles.entry(pair[0].to_string()).or_default() += n;
+            }
+        }
+    }
+    let total: usize = tiles.values().sum();
+    let mut shares: Vec<(String, usize)> = tiles.into_iter().collect();
+    shares.sort_by_key(|s| std::cmp::Reverse(s.1));
+    let shares: Vec<String> = shares
+        .iter()
+        .map(|(m, n)| format!("{m} {:.1}%", 100.0 * *n as f64 / total.max(1) as f64))
+        .collect();
+    let mut by_gain: Vec<(f64, &str, f64, f64)> = per_region
+        .iter()
+        .map(|c| {
+            (
+                c.2.psnr - c.1.psnr,
+                c.0.as_str(),
+                c.1.p50_1t_ms,
+                c.2.p50_1t_ms,
+            )
+        })
+        .filter(|c| c.0.is_finite())
+        .collect();
+    by_gain.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let show = |c: &[(f64, &str, f64, f64)]| {
+        c.iter()
+            .map(|(g, n, ma, mr)| format!("{n} {g:+.2} dB ({ma:.1} -> {mr:.1} ms)"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let k = by_gain.len().min(3);
+    let _ = writeln!(
+        md,
+        "Per region (`{REGIONS_NAME}`: the infer node's stage with `--regions {}x{}`, one thread, \
+         its own measure of each frame): {pr:.2} dB, {:.1}% of the oracle (auto {pa:.2} dB, \
+         {:.1}%), at {cr:.2} ms a frame against auto's {ca:.2} ms ({:.2}x). Tiles: {}. Most \
+         gained: {}; most lost: {}.\n",
+        REGIONS_TILE.0,
+        REGIONS_TILE.1,
+        100.0 * pr / po,
+        100.0 * pa / po,
+        cr / ca,
+        shares.join(", "),
+        show(&by_gain[..k]),
+        show(&by_gain[by_gain.len() - k..]),
     );
 }

@@ -197,7 +197,11 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
     } else {
         let mut methods = run::methods(&opts.models)?;
         let installed = methods.clone();
-        let wants_auto = opts.methods.is_empty() || opts.methods.iter().any(|m| m == auto::NAME);
+        let wants_auto = opts.methods.is_empty()
+            || opts
+                .methods
+                .iter()
+                .any(|m| m == auto::NAME || m == auto::REGIONS_NAME);
         let loaded = if wants_auto {
             auto::policy(opts, &methods)?
         } else {
@@ -220,11 +224,29 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             None => None,
         };
         let budget_name = auto::budget_name(opts.budget_ms);
+        // Per-region auto: the same stage, choosing per tile.
+        let mut regions = match &loaded {
+            Some((path, _)) => Some(
+                neuspike_infer::auto::Auto::new(
+                    path,
+                    &opts.models,
+                    None,
+                    None,
+                    neuspike_infer::learned::ConvPath::Auto,
+                )
+                .and_then(|a| a.with_regions(auto::REGIONS_TILE.0, auto::REGIONS_TILE.1))
+                .map_err(|e| eyre!("--policy: {e}"))?,
+            ),
+            None => None,
+        };
         if !opts.methods.is_empty() {
             for m in &opts.methods {
-                if m != auto::NAME && !methods.iter().any(|s| s.name == *m) {
+                if m != auto::NAME
+                    && m != auto::REGIONS_NAME
+                    && !methods.iter().any(|s| s.name == *m)
+                {
                     return Err(eyre!(
-                        "--methods {m}: no such method (there are {}, and auto)",
+                        "--methods {m}: no such method (there are {}, auto and auto-regions)",
                         methods
                             .iter()
                             .map(|s| s.name.as_str())
@@ -290,7 +312,14 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
                 && !have.contains(&(set.clone(), class.name.clone(), *t, auto::NAME.to_string()));
             let budget_missing = stage.is_some()
                 && !have.contains(&(set.clone(), class.name.clone(), *t, budget_name.clone()));
-            if todo.is_empty() && !auto_missing && !budget_missing {
+            let regions_missing = regions.is_some()
+                && !have.contains(&(
+                    set.clone(),
+                    class.name.clone(),
+                    *t,
+                    auto::REGIONS_NAME.to_string(),
+                ));
+            if todo.is_empty() && !auto_missing && !budget_missing && !regions_missing {
                 continue;
             }
             if let Some(b) = &bar {
@@ -352,6 +381,19 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
                     b.set_message(format!("{} texture {t}: {budget_name}", class.name));
                 }
                 let (row, _) = auto::budget_row(s, opts.budget_ms, &rec, &template)
+                    .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
+                write_row(&mut csv, &csv_path, &row)?;
+                rows.push(row);
+            }
+            if let (true, Some(s)) = (regions_missing, regions.as_mut()) {
+                if let Some(b) = &bar {
+                    b.set_message(format!(
+                        "{} texture {t}: {}",
+                        class.name,
+                        auto::REGIONS_NAME
+                    ));
+                }
+                let (row, _) = auto::stage_row(s, auto::REGIONS_NAME, &rec, &template)
                     .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
                 write_row(&mut csv, &csv_path, &row)?;
                 rows.push(row);
@@ -467,6 +509,7 @@ fn empty_row() -> Row {
         event_rate: f64::NAN,
         change: f64::NAN,
         spread_decades: f64::NAN,
+        edge: f64::NAN,
     }
 }
 
@@ -479,6 +522,7 @@ fn with_stats(mut row: Row, stats: &[(neuspike_represent::WindowStats, f64)]) ->
     row.event_rate = m(|s| s.event_rate);
     row.change = m(|s| s.change);
     row.spread_decades = m(|s| s.spread_decades);
+    row.edge = m(|s| s.edge);
     row
 }
 

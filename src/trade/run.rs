@@ -228,15 +228,30 @@ pub struct Recording {
     pub theta: f64,
 }
 
-/// The statistics of each scored window (33 planes around it, as `auto` sees it) and the
-/// milliseconds each took.
+/// The longest window a method of the bench reads (TFP over 256 planes).
+pub const LONGEST_PLANES: u32 = 256;
+
+/// The statistics of each scored window, as `auto` sees them (its 33 central planes, the event
+/// rate also over the [`LONGEST_PLANES`] around it where the recording holds them:
+/// [`neuspike_represent::choice_stats`]), and the milliseconds each took.
 pub fn window_stats(rec: &Recording) -> Vec<(WindowStats, f64)> {
     rec.scored
         .iter()
         .map(|&c| {
-            let w = rec.window(c, WINDOW_PLANES, c / grid::STRIDE_PLANES);
+            let half = u64::from(LONGEST_PLANES / 2);
+            let n = if c >= half && c + half <= rec.spikes.n_planes as u64 {
+                LONGEST_PLANES
+            } else {
+                WINDOW_PLANES
+            };
+            let w = rec.window(c, n, c / grid::STRIDE_PLANES);
             let start = Instant::now();
-            let s = neuspike_represent::window_stats(&w);
+            let s = neuspike_represent::choice_stats(
+                &w,
+                WINDOW_PLANES as usize,
+                LONGEST_PLANES as usize,
+            )
+            .unwrap_or_default();
             (s, start.elapsed().as_secs_f64() * 1e3)
         })
         .collect()

@@ -9,7 +9,7 @@ use eyre::{WrapErr, bail};
 
 /// The CSV's header.
 pub const HEADER: &str = "set,class,group,light,speed_px_s,texture,label,method,frames,exact,\
-finite,psnr,psnr_gain,ssim,entropy,p50_1t_ms,p99_1t_ms,p50_2t_ms,p99_2t_ms,windows,peak_mib,rate,event_rate,change,spread_decades";
+finite,psnr,psnr_gain,ssim,entropy,p50_1t_ms,p99_1t_ms,p50_2t_ms,p99_2t_ms,windows,peak_mib,rate,event_rate,change,spread_decades,edge";
 
 /// One row: a method on one texture of one scene class. Metrics are means over the scored
 /// frames; `NaN` (an empty CSV field) where there is no truth, or, for PSNR, where every frame
@@ -67,6 +67,8 @@ pub struct Row {
     pub change: f64,
     /// Spread of block firing rates, decades.
     pub spread_decades: f64,
+    /// Texture: relative difference of adjacent cells' spike counts.
+    pub edge: f64,
 }
 
 fn num(v: f64) -> String {
@@ -108,6 +110,7 @@ impl Row {
             format!("{:.6}", self.event_rate),
             num(self.change),
             num(self.spread_decades),
+            num(self.edge),
         ]
         .join(",")
     }
@@ -160,6 +163,7 @@ impl Row {
             event_rate: float(22)?,
             change: float(23)?,
             spread_decades: float(24)?,
+            edge: float(25)?,
         })
     }
 
@@ -401,6 +405,7 @@ mod tests {
             event_rate: 0.001,
             change: 0.125,
             spread_decades: 0.5,
+            edge: 0.0625,
         }
     }
 

@@ -2,9 +2,9 @@
 //! `neuspike bench` (`neuspike_policy`). The stage reads align's windows itself and computes only
 //! what the chosen method reads: a window that needs TFP never pays for a network's inputs.
 //!
-//! Per window: the statistics of its 33 central planes
-//! ([`neuspike_represent::central_window_stats`], read where they lie, the events counted, not
-//! copied), the policy's nearest rows, and their method; the method reads a crop of the window,
+//! Per window: the statistics of its 33 central planes, the event rate also over the longest
+//! method's planes ([`neuspike_represent::choice_stats`], read where they lie, the events
+//! counted, not copied), the policy's nearest rows, and their method; the method reads a crop of the window,
 //! with the events copied only for a network that reads them. Candidates are TFP over any
 //! window, TFI, TFSTP and the networks in `--models`; TFSTP's synapses are fed every window
 //! whether chosen or not, so that it is current when chosen (its cost counts on every window).
@@ -19,13 +19,14 @@
 //! methods instead of behind the camera. A frame whose whole cost exceeds the budget is late,
 //! and counted.
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use ndarray::{Array2, Axis};
 use neuspike_policy::{MethodName, Policy};
-use neuspike_represent::{RepresentConfig, Representer, central_window_stats};
+use neuspike_represent::{RepresentConfig, Representer, choice_stats, window_stats};
 use neuspike_schemas::{AlignedWindow, RepresentationKind};
 
 use crate::learned::{ConvPath, LearnedModel, LearnedOutput};
@@ -71,6 +72,8 @@ pub struct AutoStats {
     pub compute_ns: BTreeMap<String, u64>,
     /// Frames over the budget.
     pub late: u64,
+    /// Per-region choice: tiles per method ([`REUSED`] for the reused ones).
+    pub tiles: BTreeMap<String, u64>,
 }
 
 /// One window's frame and how it was made.
@@ -84,6 +87,9 @@ pub struct AutoFrame {
     pub compute_ns: i64,
     /// Whether it took longer than the budget.
     pub late: bool,
+    /// Per-region choice: the tiles each method made, most first (empty when one method made
+    /// the whole frame).
+    pub regions: Vec<(String, usize)>,
 }
 
 impl Candidate {
@@ -106,8 +112,24 @@ pub struct Auto {
     lum_per_rate: Option<f64>,
     /// The stream has no events ([`Auto::restrict`]): windows read as eventless to the policy.
     no_events: bool,
+    /// Per-region choice: the tiles' width and height ([`Auto::with_regions`]).
+    tiles: Option<(usize, usize)>,
+    /// Per-region choice: the last frame, whose still tiles the next one reuses, and the
+    /// candidate that made each of its tiles.
+    previous: Option<(Array2<f32>, Vec<usize>)>,
     stats: AutoStats,
 }
+
+/// The name a reused tile goes by in a frame's mix.
+pub const REUSED: &str = "reused";
+
+/// A rectangle of the spike grid: `(x0, y0, width, height)`.
+pub type Rect = (usize, usize, usize, usize);
+
+/// Pixels of context a network reads around the tiles it reconstructs (beyond them its output
+/// is cut away): its receptive field's reach, so that the tiles' pixels are those of the
+/// network run on the whole frame, up to the last few (see the test).
+pub const NET_MARGIN: usize = 16;
 
 fn model_file(models: &Path, name: &str) -> PathBuf {
     models.join(format!("{name}.onnx"))
@@ -202,8 +224,56 @@ impl Auto {
             budget_ms,
             lum_per_rate,
             no_events: false,
+            tiles: None,
+            previous: None,
             stats: AutoStats::default(),
         })
+    }
+
+    /// Chooses per region: the grid is cut into tiles of `width` x `height` pixels (the last
+    /// row and column take what is left), each tile takes the method its own statistics choose,
+    /// and each chosen method runs once, over the smallest rectangle that holds its tiles (a
+    /// network with [`NET_MARGIN`] pixels of context around it; TFSTP, whose synapses cover
+    /// the grid, over the whole grid). A tile without a single event over the longest method's
+    /// planes reuses the previous frame's pixels ([`REUSED`]) when they were made by the method
+    /// its statistics choose now, unless that is TFSTP (whose estimate keeps improving as its
+    /// synapses settle): an event camera fires wherever the log intensity changes, so where it
+    /// is silent nothing moved and the light did not change, and the same method on the same
+    /// still scene makes the same pixels. A stream without events (`restrict`'s
+    /// `spikes_only`) reuses nothing. A window
+    /// whose tiles all agree costs what the whole-frame choice costs, plus the tiles'
+    /// statistics.
+    ///
+    /// # Errors
+    /// A tile side of 0, or a budget (which plans one method a frame).
+    pub fn with_regions(mut self, width: usize, height: usize) -> Result<Auto, InferError> {
+        if width == 0 || height == 0 {
+            return Err(InferError::Wiring(format!(
+                "auto: regions {width}x{height}: a tile needs at least one pixel a side"
+            )));
+        }
+        if self.budget_ms.is_some() {
+            return Err(InferError::Wiring(
+                "auto: --regions and --budget-ms together: a budget plans one method a frame"
+                    .into(),
+            ));
+        }
+        self.tiles = Some((width, height));
+        Ok(self)
+    }
+
+    /// The tiles of a `width` x `height` grid, row-major.
+    pub fn tiles_of(&self, width: usize, height: usize) -> Vec<Rect> {
+        let Some((tw, th)) = self.tiles else {
+            return vec![(0, 0, width, height)];
+        };
+        let mut out = Vec::new();
+        for y in (0..height).step_by(th) {
+            for x in (0..width).step_by(tw) {
+                out.push((x, y, tw.min(width - x), th.min(height - y)));
+            }
+        }
+        out
     }
 
     /// Keeps the candidates this stream can feed: with `spikes_only` (a recording without
@@ -272,6 +342,7 @@ impl Auto {
             }
         }
         self.stats = AutoStats::default();
+        self.previous = None;
     }
 
     /// The budget in nanoseconds, in budget mode.
@@ -356,6 +427,9 @@ impl Auto {
     /// [`Self::window_planes`]), has no calibration for a method that needs one, or a network
     /// fails.
     pub fn frame(&mut self, w: &AlignedWindow) -> Result<AutoFrame, InferError> {
+        if self.tiles.is_some() {
+            return self.frame_regions(w);
+        }
         let start = Instant::now();
         let short = |n: usize| InferError::Window {
             seq: w.seq(),
@@ -364,7 +438,8 @@ impl Auto {
                 w.spikes.n_planes
             ),
         };
-        let mut s = central_window_stats(w, STATS_PLANES).ok_or_else(|| short(STATS_PLANES))?;
+        let mut s = choice_stats(w, STATS_PLANES, self.window_planes())
+            .ok_or_else(|| short(STATS_PLANES))?;
         let row = if self.no_events {
             s.event_rate = 0.0;
             self.policy.pooled_class(&s, NO_EVENT_ROWS)
@@ -393,22 +468,247 @@ impl Auto {
         }
         let upkeep_ms = t_upkeep.elapsed().as_secs_f64() * 1e3;
         let t0 = Instant::now();
+        let data = self.run_candidate(i, w, central.as_ref(), None)?;
+        let c = &mut self.candidates[i];
+        let estimate_ms = c.cost_ms;
+        let method_ms = t0.elapsed().as_secs_f64() * 1e3;
+        c.update_cost(method_ms);
+        let method = c.name.clone();
+        let total = start.elapsed();
+        let compute_ns = i64::try_from(total.as_nanos()).unwrap_or(i64::MAX);
+        let late = self
+            .budget_ms
+            .is_some_and(|b| total.as_secs_f64() * 1e3 > b);
+        *self.stats.frames.entry(method.clone()).or_default() += 1;
+        *self.stats.compute_ns.entry(method.clone()).or_default() += compute_ns.max(0) as u64;
+        self.stats.late += u64::from(late);
+        if late {
+            tracing::debug!(
+                seq = w.seq(),
+                method,
+                estimate_ms,
+                stats_ms = spent,
+                upkeep_ms,
+                method_ms,
+                total_ms = total.as_secs_f64() * 1e3,
+                "auto: a frame late"
+            );
+        }
+        Ok(AutoFrame {
+            data,
+            method,
+            compute_ns,
+            late,
+            regions: Vec::new(),
+        })
+    }
+
+    /// [`Self::frame`] per region ([`Self::with_regions`]).
+    fn frame_regions(&mut self, w: &AlignedWindow) -> Result<AutoFrame, InferError> {
+        let start = Instant::now();
+        let short = || InferError::Window {
+            seq: w.seq(),
+            what: format!(
+                "{} planes; auto needs {STATS_PLANES} around the reference plane (align's \
+                 --window-planes)",
+                w.spikes.n_planes
+            ),
+        };
+        let (gw, gh) = (w.spikes.width, w.spikes.height);
+        let central = w.crop_spikes(STATS_PLANES).ok_or_else(short)?;
+        let span = w.central(STATS_PLANES).ok_or_else(short)?;
+        let tiles = self.tiles_of(gw, gh);
+        let (tw, th) = self.tiles.unwrap_or((gw.max(1), gh.max(1)));
+        let across = gw.div_ceil(tw);
+        // Each tile's events, counted where they lie (one pass, nothing copied), over the
+        // statistics' planes and over the longest method's ([`choice_stats`]).
+        let wide = self.window_planes();
+        let wide_span = w.central(wide).map_or(span.events.clone(), |c| c.events);
+        let mut events = vec![0usize; tiles.len()];
+        let mut wide_events = vec![0usize; tiles.len()];
+        let ev = &w.events;
+        for k in wide_span.clone() {
+            let (x, y) = (usize::from(ev.x[k]), usize::from(ev.y[k]));
+            if x < gw && y < gh {
+                let t = (y / th) * across + x / tw;
+                wide_events[t] += 1;
+                events[t] += usize::from(span.events.contains(&k));
+            }
+        }
+        let wide = if wide_span == span.events {
+            STATS_PLANES
+        } else {
+            wide
+        };
+        let reuse = !self.no_events
+            && self
+                .previous
+                .as_ref()
+                .is_some_and(|p| p.0.dim() == (gh, gw) && p.1.len() == tiles.len());
+        let mut chosen = Vec::with_capacity(tiles.len());
+        let mut sources = Vec::with_capacity(tiles.len());
+        for (k, &(x0, y0, rw, rh)) in tiles.iter().enumerate() {
+            let tile = central.region(x0, y0, rw, rh, false).ok_or_else(short)?;
+            let mut s = window_stats(&tile);
+            if !self.no_events {
+                let px = (rw * rh) as f64;
+                s.event_rate = (events[k] as f64 / (px * STATS_PLANES as f64))
+                    .max(wide_events[k] as f64 / (px * wide as f64));
+                s.events = wide_events[k] > 0;
+            }
+            let class = if self.no_events {
+                self.policy.pooled_class(&s, NO_EVENT_ROWS).method
+            } else {
+                self.policy.nearest_class(&s).method.clone()
+            };
+            let i = self.index(&class).unwrap_or(0);
+            sources.push(i);
+            let same = self
+                .previous
+                .as_ref()
+                .is_some_and(|p| p.1.get(k) == Some(&i));
+            let settling = matches!(self.candidates[i].engine, Engine::Tfstp);
+            chosen.push(if reuse && wide_events[k] == 0 && same && !settling {
+                usize::MAX
+            } else {
+                i
+            });
+        }
+        // Feed every TFSTP not chosen, as a whole-frame choice does.
+        for k in 0..self.candidates.len() {
+            if !chosen.contains(&k) && matches!(self.candidates[k].engine, Engine::Tfstp) {
+                let t = Instant::now();
+                let c = &mut self.candidates[k];
+                c.represent
+                    .represent(RepresentationKind::Stp, &central)
+                    .map_err(|e| window_error(w, e))?;
+                c.update_cost(t.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+        let mut data = Array2::<f32>::zeros((gh, gw));
+        let mut mix: Vec<(String, usize)> = Vec::new();
+        let mut methods: Vec<usize> = chosen.clone();
+        methods.sort_unstable();
+        methods.dedup();
+        if let Some((prev, _)) = self.previous.as_ref().filter(|_| reuse) {
+            let still: Vec<&Rect> = tiles
+                .iter()
+                .zip(&chosen)
+                .filter(|(_, c)| **c == usize::MAX)
+                .map(|(t, _)| t)
+                .collect();
+            for &&(tx, ty, rw, rh) in &still {
+                let at = ndarray::s![ty..ty + rh, tx..tx + rw];
+                data.slice_mut(at).assign(&prev.slice(at));
+            }
+            if !still.is_empty() {
+                mix.push((REUSED.to_string(), still.len()));
+            }
+        }
+        for i in methods.into_iter().filter(|&i| i != usize::MAX) {
+            let mine: Vec<Rect> = tiles
+                .iter()
+                .zip(&chosen)
+                .filter(|(_, c)| **c == i)
+                .map(|(t, _)| *t)
+                .collect();
+            let x0 = mine.iter().map(|t| t.0).min().unwrap_or(0);
+            let y0 = mine.iter().map(|t| t.1).min().unwrap_or(0);
+            let x1 = mine.iter().map(|t| t.0 + t.2).max().unwrap_or(gw);
+            let y1 = mine.iter().map(|t| t.1 + t.3).max().unwrap_or(gh);
+            let rect = match self.candidates[i].engine {
+                Engine::Tfstp => (0, 0, gw, gh),
+                Engine::Net(_) => {
+                    let (ax, ay) = (x0.saturating_sub(NET_MARGIN), y0.saturating_sub(NET_MARGIN));
+                    let (bx, by) = ((x1 + NET_MARGIN).min(gw), (y1 + NET_MARGIN).min(gh));
+                    (ax, ay, bx - ax, by - ay)
+                }
+                _ => (x0, y0, x1 - x0, y1 - y0),
+            };
+            let t = Instant::now();
+            let whole = rect == (0, 0, gw, gh);
+            let part = self.run_candidate(i, w, Some(&central), (!whole).then_some(rect))?;
+            for &(tx, ty, rw, rh) in &mine {
+                data.slice_mut(ndarray::s![ty..ty + rh, tx..tx + rw])
+                    .assign(&part.slice(ndarray::s![
+                        ty - rect.1..ty - rect.1 + rh,
+                        tx - rect.0..tx - rect.0 + rw
+                    ]));
+            }
+            // The estimate is of a whole frame: a region's time scaled by its share.
+            let share = (rect.2 * rect.3) as f64 / (gw * gh).max(1) as f64;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            if share > 0.0 {
+                self.candidates[i].update_cost(ms / share);
+            }
+            mix.push((self.candidates[i].name.clone(), mine.len()));
+        }
+        mix.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+        for (m, n) in &mix {
+            *self.stats.tiles.entry(m.clone()).or_default() += *n as u64;
+        }
+        let method = mix
+            .iter()
+            .map(|(m, _)| m.as_str())
+            .collect::<Vec<_>>()
+            .join("+");
+        self.previous = Some((data.clone(), sources));
+        let compute_ns = i64::try_from(start.elapsed().as_nanos()).unwrap_or(i64::MAX);
+        *self.stats.frames.entry(method.clone()).or_default() += 1;
+        *self.stats.compute_ns.entry(method.clone()).or_default() += compute_ns.max(0) as u64;
+        Ok(AutoFrame {
+            data,
+            method,
+            compute_ns,
+            late: false,
+            regions: mix,
+        })
+    }
+
+    /// Candidate `i`'s frame of `w` (its planes around the reference plane; the statistics'
+    /// crop `central` when it reads those), over `rect` of the grid (its spikes and, for a
+    /// network that reads them, events cut to the rectangle) or the whole grid.
+    fn run_candidate(
+        &mut self,
+        i: usize,
+        w: &AlignedWindow,
+        central: Option<&AlignedWindow>,
+        rect: Option<Rect>,
+    ) -> Result<Array2<f32>, InferError> {
+        let short = |n: usize| InferError::Window {
+            seq: w.seq(),
+            what: format!(
+                "{} planes; auto needs {n} around the reference plane (align's --window-planes)",
+                w.spikes.n_planes
+            ),
+        };
         let gain = self.lum_per_rate.or(w.spikes.lum_per_rate);
         let c = &mut self.candidates[i];
+        let events = matches!(&c.engine, Engine::Net(net) if net.reads_events());
         // The window it reads: events copied only for a network that reads them.
-        let win = match (&c.engine, central) {
-            (Engine::Net(net), _) if net.reads_events() => w.crop(c.planes),
-            (_, Some(central)) if c.planes == STATS_PLANES => Some(central),
-            _ => w.crop_spikes(c.planes),
-        }
-        .ok_or_else(|| short(c.planes))?;
+        let planes: Cow<'_, AlignedWindow> = match central {
+            Some(central) if !events && c.planes == STATS_PLANES => Cow::Borrowed(central),
+            _ if events => Cow::Owned(w.crop(c.planes).ok_or_else(|| short(c.planes))?),
+            _ => Cow::Owned(w.crop_spikes(c.planes).ok_or_else(|| short(c.planes))?),
+        };
+        let win = match rect {
+            Some((x0, y0, rw, rh)) => {
+                Cow::Owned(planes.region(x0, y0, rw, rh, events).ok_or_else(|| {
+                    window_error(
+                        w,
+                        format!("region {rw}x{rh} at ({x0}, {y0}) is not in the grid"),
+                    )
+                })?)
+            }
+            None => planes,
+        };
         let need_gain = || {
             gain.ok_or_else(|| InferError::Window {
                 seq: w.seq(),
                 what: format!("{} needs a calibration (`lum_per_rate`)", c.name),
             })
         };
-        let (hh, ww) = (w.spikes.height, w.spikes.width);
+        let (hh, ww) = (win.spikes.height, win.spikes.width);
         let mut data = Array2::<f32>::zeros((hh, ww));
         match &mut c.engine {
             Engine::Tfp | Engine::Tfstp => {
@@ -460,36 +760,7 @@ impl Auto {
                 luminance_from_rate_into(out.view(), g, 1.0, data.view_mut())?;
             }
         }
-        let estimate_ms = c.cost_ms;
-        let method_ms = t0.elapsed().as_secs_f64() * 1e3;
-        c.update_cost(method_ms);
-        let method = c.name.clone();
-        let total = start.elapsed();
-        let compute_ns = i64::try_from(total.as_nanos()).unwrap_or(i64::MAX);
-        let late = self
-            .budget_ms
-            .is_some_and(|b| total.as_secs_f64() * 1e3 > b);
-        *self.stats.frames.entry(method.clone()).or_default() += 1;
-        *self.stats.compute_ns.entry(method.clone()).or_default() += compute_ns.max(0) as u64;
-        self.stats.late += u64::from(late);
-        if late {
-            tracing::debug!(
-                seq = w.seq(),
-                method,
-                estimate_ms,
-                stats_ms = spent,
-                upkeep_ms,
-                method_ms,
-                total_ms = total.as_secs_f64() * 1e3,
-                "auto: a frame late"
-            );
-        }
-        Ok(AutoFrame {
-            data,
-            method,
-            compute_ns,
-            late,
-        })
+        Ok(data)
     }
 }
 
@@ -621,6 +892,106 @@ mod tests {
         let s = auto.stats();
         assert_eq!(s.frames.values().sum::<u64>(), 4);
         assert_eq!(s.late, 0);
+    }
+
+    /// Left half of `a`, right half of `b` (the same planes and times): spikes pixel by pixel,
+    /// the events of `b` that fall right of the middle, and the truth likewise.
+    fn halves(
+        a: &(AlignedWindow, Array2<f32>),
+        b: &(AlignedWindow, Array2<f32>),
+    ) -> (AlignedWindow, Array2<f32>) {
+        let mut w = b.0.clone();
+        let per = neuspike_schemas::bytes_per_plane(W, H);
+        for p in 0..w.spikes.n_planes {
+            for y in 0..H {
+                for x in 0..W / 2 {
+                    let k = p * per * 8 + y * W + x;
+                    let bit = (a.0.spikes.bits[k / 8] >> (k % 8)) & 1;
+                    w.spikes.bits[k / 8] =
+                        (w.spikes.bits[k / 8] & !(1 << (k % 8))) | (bit << (k % 8));
+                }
+            }
+        }
+        let right = w.region(W / 2, 0, W - W / 2, H, true).expect("right half");
+        w.events.t_ns = right.events.t_ns;
+        w.events.x = right.events.x.iter().map(|x| x + (W / 2) as u16).collect();
+        w.events.y = right.events.y;
+        w.events.polarity = right.events.polarity;
+        let mut truth = b.1.clone();
+        truth
+            .slice_mut(ndarray::s![.., ..W / 2])
+            .assign(&a.1.slice(ndarray::s![.., ..W / 2]));
+        (w, truth)
+    }
+
+    #[test]
+    fn per_region_each_half_takes_its_own_method_and_a_still_half_is_reused() {
+        // One light level: the two halves share the camera's calibration.
+        let bright_still = windows(1.0, 0.0, 0.35, 2);
+        let bright_fast = windows(1.0, 8_000.0, 0.35, 2);
+        let mut auto = shipped(None).with_regions(40, 48).expect("regions");
+        assert_eq!(auto.tiles_of(W, H).len(), 8);
+        let left = ndarray::s![.., ..W / 2];
+        let right = ndarray::s![.., W / 2..];
+        let mut first: Option<Array2<f32>> = None;
+        for k in 0..2 {
+            let (w, truth) = halves(&bright_still[k], &bright_fast[k]);
+            let f = auto.frame(&w).expect("frame");
+            let tiles: usize = f.regions.iter().map(|r| r.1).sum();
+            assert_eq!(tiles, 8, "{:?}", f.regions);
+            let net: usize = f
+                .regions
+                .iter()
+                .filter(|r| r.0.starts_with("neuspike-"))
+                .map(|r| r.1)
+                .sum();
+            assert_eq!(net, 4, "{:?}", f.regions);
+            assert!(f.method.contains('+'), "{}", f.method);
+            let p = |a: &ndarray::ArrayView2<f32>, b: &ndarray::ArrayView2<f32>| {
+                psnr(&a.to_owned(), &b.to_owned())
+            };
+            let (pl, pr) = (
+                p(&f.data.slice(left), &truth.slice(left)),
+                p(&f.data.slice(right), &truth.slice(right)),
+            );
+            // The same floors as each scene alone takes with its own method.
+            assert!(pl > 30.0 && pr > 20.0, "{:?}: {pl:.2} / {pr:.2}", f.regions);
+            match &first {
+                None => {
+                    // The first frame has nothing to reuse: the still half takes a cheap method.
+                    assert!(
+                        f.regions.iter().all(|r| r.0.starts_with("neuspike-")
+                            || r.0.starts_with("tfp")
+                            || r.0 == "tfstp"),
+                        "{:?}",
+                        f.regions
+                    );
+                    first = Some(f.data.clone());
+                }
+                Some(prev) => {
+                    // Not one event in the still half: its tiles keep the last frame's pixels.
+                    assert!(
+                        f.regions.contains(&(REUSED.to_string(), 4)),
+                        "{:?}",
+                        f.regions
+                    );
+                    assert_eq!(f.data.slice(left), prev.slice(left));
+                }
+            }
+        }
+        assert_eq!(auto.stats().tiles.values().sum::<u64>(), 16);
+        // Regions need a side of at least one pixel, and do not mix with a budget.
+        assert!(shipped(None).with_regions(0, 8).is_err());
+        let e = shipped(Some(5.0)).with_regions(8, 8).err().expect("budget");
+        assert!(e.to_string().contains("--budget-ms"), "{e}");
+        // Tiles cover the grid once, the last row and column taking what is left.
+        let t = shipped(None)
+            .with_regions(50, 40)
+            .expect("regions")
+            .tiles_of(W, H);
+        assert_eq!(t.len(), 4 * 3);
+        assert_eq!(t.iter().map(|r| r.2 * r.3).sum::<usize>(), W * H);
+        assert_eq!(t[11], (150, 80, 10, 16));
     }
 
     /// A recording without events, in windows of 128 planes: auto chooses among the methods that

@@ -8,7 +8,7 @@
 //! networks that read spikes) or `luminance` (the event-only network: events carry no absolute
 //! level, so it cannot use the camera's calibration). [`LearnedModel::load`] reads and checks the
 //! file once; [`LearnedModel::run`] pins the input shapes to the frame's size padded up to
-//! [`STRIDE`], optimises and keeps that plan until the size changes, pads each input by repeating
+//! [`STRIDE`], optimises and keeps the plans of the last [`MAX_PLANS`] sizes, pads each input by repeating
 //! its last row and column, runs, and crops the image back. (With neuspike's convolution, an
 //! input's first convolution reads the representation where it lies, the padding included, and
 //! the plan starts from its output: the input is never copied.) The plan runs on a thread of
@@ -162,7 +162,11 @@ pub struct NodeTime {
     pub ms: f64,
 }
 
-/// A loaded network, with its plan for the last frame size.
+/// The most plans a model keeps, one per padded frame size (per-region choice runs a network on
+/// regions of a few sizes); the oldest goes first.
+pub const MAX_PLANS: usize = 8;
+
+/// A loaded network, with its plans for the last frame sizes.
 #[derive(Clone, Debug)]
 pub struct LearnedModel {
     path: PathBuf,
@@ -171,8 +175,10 @@ pub struct LearnedModel {
     channels: Vec<usize>,
     output: LearnedOutput,
     conv: ConvPath,
-    /// The plan for the last padded size, and the path it uses (never `Auto`).
-    plan: Option<((usize, usize), Plan, ConvPath)>,
+    /// The plans for the last padded sizes, newest last, and the path they use (never `Auto`):
+    /// under `Auto`, the path timed fastest at the first size is kept for the others.
+    plans: Vec<((usize, usize), Plan)>,
+    path_in_use: Option<ConvPath>,
     /// The last run's input tensors, refilled in place when nothing else holds them: a fresh
     /// 13 MB tensor per input and frame cost its page faults every time.
     buffers: Vec<Arc<Tensor>>,
@@ -281,7 +287,8 @@ impl LearnedModel {
             channels,
             output,
             conv: ConvPath::Auto,
-            plan: None,
+            plans: Vec::new(),
+            path_in_use: None,
             buffers: Vec::new(),
         })
     }
@@ -305,13 +312,14 @@ impl LearnedModel {
     pub fn set_conv_path(&mut self, conv: ConvPath) {
         if conv != self.conv {
             self.conv = conv;
-            self.plan = None;
+            self.plans.clear();
+            self.path_in_use = None;
         }
     }
 
     /// The path the current plan uses (`None` before the first run).
     pub fn conv_path_in_use(&self) -> Option<ConvPath> {
-        self.plan.as_ref().map(|p| p.2)
+        self.path_in_use
     }
 
     /// Channels each input expects.
@@ -404,13 +412,12 @@ impl LearnedModel {
     /// The plan for padded size `(h, w)`: the kept one, or a new one (for [`ConvPath::Auto`],
     /// the fastest path on `values`).
     fn plan_for(&mut self, h: usize, w: usize, xs: &[ArrayView3<f32>]) -> Result<Plan, InferError> {
-        if let Some((size, plan, _)) = &self.plan
-            && *size == (h, w)
-        {
+        if let Some((_, plan)) = self.plans.iter().find(|(size, _)| *size == (h, w)) {
             return Ok(plan.clone());
         }
-        let (plan, path) = match self.conv {
-            ConvPath::Auto => {
+        let (plan, path) = match (self.conv, self.path_in_use) {
+            (ConvPath::Auto, Some(path)) => (self.build_plan(h, w, path)?, path),
+            (ConvPath::Auto, None) => {
                 let mut candidates = Vec::new();
                 for path in [ConvPath::Direct, ConvPath::Im2col, ConvPath::Blocked] {
                     candidates.push((f64::INFINITY, self.build_plan(h, w, path)?, path));
@@ -428,9 +435,13 @@ impl LearnedModel {
                     .ok_or_else(|| model_error(&self.path, "internal: no plan to choose"))?;
                 (best.1, best.2)
             }
-            path => (self.build_plan(h, w, path)?, path),
+            (path, _) => (self.build_plan(h, w, path)?, path),
         };
-        self.plan = Some(((h, w), plan.clone(), path));
+        if self.plans.len() == MAX_PLANS {
+            self.plans.remove(0);
+        }
+        self.plans.push(((h, w), plan.clone()));
+        self.path_in_use = Some(path);
         Ok(plan)
     }
 

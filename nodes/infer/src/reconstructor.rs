@@ -72,6 +72,23 @@ pub struct InferConfig {
     /// (a short recording): the methods that need more are left out.
     #[arg(long)]
     pub window_planes: Option<usize>,
+    /// auto: choose per region, in tiles of `WxH` pixels (e.g. `80x50`): each tile takes the
+    /// method its own statistics choose, a tile without events reuses the last frame's pixels,
+    /// and a network runs only over its tiles.
+    #[arg(long, value_parser = parse_tiles)]
+    pub regions: Option<(usize, usize)>,
+}
+
+/// `--regions`' parser: `WxH`, both at least 1.
+fn parse_tiles(text: &str) -> Result<(usize, usize), String> {
+    let bad = || format!("{text:?}: expected WIDTHxHEIGHT in pixels, e.g. 80x50");
+    let (w, h) = text.split_once('x').ok_or_else(bad)?;
+    let w: usize = w.trim().parse().map_err(|_| bad())?;
+    let h: usize = h.trim().parse().map_err(|_| bad())?;
+    if w == 0 || h == 0 {
+        return Err(bad());
+    }
+    Ok((w, h))
 }
 
 impl Default for InferConfig {
@@ -93,6 +110,7 @@ impl Default for InferConfig {
             budget_ms: None,
             spikes_only: false,
             window_planes: None,
+            regions: None,
         }
     }
 }
@@ -146,6 +164,10 @@ impl InferConfig {
                 self.conv,
             )?
             .restrict(self.spikes_only, self.window_planes)?;
+            let auto = match self.regions {
+                Some((w, h)) => auto.with_regions(w, h)?,
+                None => auto,
+            };
             let mut r = Reconstructor::new(Engine::Auto(Box::new(auto)), self, vec![], false);
             r.wants_window = true;
             return Ok(r);
@@ -441,6 +463,7 @@ impl Reconstructor {
             Engine::Auto(auto) => {
                 let s = auto.stats();
                 let mix: Vec<String> = s.frames.iter().map(|(m, n)| format!("{m} x{n}")).collect();
+                let tiles: Vec<String> = s.tiles.iter().map(|(m, n)| format!("{m} x{n}")).collect();
                 tracing::info!(
                     frames = self.frames,
                     announced,
@@ -448,6 +471,7 @@ impl Reconstructor {
                     lost,
                     late = s.late,
                     mix = %mix.join(" "),
+                    tiles = %tiles.join(" "),
                     "infer finished"
                 );
             }
@@ -638,6 +662,15 @@ mod tests {
         }
         .reconstructor(&[REPRESENTATION.to_string(), EVENTS.to_string()])
         .expect("stage")
+    }
+
+    #[test]
+    fn regions_parse_as_width_by_height_and_bad_ones_are_named() {
+        assert_eq!(parse_tiles("80x50"), Ok((80, 50)));
+        for bad in ["80", "0x50", "80x", "ax50", "80x-1"] {
+            let e = parse_tiles(bad).expect_err(bad);
+            assert!(e.contains(bad) && e.contains("80x50"), "{e}");
+        }
     }
 
     #[test]

@@ -16,7 +16,7 @@
 //! | [`voxel_grid_into`] | E2VID voxel grid: `B` bins, linear in time, optionally normalised |
 //! | [`event_stack_into`] | event stacking (SBT): signed count per pixel in each of `B` bins |
 //! | [`time_surface_into`] | time surface `exp(-(t_ref - t_last) / tau)`, ON and OFF channels |
-//! | [`window_stats`] | a window's light, motion, dynamic range and events, for choosing a method |
+//! | [`window_stats`] | a window's light, motion, texture, dynamic range and events, for choosing a method |
 //!
 //! Conventions: spike planes are `ArrayView3<u8>` `[N, H, W]` (nonzero = spike), events an
 //! [`EventSlice`] sorted by time. Kernels never modify their inputs, write every element of their
@@ -49,7 +49,10 @@ pub use spike::{
     spike_representation_packed_into, spike_representation_reference, tfi_into, tfi_reference,
     tfp_into, tfp_packed_into, tfp_packed_into_with, tfp_reference,
 };
-pub use stats::{BLOCK, WindowStats, central_window_stats, window_stats, window_stats_reference};
+pub use stats::{
+    BLOCK, CELL, WindowStats, central_window_stats, choice_stats, window_stats,
+    window_stats_reference,
+};
 pub use stp::{StpFilter, StpParams};
 pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_reference};
 pub use voxel::{
