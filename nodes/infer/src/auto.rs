@@ -431,13 +431,7 @@ impl Auto {
             return self.frame_regions(w);
         }
         let start = Instant::now();
-        let short = |n: usize| InferError::Window {
-            seq: w.seq(),
-            what: format!(
-                "{} planes; auto needs {n} around the reference plane (align's --window-planes)",
-                w.spikes.n_planes
-            ),
-        };
+        let short = |n: usize| too_short(w, n);
         let mut s = choice_stats(w, STATS_PLANES, self.window_planes())
             .ok_or_else(|| short(STATS_PLANES))?;
         let row = if self.no_events {
@@ -506,14 +500,7 @@ impl Auto {
     /// [`Self::frame`] per region ([`Self::with_regions`]).
     fn frame_regions(&mut self, w: &AlignedWindow) -> Result<AutoFrame, InferError> {
         let start = Instant::now();
-        let short = || InferError::Window {
-            seq: w.seq(),
-            what: format!(
-                "{} planes; auto needs {STATS_PLANES} around the reference plane (align's \
-                 --window-planes)",
-                w.spikes.n_planes
-            ),
-        };
+        let short = || too_short(w, STATS_PLANES);
         let (gw, gh) = (w.spikes.width, w.spikes.height);
         let central = w.crop_spikes(STATS_PLANES).ok_or_else(short)?;
         let span = w.central(STATS_PLANES).ok_or_else(short)?;
@@ -675,13 +662,7 @@ impl Auto {
         central: Option<&AlignedWindow>,
         rect: Option<Rect>,
     ) -> Result<Array2<f32>, InferError> {
-        let short = |n: usize| InferError::Window {
-            seq: w.seq(),
-            what: format!(
-                "{} planes; auto needs {n} around the reference plane (align's --window-planes)",
-                w.spikes.n_planes
-            ),
-        };
+        let short = |n: usize| too_short(w, n);
         let gain = self.lum_per_rate.or(w.spikes.lum_per_rate);
         let c = &mut self.candidates[i];
         let events = matches!(&c.engine, Engine::Net(net) if net.reads_events());
@@ -761,6 +742,17 @@ impl Auto {
             }
         }
         Ok(data)
+    }
+}
+
+/// A window with fewer than the `n` planes around its reference plane that auto reads.
+fn too_short(w: &AlignedWindow, n: usize) -> InferError {
+    InferError::Window {
+        seq: w.seq(),
+        what: format!(
+            "{} planes; auto needs {n} around the reference plane (align's --window-planes)",
+            w.spikes.n_planes
+        ),
     }
 }
 
