@@ -97,11 +97,14 @@ fn bench(c: &mut Criterion) {
                 })
             });
         }
-        for reference in [false, true] {
+        // The fast path against the plain loop over every pixel, with and without the noise.
+        let runs = [false, true].map(|r| (r, "", &fresh));
+        let noisy_runs = [false, true].map(|r| (r, "_noisy", &fresh_noisy));
+        for (reference, label, fresh) in runs.into_iter().chain(noisy_runs) {
             let name = if reference {
-                format!("dvs_core_reference_{scene}_10kHz")
+                format!("dvs_core_reference_{scene}_10kHz{label}")
             } else {
-                format!("dvs_core_{scene}_10kHz")
+                format!("dvs_core_{scene}_10kHz{label}")
             };
             g.bench_function(name, |b| {
                 b.iter(|| {
