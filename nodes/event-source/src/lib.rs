@@ -421,14 +421,18 @@ const MAX_RAMP: f32 = 8.0;
 /// v2e's light on its 8-bit scale, `clamp((255 x + 20) / 275, 0, 1)` of the scaled intensity.
 #[inline(always)]
 fn inten01(x: f32) -> f32 {
-    // The quotients as constants: a multiply and an add, no division in the pixel loop.
-    (x * (255.0 / 275.0) + 20.0 / 275.0).clamp(0.0, 1.0)
+    // The quotients as constants: a multiply and an add, no division in the pixel loop. The
+    // clamp as two selects, one vector instruction each (a NaN gives 0).
+    let i = x * (255.0 / 275.0) + 20.0 / 275.0;
+    let i = if i > 0.0 { i } else { 0.0 };
+    if i < 1.0 { i } else { 1.0 }
 }
 
 /// One step of the photoreceptor's low-pass: `lp + eps (l - lp)`, `eps = min(1, i dt 2 pi fc)`.
 #[inline(always)]
 fn low_pass(lp: f32, l: f32, x: f32, dt_2pi_fc: f32) -> f32 {
-    let eps = (inten01(x) * dt_2pi_fc).min(1.0);
+    let eps = inten01(x) * dt_2pi_fc;
+    let eps = if eps < 1.0 { eps } else { 1.0 };
     lp + eps * (l - lp)
 }
 
@@ -453,7 +457,9 @@ struct LogStep<'a> {
 /// level `lp` when the filter is on.
 #[inline(always)]
 fn log_level(a: &LogStep, v: f32, lp: f32) -> f32 {
-    let x = (v * a.scale).max(a.floor);
+    // `max(v * scale, floor)`, a NaN giving the floor, as one vector instruction.
+    let x = v * a.scale;
+    let x = if x > a.floor { x } else { a.floor };
     let l = ln_fast(x);
     if a.filter {
         low_pass(lp, l, x, a.dt_2pi_fc)
