@@ -456,12 +456,12 @@ struct LogStep<'a> {
 /// A pixel's log intensity at the step's end, from its intensity `v`, low-passed from its last
 /// level `lp` when the filter is on.
 #[inline(always)]
-fn log_level(a: &LogStep, v: f32, lp: f32) -> f32 {
+fn log_level(a: &LogStep, filter: bool, v: f32, lp: f32) -> f32 {
     // `max(v * scale, floor)`, a NaN giving the floor, as one vector instruction.
     let x = v * a.scale;
     let x = if x > a.floor { x } else { a.floor };
     let l = ln_fast(x);
-    if a.filter {
+    if filter {
         low_pass(lp, l, x, a.dt_2pi_fc)
     } else {
         l
@@ -520,8 +520,15 @@ fn log_block(
     c: &mut Candidates,
 ) {
     let new = &mut new[..fb.len()];
-    for ((o, &v), &l) in new.iter_mut().zip(fb).zip(lp.iter()) {
-        *o = log_level(a, v, l);
+    // The filter's branch outside the loop, so that each loop vectorises.
+    if a.filter {
+        for ((o, &v), &l) in new.iter_mut().zip(fb).zip(lp.iter()) {
+            *o = log_level(a, true, v, l);
+        }
+    } else {
+        for ((o, &v), &l) in new.iter_mut().zip(fb).zip(lp.iter()) {
+            *o = log_level(a, false, v, l);
+        }
     }
     let mut m = level_mask(new, up, lo, leak, a.tau_b);
     while m != 0 {
@@ -933,7 +940,7 @@ impl DvsPixels {
             // The oracle: every pixel's level, then its crossings, one pixel after another.
             None => {
                 for (i, (lp, &v)) in lp.iter_mut().zip(frame_b).enumerate() {
-                    let l = log_level(&args, v, *lp);
+                    let l = log_level(&args, args.filter, v, *lp);
                     let ramp = |tau: f32| leak.get(i).map_or(0.0, |k| k * tau);
                     c.index.push(i);
                     c.la.push(*lp + ramp(tau_a));
