@@ -1,11 +1,16 @@
 //! The geometry and clock of a rig of two sensors, estimated from what they recorded.
 //!
-//! An event at the event camera's pixel `p`, time `t` (its clock) says the log intensity at the
-//! spike camera's point `H p` changed, at spike-clock time `t - delta`, in the direction of its
-//! polarity. The spike camera gives the log intensity everywhere: `L(x, t)`, the log of the
-//! firing rate over a short window. So the right `H` and `delta` make the events' polarities
-//! agree with the spike camera's temporal change `D(x, t) = L(x, t + tau) - L(x, t - tau)` sampled
-//! at `(H p, t - delta)`. [`estimate`] maximises their correlation (Pearson, over a sample of the
+//! An event at the event camera's pixel `p`, time `t` (its clock) says the light at the spike
+//! camera's point `H p` changed, at spike-clock time `t - delta`, in the direction of its
+//! polarity. The spike camera gives the light everywhere: `S(x, t)`, the spikes a pixel fired in
+//! a short window. So the right `H` and `delta` make the events' polarities agree with the spike
+//! camera's temporal change, the z-score of the count's change
+//! `D(x, t) = (S(x, t + tau) - S(x, t - tau)) / sqrt(S(x, t + tau) + S(x, t - tau) + 1)`, sampled
+//! at `(H p, t - delta)`. (The difference of the counts' logs, which a DVS's own quantity
+//! suggests, peaks where a window mixing an edge's two sides is mostly the darker one: that
+//! pulled the estimate up to 1 px off, a different way at each edge. The counts' difference
+//! peaks with the edge, and the square root, the Poisson noise of the counts, keeps a bright
+//! edge from outweighing a dark one.) [`estimate`] maximises their correlation (Pearson, over a sample of the
 //! events): the clock from the two sensors' activity over time (or known), a grid over the
 //! scale and the shift on a blurred video, Nelder-Mead over the six affine coefficients of `H`
 //! (the perspective terms are kept from the start: they are nearly invisible in a frame's middle
@@ -13,16 +18,16 @@
 //!
 //! The two are only separable when the motion is not a constant pan (a constant pan turns a
 //! clock error into a shift); rotation, zoom, or changes of speed make them so. On a simulated
-//! rig (`tests/rig.rs`) the homography comes within 0.25-1.03 px where both sensors see when
-//! the clock is known, and the clock within 3-31 us when the homography is known (its search
-//! takes only the events within bursts, [`BURST_NS`]); both unknown, 0.11-1.32 px and 18-290 us
-//! (a last joint search of the clock and the affine coefficients, kept when it scores better).
+//! rig (`tests/rig.rs`, three textures) the homography comes within 0.25-0.60 px where both
+//! sensors see when the clock is known, and the clock within 6-27 us when the homography is known
+//! (its search takes only the events within bursts, [`BURST_NS`]); both unknown, within
+//! 0.24-0.63 px and 3-31 us (a last joint search of the clock and the affine coefficients, kept
+//! when it scores better).
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
 
-/// Planes per frame of the log-intensity video (2: 100 us at 20 kHz; 4 timed the clock to
-/// 36-144 us where 2 gives 3-31).
+/// Planes per frame of the change video (2: 100 us at 20 kHz).
 pub const FRAME_PLANES: usize = 2;
 /// Frames of the firing-rate window (24 planes: 1.2 ms at 20 kHz).
 pub const RATE_FRAMES: usize = 12;
@@ -57,7 +62,7 @@ pub enum RigError {
     TooLittle(String),
 }
 
-/// The spike camera's temporal change of log intensity, frame by frame.
+/// The spike camera's temporal change of light, frame by frame (`D` of the module docs).
 struct ChangeVideo {
     width: usize,
     height: usize,
@@ -92,9 +97,9 @@ impl ChangeVideo {
                 row[i] += 1;
             }
         }
-        // Log rate over RATE_FRAMES frames, centred: frame f covers frames f .. f + RATE_FRAMES.
+        // Spikes over RATE_FRAMES frames: frame f covers frames f .. f + RATE_FRAMES.
         let lf = frames - RATE_FRAMES + 1;
-        let mut log = vec![0f32; lf * n];
+        let mut window = vec![0f32; lf * n];
         let mut sum = vec![0u32; n];
         for f in 0..frames {
             for i in 0..n {
@@ -103,8 +108,7 @@ impl ChangeVideo {
             if f + 1 >= RATE_FRAMES {
                 let g = f + 1 - RATE_FRAMES;
                 for i in 0..n {
-                    // Half a spike in an empty window: the log stays finite.
-                    log[g * n + i] = (sum[i] as f32).max(0.5).ln();
+                    window[g * n + i] = sum[i] as f32;
                     sum[i] -= u32::from(counts[g * n + i]);
                 }
             }
@@ -113,11 +117,14 @@ impl ChangeVideo {
         let mut d = vec![0f32; df * n];
         for f in 0..df {
             for i in 0..n {
-                d[f * n + i] = log[(f + 2 * DIFF_FRAMES) * n + i] - log[f * n + i];
+                // The z-score of the change; the + 1 keeps the divisor at 1 or more where
+                // neither window holds a spike.
+                let (after, before) = (window[(f + 2 * DIFF_FRAMES) * n + i], window[f * n + i]);
+                d[f * n + i] = (after - before) / (after + before + 1.0).sqrt();
             }
         }
         let period_ns = (FRAME_PLANES as i64 * spikes.plane_period_ns) as f64;
-        // Frame f of `d` is centred on log frame f + DIFF_FRAMES, whose window covers planes
+        // Frame f of `d` is centred on window f + DIFF_FRAMES, whose window covers planes
         // (f + DIFF_FRAMES) * FRAME_PLANES .. + RATE_FRAMES * FRAME_PLANES; plane k covers
         // (t_k - T, t_k].
         let first_plane_t = spikes.t_first_ns as f64 - spikes.plane_period_ns as f64;
