@@ -6,12 +6,12 @@
 //! a short window. So the right `H` and `delta` make the events' polarities agree with the spike
 //! camera's temporal change, the z-score of the count's change
 //! `D(x, t) = (S(x, t + tau) - S(x, t - tau)) / sqrt(S(x, t + tau) + S(x, t - tau) + 1)`, sampled
-//! at `(H p, t - delta)`. (The difference of the counts' logs, which a DVS's own quantity
-//! suggests, peaks where a window mixing an edge's two sides is mostly the darker one: that
-//! pulled the estimate up to 1 px off, a different way at each edge. The counts' difference
-//! peaks with the edge, and the square root, the Poisson noise of the counts, keeps a bright
-//! edge from outweighing a dark one.) [`estimate`] maximises their correlation (Pearson, over a sample of the
-//! events): the clock from the two sensors' activity over time (or known), a grid over the
+//! at `(H p, t - delta)`. Why not the difference of the counts' logs, as a DVS's own quantity
+//! suggests: it peaks where a window mixing an edge's two sides is mostly the darker one, which
+//! moves the estimate up to 1 px, a different way at each edge. The counts' difference peaks with
+//! the edge, and the square root, the Poisson noise of the counts, keeps a bright edge from
+//! outweighing a dark one. [`estimate`] maximises their correlation (Pearson, over a sample of
+//! the events): the clock from the two sensors' activity over time (or known), a grid over the
 //! scale and the shift on a blurred video, Nelder-Mead over the six affine coefficients of `H`
 //! (the perspective terms are kept from the start: they are nearly invisible in a frame's middle
 //! and drift), the clock again at that geometry, the geometry at that clock, and both together.
