@@ -279,6 +279,7 @@ impl DvsConfig {
 }
 
 pub use neuspike_simd::fastmath::ln_fast;
+use neuspike_simd::fastmath::{max_or, min_or};
 
 /// Log intensity of a frame: `dst[i] = ln_fast(max(frame[i] * light_scale, floor))`, on the
 /// widest vector unit the CPU has.
@@ -421,18 +422,15 @@ const MAX_RAMP: f32 = 8.0;
 /// v2e's light on its 8-bit scale, `clamp((255 x + 20) / 275, 0, 1)` of the scaled intensity.
 #[inline(always)]
 fn inten01(x: f32) -> f32 {
-    // The quotients as constants: a multiply and an add, no division in the pixel loop. The
-    // clamp as two selects, one vector instruction each (a NaN gives 0).
-    let i = x * (255.0 / 275.0) + 20.0 / 275.0;
-    let i = if i > 0.0 { i } else { 0.0 };
-    if i < 1.0 { i } else { 1.0 }
+    // The quotients as constants: a multiply and an add, no division in the pixel loop; a NaN
+    // gives 0.
+    min_or(max_or(x * (255.0 / 275.0) + 20.0 / 275.0, 0.0), 1.0)
 }
 
 /// One step of the photoreceptor's low-pass: `lp + eps (l - lp)`, `eps = min(1, i dt 2 pi fc)`.
 #[inline(always)]
 fn low_pass(lp: f32, l: f32, x: f32, dt_2pi_fc: f32) -> f32 {
-    let eps = inten01(x) * dt_2pi_fc;
-    let eps = if eps < 1.0 { eps } else { 1.0 };
+    let eps = min_or(inten01(x) * dt_2pi_fc, 1.0);
     lp + eps * (l - lp)
 }
 
@@ -457,9 +455,7 @@ struct LogStep<'a> {
 /// level `lp` when the filter is on.
 #[inline(always)]
 fn log_level(a: &LogStep, filter: bool, v: f32, lp: f32) -> f32 {
-    // `max(v * scale, floor)`, a NaN giving the floor, as one vector instruction.
-    let x = v * a.scale;
-    let x = if x > a.floor { x } else { a.floor };
+    let x = max_or(v * a.scale, a.floor);
     let l = ln_fast(x);
     if filter {
         low_pass(lp, l, x, a.dt_2pi_fc)
