@@ -11,6 +11,9 @@
 //! exactly when the CPU supports it, which is checked right before each call, and the
 //! intrinsics' loads and stores stay within the bounds checked. [`fastmath`] holds the
 //! project's branch-free elementary functions (`exp`, `ln`), which vectorise inside such loops.
+//! The environment variable `NEUSPIKE_ISA` (`baseline`, `avx2`) makes a wider CPU run the
+//! narrower variants, to time them: a loop the compiler leaves scalar for one instruction set
+//! shows there and nowhere else.
 //!
 //! A kernel run through [`with_isa`] must give the same bits on every instruction set; that holds
 //! for IEEE add, sub, mul, div, sqrt, min, max and compares (Rust never fuses a multiply and an
@@ -55,8 +58,40 @@ impl Isa {
     }
 }
 
-/// The widest instruction set this CPU supports (the standard library caches the CPU query).
+/// The environment variable that narrows [`detect`]'s answer: `baseline`, `avx2` or `avx512`.
+pub const ISA_VAR: &str = "NEUSPIKE_ISA";
+
+/// The instruction set the kernels run: the widest this CPU supports, or the narrower one
+/// [`ISA_VAR`] names, so that a wide CPU can time or test what a narrower one runs. A name wider
+/// than the CPU supports leaves the CPU's own; a name that is none of the three is reported once
+/// on standard error, in one line, and ignored.
 pub fn detect() -> Isa {
+    static CAP: std::sync::OnceLock<Option<Isa>> = std::sync::OnceLock::new();
+    let cpu = cpu_isa();
+    let cap = *CAP.get_or_init(|| {
+        let value = std::env::var(ISA_VAR).ok()?;
+        let isa = parse_isa(&value);
+        if isa.is_none() {
+            eprintln!(
+                "{ISA_VAR} = {value:?}: not one of baseline, avx2, avx512; running {}",
+                cpu.name()
+            );
+        }
+        isa
+    });
+    cap.map_or(cpu, |c| c.min(cpu))
+}
+
+/// An instruction set by its [`Isa::name`] (surrounding spaces and case ignored).
+pub fn parse_isa(name: &str) -> Option<Isa> {
+    let name = name.trim();
+    Isa::ALL
+        .into_iter()
+        .find(|isa| isa.name().eq_ignore_ascii_case(name))
+}
+
+/// The widest instruction set this CPU supports (the standard library caches the CPU query).
+fn cpu_isa() -> Isa {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx512f")
@@ -122,6 +157,16 @@ mod x86 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn isa_names_parse_back() {
+        for isa in Isa::ALL {
+            assert_eq!(parse_isa(isa.name()), Some(isa));
+        }
+        assert_eq!(parse_isa(" AVX2 "), Some(Isa::Avx2));
+        assert_eq!(parse_isa("sse9"), None);
+        assert_eq!(parse_isa(""), None);
+    }
 
     #[test]
     fn every_isa_runs_and_gives_the_same_bits() {
