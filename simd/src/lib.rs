@@ -52,7 +52,8 @@ impl Isa {
         }
     }
 
-    /// Whether this CPU can run code compiled for `self`.
+    /// Whether the kernels here run code compiled for `self`: this CPU supports it and
+    /// `NEUSPIKE_ISA` (see [`detect`]) does not name a narrower set.
     pub fn is_supported(self) -> bool {
         self <= detect()
     }
