@@ -289,8 +289,13 @@ pub fn summarise(rows: &[&Row]) -> Summary {
     }
 }
 
+/// PSNRs closer than this (dB) are one accuracy on the front: a method that takes another's
+/// frames (`auto` choosing TFP) has its mean summed in another order, a few ulps away.
+const FRONT_TIE_DB: f64 = 1e-9;
+
 /// The methods on the Pareto front of (cost, PSNR): no other is both cheaper (or as cheap) and
-/// more accurate. `points` are `(name, cost, psnr)`; the front comes sorted by cost.
+/// more accurate (by more than [`FRONT_TIE_DB`]). `points` are `(name, cost, psnr)`; the front
+/// comes sorted by cost.
 pub fn pareto(points: &[(String, f64, f64)]) -> Vec<(String, f64, f64)> {
     let mut v: Vec<_> = points
         .iter()
@@ -300,7 +305,7 @@ pub fn pareto(points: &[(String, f64, f64)]) -> Vec<(String, f64, f64)> {
     v.sort_by(|a, b| a.1.total_cmp(&b.1).then(b.2.total_cmp(&a.2)));
     let mut front: Vec<(String, f64, f64)> = Vec::new();
     for p in v {
-        if front.last().is_none_or(|l| p.2 > l.2) {
+        if front.last().is_none_or(|l| p.2 > l.2 + FRONT_TIE_DB) {
             front.push(p);
         }
     }
@@ -436,6 +441,11 @@ mod tests {
             ("e".to_string(), 0.5, f64::NAN),
         ];
         let f: Vec<String> = pareto(&pts).into_iter().map(|p| p.0).collect();
+        assert_eq!(f, ["a", "c", "d"]);
+        // The same frames at a higher cost, their mean summed in another order: not on the front.
+        let mut tied = pts.clone();
+        tied.push(("c-again".to_string(), 6.0, 30.0 + 4.0 * f64::EPSILON * 30.0));
+        let f: Vec<String> = pareto(&tied).into_iter().map(|p| p.0).collect();
         assert_eq!(f, ["a", "c", "d"]);
         let per: Vec<(String, Summary)> = pts
             .iter()
