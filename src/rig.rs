@@ -28,9 +28,14 @@ pub struct RigOptions {
     /// The event camera's size when its file does not state it, `WxH`.
     #[arg(long, value_parser = parse_size)]
     pub event_size: Option<(usize, usize)>,
-    /// Spike planes to use from the start of the spike recording.
+    /// Spike planes to use, from `--skip-planes` on.
     #[arg(long, default_value_t = 800)]
     pub planes: usize,
+    /// Spike planes to pass over first: the stretch used should hold a change of the motion (a
+    /// start, a stop, a turn of direction), which alone tells the clock offset from the
+    /// homography.
+    #[arg(long, default_value_t = 0)]
+    pub skip_planes: u64,
     /// Where to start: a homography (nine numbers). By default, square pixels, the two frames'
     /// widths and centres together.
     #[arg(long, value_parser = parse_homography, allow_hyphen_values = true)]
@@ -72,14 +77,32 @@ pub fn run(opts: &RigOptions) -> eyre::Result<(RigEstimate, (u16, u16))> {
     pku.geometry.height = sh;
     let available = neuspike_formats::pku::plane_count(&opts.spikes, &pku.geometry)
         .wrap_err_with(|| format!("--spikes {}", opts.spikes.display()))?;
-    let planes = usize::try_from(available)
+    if opts.skip_planes >= available {
+        bail!(
+            "--skip-planes {}: --spikes {} holds {available} planes",
+            opts.skip_planes,
+            opts.spikes.display()
+        );
+    }
+    let planes = usize::try_from(available - opts.skip_planes)
         .unwrap_or(usize::MAX)
         .min(opts.planes);
     if planes == 0 {
         bail!("--spikes {}: no planes", opts.spikes.display());
     }
     let spikes = neuspike_formats::pku::PkuReader::open(&opts.spikes, &pku)
-        .and_then(|mut r| r.next_chunk(planes))
+        .and_then(|mut r| {
+            // Passed over in pieces, so a long skip holds no more than a piece.
+            let mut left = opts.skip_planes;
+            while left > 0 {
+                let n = usize::try_from(left.min(4096)).unwrap_or(4096);
+                if r.next_chunk(n)?.is_none() {
+                    break;
+                }
+                left -= n as u64;
+            }
+            r.next_chunk(planes)
+        })
         .wrap_err_with(|| format!("--spikes {}", opts.spikes.display()))?
         .ok_or_else(|| eyre!("--spikes {}: no planes", opts.spikes.display()))?;
     let read = ReadOptions {
