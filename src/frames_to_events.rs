@@ -2,7 +2,8 @@
 //! v2e runs its emulator on video frames, so that the two can be compared on the same input.
 //!
 //! Input: a `.npy` of float32 `[T, H, W]` intensities (the scene's luminance in `[0, 1]`), frame
-//! `k` at `k * dt_ns`. The first frame sets every pixel's reference level; each later frame adds
+//! `k` at `k * dt_ns`, read a frame at a time (two frames of memory, whatever the video's
+//! length; a Fortran-order file is read whole). The first frame sets every pixel's reference level; each later frame adds
 //! the crossings of the log-intensity path from the frame before, and the noise of that
 //! interval, exactly as [`DvsPixels::step`] does inside the event camera. Output: the events as
 //! Event Camera Dataset text (`seconds x y polarity`, 1 ON / 0 OFF, a `width height` first
@@ -11,14 +12,14 @@
 //!
 //! v2e's parameter names map onto these arguments one for one (docs/camera.md).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use eyre::{WrapErr, bail, eyre};
-use ndarray::{ArrayView3, Axis};
-use ndarray_npy::ViewNpyExt;
+use ndarray::{Array3, Axis};
 use neuspike_event_source::{DvsConfig, DvsPixels, sort_by_time};
 use neuspike_formats::Resolution;
+use neuspike_formats::npy::NpyFrames;
 use neuspike_formats::text::TextWriter;
 use neuspike_schemas::Event;
 
@@ -102,36 +103,36 @@ fn config(o: &FramesToEventsOptions, width: usize, height: usize) -> eyre::Resul
     })
 }
 
-/// The frames of a `.npy` file's bytes, checked: float32, three axes, at least two frames, every
-/// value finite and `>= 0`. The view borrows `bytes` (nothing is allocated from the header).
-fn frames_of<'a>(bytes: &'a [u8], path: &Path) -> eyre::Result<ArrayView3<'a, f32>> {
-    let name = path.display();
-    let frames = ArrayView3::<f32>::view_npy(bytes)
-        .map_err(|e| eyre!("{name}: not a float32 [T, H, W] .npy: {e}"))?;
-    let (t, h, w) = frames.dim();
-    if t < 2 || h == 0 || w == 0 || h > u16::MAX as usize || w > u16::MAX as usize {
-        bail!("{name}: shape [{t}, {h}, {w}]: needs at least 2 frames of 1..=65535 pixels a side");
-    }
-    if let Some((i, v)) = frames
+/// The first pixel of `frame` (frame `k`, `w` pixels a row) that is not finite and `>= 0`, as
+/// the error that names it.
+fn check_frame(
+    frame: &[f32],
+    k: usize,
+    w: usize,
+    name: &std::path::Display<'_>,
+) -> eyre::Result<()> {
+    if let Some((i, v)) = frame
         .iter()
         .enumerate()
         .find(|(_, v)| !(v.is_finite() && **v >= 0.0))
     {
-        let (k, rest) = (i / (h * w), i % (h * w));
         bail!(
             "{name}: frame {k} pixel ({}, {}) = {v}: intensities must be finite and >= 0",
-            rest % w,
-            rest / w
+            i % w,
+            i / w
         );
     }
-    Ok(frames)
+    Ok(())
 }
 
-/// Runs the DVS over the frames of `o.frames` and writes the events to `o.out`.
+/// Runs the DVS over the frames of `o.frames` and writes the events to `o.out`. A C-order file
+/// is read a frame at a time (two frames of memory, whatever its length); a Fortran-order one
+/// is read whole, and checked before any event is written.
 ///
 /// # Errors
-/// The frames cannot be read or are not float32 `[T, H, W]` with finite values `>= 0`; `dt_ns`
-/// is not positive; a DVS setting is out of range; the output cannot be written.
+/// The frames cannot be read or are not float32 `[T, H, W]` with finite values `>= 0` (the
+/// events of the frames before a bad one are written first); `dt_ns` is not positive; a DVS
+/// setting is out of range; the output cannot be written.
 pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     if o.dt_ns <= 0 {
         bail!("frames-to-events: --dt-ns = {} must be > 0", o.dt_ns);
@@ -142,25 +143,35 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
             o.light_scale
         );
     }
-    // The bytes in 4-byte words, so that the float32 view is aligned.
-    let bytes = std::fs::read(&o.frames).wrap_err_with(|| format!("{}", o.frames.display()))?;
-    let n = bytes.len();
-    let mut words = vec![0u32; n.div_ceil(4)];
-    bytemuck::cast_slice_mut::<u32, u8>(&mut words)[..n].copy_from_slice(&bytes);
-    drop(bytes);
-    let frames = frames_of(&bytemuck::cast_slice::<u32, u8>(&words)[..n], &o.frames)?;
-    let (t, h, w) = frames.dim();
+    let name = o.frames.display();
+    let reader =
+        NpyFrames::open(&o.frames).map_err(|e| eyre!("not a float32 [T, H, W] .npy: {e}"))?;
+    let (t, h, w) = reader.shape();
+    if t < 2 || h == 0 || w == 0 || h > u16::MAX as usize || w > u16::MAX as usize {
+        bail!("{name}: shape [{t}, {h}, {w}]: needs at least 2 frames of 1..=65535 pixels a side");
+    }
     let cfg = config(o, w, h)?;
-    // A C-order file's frames are read where they lie; another layout is copied once.
-    let copy = (!frames.is_standard_layout()).then(|| frames.as_standard_layout().into_owned());
-    let all = copy.as_ref().map_or(frames, |a| a.view());
-    let frame = |k: usize| {
-        all.index_axis_move(Axis(0), k)
-            .to_slice()
-            .unwrap_or_default()
+    // Fortran order spreads each frame over the whole file: read whole, as a standard layout.
+    let whole = if reader.fortran_order() {
+        let all: Array3<f32> = ndarray_npy::read_npy(&o.frames)
+            .map_err(|e| eyre!("{name}: not a float32 [T, H, W] .npy: {e}"))?;
+        let all = all.as_standard_layout().into_owned();
+        for (k, frame) in all.outer_iter().enumerate() {
+            check_frame(frame.as_slice().unwrap_or_default(), k, w, &name)?;
+        }
+        Some(all)
+    } else {
+        None
     };
-    let mut pixels = DvsPixels::new(&cfg, o.light_scale, frame(0))
-        .map_err(|e| eyre!("frames-to-events: {e}"))?;
+    let mut frames = match &whole {
+        Some(all) => Frames::Whole(all, 0),
+        None => Frames::Stream(reader),
+    };
+    let (mut prev, mut cur) = (Vec::with_capacity(h * w), Vec::with_capacity(h * w));
+    frames.next_into(&mut prev, &name)?;
+    check_frame(&prev, 0, w, &name)?;
+    let mut pixels =
+        DvsPixels::new(&cfg, o.light_scale, &prev).map_err(|e| eyre!("frames-to-events: {e}"))?;
     let file = std::fs::File::create(&o.out)
         .wrap_err_with(|| format!("cannot create {}", o.out.display()))?;
     let resolution = Resolution {
@@ -178,11 +189,19 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     };
     let mut events: Vec<Event> = Vec::new();
     for k in 1..t {
+        // A bad frame ends the run after the events of the frames before it are written.
+        if let Err(e) = frames
+            .next_into(&mut cur, &name)
+            .and_then(|()| check_frame(&cur, k, w, &name))
+        {
+            writer.finish()?;
+            return Err(e);
+        }
         let t_a = (k as i64 - 1).saturating_mul(o.dt_ns);
         let t_b = (k as i64).saturating_mul(o.dt_ns);
         events.clear();
         let start = Instant::now();
-        pixels.step(frame(k - 1), frame(k), t_a, t_b, &mut events);
+        pixels.step(&prev, &cur, t_a, t_b, &mut events);
         sort_by_time(&mut events);
         summary.wall_s += start.elapsed().as_secs_f64();
         for e in &events {
@@ -193,15 +212,45 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
             }
             writer.write_event(e)?;
         }
+        std::mem::swap(&mut prev, &mut cur);
     }
     writer.finish()?;
     Ok(summary)
 }
 
+/// Where the frames come from: the file a frame at a time, or an array read whole.
+enum Frames<'a> {
+    Stream(NpyFrames),
+    Whole(&'a Array3<f32>, usize),
+}
+
+impl Frames<'_> {
+    /// The next frame into `frame`.
+    fn next_into(
+        &mut self,
+        frame: &mut Vec<f32>,
+        name: &std::path::Display<'_>,
+    ) -> eyre::Result<()> {
+        match self {
+            Frames::Stream(r) => {
+                if !r.read_frame(frame)? {
+                    bail!("{name}: fewer frames than its header says");
+                }
+            }
+            Frames::Whole(all, k) => {
+                frame.clear();
+                frame.extend(all.index_axis(Axis(0), *k).iter().copied());
+                *k += 1;
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndarray::Array3;
+    use std::path::Path;
 
     fn options(dir: &Path, frames: &Array3<f32>) -> FramesToEventsOptions {
         let path = dir.join("frames.npy");
@@ -271,6 +320,7 @@ mod tests {
     fn bad_frames_and_settings_are_refused_by_name() {
         let dir = tempfile::tempdir().expect("tempdir");
         let mut f = Array3::<f32>::from_elem((3, 2, 2), 0.5);
+        f.index_axis_mut(ndarray::Axis(0), 1).fill(1.0);
         f[[2, 1, 0]] = f32::NAN;
         let o = options(dir.path(), &f);
         let e = run(&o).expect_err("nan").to_string();
@@ -278,6 +328,19 @@ mod tests {
             e.contains("frame 2 pixel (0, 1)") && e.contains("NaN"),
             "{e}"
         );
+        // The events of the frames before the bad one are written, not lost.
+        let written = std::fs::read_to_string(&o.out).expect("events");
+        assert!(
+            written.lines().skip(1).any(|l| l.ends_with(" 1")),
+            "{written}"
+        );
+        // Read whole (Fortran order), a bad frame is found before any event is written.
+        let fortran = f.t().as_standard_layout().t().to_owned();
+        let o = options(dir.path(), &fortran);
+        let _ = std::fs::remove_file(&o.out);
+        let e = run(&o).expect_err("nan").to_string();
+        assert!(e.contains("frame 2 pixel (0, 1)"), "{e}");
+        assert!(!o.out.exists());
         let one = options(dir.path(), &Array3::<f32>::zeros((1, 2, 2)));
         let e = run(&one).expect_err("one frame").to_string();
         assert!(e.contains("at least 2 frames"), "{e}");

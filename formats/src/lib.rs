@@ -10,6 +10,7 @@
 //! | [`dat`] | Prophesee DAT CD events (N-CARS, Gen1) | [`dat::DatReader`] | [`dat::DatWriter`] |
 //! | [`truth`] | ground-truth folders: PNG frames listed by plane in `timestamps.txt` | [`truth::TruthList`] | [`truth::TruthListWriter`] |
 //! | [`aedat4`] | AEDAT 4 (iniVation DV): events and APS frames, uncompressed, LZ4 or Zstd | [`aedat4::Aedat4Reader`], [`aedat4::Aedat4Frames`] | [`aedat4::Aedat4Writer`] (none or LZ4) |
+//! | [`npy`] | NumPy `.npy` float32 `[T, H, W]` intensity frames (video for `frames-to-events`) | [`npy::NpyFrames`] | |
 //!
 //! Every reader streams with bounded memory (a 10 GB file is never loaded whole): spike readers
 //! hand out chunks of N planes, event readers fill batches of up to N events
@@ -47,6 +48,7 @@ pub mod evt3;
 pub mod hdf5;
 pub mod header;
 pub mod info;
+pub mod npy;
 mod open;
 pub mod pku;
 pub mod raw;
