@@ -42,6 +42,20 @@ def recordings() -> None:
             put("prophesee_dat", f.name, data, 0x01)
 
 
+def npy() -> None:
+    """NumPy headers of versions 1 and 2, C and Fortran order, as numpy writes them."""
+    import io
+
+    import numpy as np
+
+    a = np.zeros((2, 3, 4), np.float32)
+    for name, arr, version in [("c-v1.npy", a, (1, 0)), ("f-v1.npy", np.asfortranarray(a), (1, 0)),
+                               ("c-v2.npy", a, (2, 0))]:
+        buf = io.BytesIO()
+        np.lib.format.write_array(buf, arr, version=version)
+        put("npy", name, buf.getvalue())
+
+
 def prophesee_dat() -> None:
     """A small CD events file as Prophesee's tools write it: `%` header lines, the event type and
     size bytes, then 8-byte events (µs time; x in bits 0-13, y 14-27, polarity 28-31)."""
@@ -107,6 +121,7 @@ if __name__ == "__main__":
     shutil.rmtree(HERE / "corpus", ignore_errors=True)
     recordings()
     prophesee_dat()
+    npy()
     messages()
     ros2()
     for d in sorted((HERE / "corpus").iterdir()):
