@@ -304,18 +304,12 @@ impl NpyFrames {
     /// The file cannot be opened or read, or its header or size says something else.
     pub fn open(path: impl AsRef<Path>) -> Result<NpyFrames> {
         let path = path.as_ref();
-        let file = File::open(path).map_err(|source| FormatError::Open {
+        let open_err = |source| FormatError::Open {
             path: path.to_path_buf(),
             source,
-        })?;
-        let size = file
-            .metadata()
-            .map_err(|source| FormatError::Io {
-                path: path.to_path_buf(),
-                offset: 0,
-                source,
-            })?
-            .len();
+        };
+        let file = File::open(path).map_err(open_err)?;
+        let size = file.metadata().map_err(open_err)?.len();
         let mut reader = BufReader::new(file);
         let header = parse_header(&mut reader, path)?;
         let bad = |what: String| FormatError::Header {
