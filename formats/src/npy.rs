@@ -292,6 +292,7 @@ pub struct NpyFrames {
     height: usize,
     width: usize,
     fortran_order: bool,
+    data_offset: u64,
     next: usize,
     bytes: Vec<u8>,
 }
@@ -351,6 +352,7 @@ impl NpyFrames {
             height,
             width,
             fortran_order: header.fortran_order,
+            data_offset: header.data_offset,
             next: 0,
             bytes: Vec::new(),
         })
@@ -383,7 +385,7 @@ impl NpyFrames {
         }
         let n = self.height * self.width;
         self.bytes.resize(n * 4, 0);
-        let offset = (self.next * n * 4) as u64;
+        let offset = self.data_offset + (self.next * n * 4) as u64;
         self.reader
             .read_exact(&mut self.bytes)
             .map_err(|source| FormatError::Io {
