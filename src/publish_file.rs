@@ -7,7 +7,9 @@
 //! Arrow IPC (`neuspike_schemas::ipc`) with its sequence number and `origin_unix_ns`, then the
 //! end-of-stream marker with the count. zenoh keeps nothing for late subscribers, so it waits
 //! for one before the first message, and it sends with congestion control `block`: a slow
-//! receiver holds it back instead of losing messages.
+//! receiver holds it back instead of losing messages. After the end-of-stream marker it waits
+//! for its subscribers to leave (they do once they have taken the marker), since closing the
+//! session drops what is still queued on the link.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -40,7 +42,8 @@ pub struct PublishFile {
     /// `fast`: as fast as the receiver takes them.
     #[arg(long, value_enum, default_value_t = Pace::Realtime)]
     pub pace: Pace,
-    /// Seconds to wait for a subscriber before the first message.
+    /// Seconds to wait for a subscriber before the first message, and for the subscribers to
+    /// take the end of the stream and leave before closing.
     #[arg(long, default_value_t = 30)]
     pub wait_s: u64,
     /// The zenoh session.
@@ -203,8 +206,16 @@ pub fn run(opts: &PublishFile) -> eyre::Result<Published> {
     let ended = put(urn, &meta, &data);
     played?;
     ended?;
-    // Let the last samples leave before the session closes.
-    std::thread::sleep(Duration::from_millis(300));
+    // Closing the session drops what is still queued on the link, and a receiver working
+    // through its backlog may hold seconds of it: wait for the subscribers to leave, which they
+    // do once they have taken the end-of-stream marker.
+    if !neuspike_net::session::wait_unmatched(&[&publisher], Duration::from_secs(opts.wait_s)) {
+        tracing::warn!(
+            key = %key,
+            wait_s = opts.wait_s,
+            "a subscriber still listens after the end of the stream; closing"
+        );
+    }
     Ok(Published {
         key,
         messages,

@@ -1,8 +1,15 @@
 //! The zenoh session of a neuspike node, safe by default.
 
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 use zenoh::Wait;
+
+/// How long a put with congestion control `block` waits for room in the link's queue before
+/// zenoh gives the link up, seconds. zenoh's own default is 5 s, which a receiver that is busy
+/// with its backlog on a loaded machine can exceed, and giving the link up loses the queued
+/// messages; a receiver that takes nothing for this long is gone rather than slow.
+pub const BLOCK_WAIT_S: i64 = 60;
 
 /// The zenoh settings of a node (flattened into its `args:`).
 #[derive(Clone, Debug, Default, clap::Args)]
@@ -89,6 +96,10 @@ impl ZenohArgs {
             &list(&self.connect, "tcp/127.0.0.1:7447"),
         )?;
         set("scouting/multicast/enabled", "false")?;
+        set(
+            "transport/link/tx/queue/congestion_control/block/wait_before_close",
+            &(BLOCK_WAIT_S * 1_000_000).to_string(),
+        )?;
         Ok(c)
     }
 
@@ -100,6 +111,29 @@ impl ZenohArgs {
         zenoh::open(self.config()?)
             .wait()
             .map_err(|e| SessionError::Open(e.to_string()))
+    }
+}
+
+/// Waits until none of `publishers` has a subscriber, or `limit` passed; whether they all left.
+///
+/// Closing a session drops what is still queued on its links, and a subscriber working through
+/// its backlog may hold seconds of it. A subscriber that ends with its stream leaves once it
+/// has taken the end-of-stream marker, so a publisher that waits for this before closing loses
+/// nothing; one that keeps listening (a viewer) holds it for `limit`. A publisher whose status
+/// cannot be read counts as left.
+pub fn wait_unmatched(publishers: &[&zenoh::pubsub::Publisher<'_>], limit: Duration) -> bool {
+    let deadline = Instant::now() + limit;
+    loop {
+        let matched = publishers
+            .iter()
+            .any(|p| p.matching_status().wait().is_ok_and(|m| m.matching()));
+        if !matched {
+            return true;
+        }
+        if Instant::now() >= deadline {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
@@ -126,6 +160,10 @@ mod tests {
         assert_eq!(get("listen/endpoints"), "[\"tcp/127.0.0.1:0\"]");
         assert_eq!(get("connect/endpoints"), "[\"tcp/127.0.0.1:7447\"]");
         assert_eq!(get("scouting/multicast/enabled"), "false");
+        assert_eq!(
+            get("transport/link/tx/queue/congestion_control/block/wait_before_close"),
+            "60000000"
+        );
         let e = ZenohArgs {
             zenoh_config: Some("/nonexistent/z.json5".into()),
             ..ZenohArgs::default()
@@ -137,5 +175,55 @@ mod tests {
             e.starts_with("/nonexistent/z.json5: not a zenoh configuration"),
             "{e}"
         );
+    }
+
+    /// Two sessions on loopback, the second dialling the first.
+    fn pair() -> (zenoh::Session, zenoh::Session) {
+        let a = ZenohArgs {
+            connect: vec!["tcp/127.0.0.1:1".into()],
+            ..ZenohArgs::default()
+        }
+        .open()
+        .expect("first session");
+        let b = ZenohArgs {
+            connect: locators(&a),
+            ..ZenohArgs::default()
+        }
+        .open()
+        .expect("second session");
+        (a, b)
+    }
+
+    #[test]
+    fn a_publisher_waits_for_its_subscriber_to_leave_and_no_longer_than_the_limit() {
+        let (a, b) = pair();
+        let p = a
+            .declare_publisher("test/linger")
+            .wait()
+            .expect("publisher");
+        let short = Duration::from_millis(300);
+        assert!(wait_unmatched(&[&p], short), "nobody listens yet");
+
+        let sub = b
+            .declare_subscriber("test/linger")
+            .wait()
+            .expect("subscriber");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !p.matching_status().wait().expect("status").matching() {
+            assert!(Instant::now() < deadline, "the subscriber never matched");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let start = Instant::now();
+        assert!(!wait_unmatched(&[&p], short), "a subscriber still listens");
+        assert!(start.elapsed() >= short);
+
+        let leaving = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(200));
+            drop(sub);
+        });
+        let start = Instant::now();
+        assert!(wait_unmatched(&[&p], Duration::from_secs(10)), "it left");
+        assert!(start.elapsed() < Duration::from_secs(10));
+        leaving.join().expect("thread");
     }
 }

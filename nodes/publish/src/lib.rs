@@ -66,6 +66,12 @@ pub struct PublishConfig {
     /// relative path is relative to the graph's folder.
     #[arg(long)]
     pub mcap: Option<std::path::PathBuf>,
+    /// After the graph's end, wait up to this many seconds for the subscribers to leave (they
+    /// do once they have taken the end-of-stream markers) before closing the session, which
+    /// drops what is still queued on its links. A subscriber that keeps listening holds the
+    /// node this long; 0 closes at once.
+    #[arg(long, default_value_t = 5.0)]
+    pub linger_s: f64,
     /// The zenoh session.
     #[command(flatten)]
     pub zenoh: ZenohArgs,
@@ -204,6 +210,7 @@ pub struct Publisher {
     _node_token: Option<zenoh::liveliness::LivelinessToken>,
     published: u64,
     bag: Option<bag::Bag>,
+    linger: std::time::Duration,
 }
 
 impl Publisher {
@@ -256,6 +263,8 @@ impl Publisher {
                 let key = node.data_key(&r.topic, dds_type, hash);
                 let p = session
                     .declare_publisher(key.clone())
+                    .congestion_control(cfg.congestion.zenoh())
+                    .reliability(zenoh::qos::Reliability::Reliable)
                     .wait()
                     .map_err(|e| eyre!("cannot publish on {key}: {e}"))?;
                 let token = session
@@ -289,6 +298,8 @@ impl Publisher {
             _node_token: node_token,
             published: 0,
             bag: cfg.mcap.as_deref().map(bag::Bag::create).transpose()?,
+            linger: std::time::Duration::try_from_secs_f64(cfg.linger_s)
+                .map_err(|_| eyre!("--linger-s {}: not a number of seconds", cfg.linger_s))?,
         })
     }
 
@@ -402,17 +413,33 @@ impl Publisher {
 }
 
 impl Publisher {
-    /// Finishes the bag, if the run is recorded: its summary and index.
+    /// Finishes the bag, if the run is recorded (its summary and index), then waits up to the
+    /// linger time for the subscribers to leave.
     ///
     /// # Errors
     /// The bag could not be written.
     pub fn finish(&mut self) -> eyre::Result<()> {
-        if let Some(bag) = self.bag.take() {
-            let n = bag.messages();
-            let path = bag.finish()?;
-            tracing::info!(path = %path.display(), messages = n, "bag written");
+        let written = match self.bag.take() {
+            Some(bag) => {
+                let n = bag.messages();
+                bag.finish().map(|path| {
+                    tracing::info!(path = %path.display(), messages = n, "bag written");
+                })
+            }
+            None => Ok(()),
+        };
+        let publishers: Vec<&zenoh::pubsub::Publisher<'static>> = self
+            .arrow
+            .values()
+            .chain(self.ros.values().map(|r| &r.key))
+            .collect();
+        if !neuspike_net::session::wait_unmatched(&publishers, self.linger) {
+            tracing::info!(
+                linger_s = self.linger.as_secs_f64(),
+                "subscribers still listen; closing"
+            );
         }
-        Ok(())
+        Ok(written?)
     }
 }
 
@@ -455,6 +482,7 @@ mod tests {
             ros_namespace: "/".into(),
             frame_id: "f".into(),
             congestion: Congestion::Block,
+            linger_s: 0.0,
             mcap: None,
             zenoh: ZenohArgs::default(),
         };

@@ -67,6 +67,7 @@ fn frames_reach_zenoh_as_arrow_and_ros2_images_with_their_attachment_and_tokens(
         ros_namespace: "/".into(),
         frame_id: "spike_camera".into(),
         congestion: neuspike_publish::Congestion::Block,
+        linger_s: 0.0,
         mcap: None,
         zenoh: neuspike_net::ZenohArgs {
             listen: vec!["tcp/127.0.0.1:0".into()],

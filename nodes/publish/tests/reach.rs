@@ -103,6 +103,7 @@ fn the_default_session_cannot_be_reached_from_another_host() {
         ros_namespace: "/".into(),
         frame_id: "f".into(),
         congestion: neuspike_publish::Congestion::Block,
+        linger_s: 0.0,
         mcap: None,
         zenoh: neuspike_net::ZenohArgs::default(),
     };
