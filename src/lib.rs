@@ -5,6 +5,7 @@
 //! [`graph::run`] directly.
 #![deny(missing_docs)]
 
+pub mod aps_check;
 pub mod bench_live;
 pub mod bench_model;
 pub mod calibrate;

@@ -92,6 +92,10 @@ enum Command {
     /// its emulator on video frames: events as text, and a one-line JSON summary (counts and
     /// the emulation's time).
     FramesToEvents(neuspike::frames_to_events::FramesToEventsOptions),
+    /// Check the DVS against a DAVIS recording (AEDAT 4 with APS frames): emulate the events
+    /// of its own frames and compare them with the recorded events (counts, over time, over the
+    /// pixels, what the frames cannot show); `--fit-threshold` fits the contrast threshold.
+    ApsCheck(neuspike::aps_check::ApsCheckOptions),
     /// Stream the spike-only live graph paced to a camera's clock (default 30 s of a 20 kHz camera
     /// at 1,000 TFP frames/s) and report the wall time against the camera time, the frames lost
     /// and the latency, one Markdown row a run.
@@ -393,6 +397,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
             );
             Ok(())
         }
+        Command::ApsCheck(opts) => neuspike::aps_check::main(&opts),
         Command::FramesToEvents(opts) => {
             let s = neuspike::frames_to_events::run(&opts)?;
             println!("{}", s.json());
