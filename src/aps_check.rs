@@ -266,26 +266,6 @@ fn box3(counts: &[u32], w: usize, h: usize) -> Vec<f64> {
     out
 }
 
-/// The pixel array for frames of `w x h` with thresholds `theta`, from `dvs`: the rig and the
-/// sampling settings are refused by name.
-fn config(dvs: &DvsConfig, w: usize, h: usize, theta: (f64, f64)) -> eyre::Result<DvsConfig> {
-    let scene_only = [
-        ("--homography", dvs.homography.is_some()),
-        ("--clock-offset-ns", dvs.clock_offset_ns != 0),
-        ("--warp-step-ns", dvs.warp_step_ns != 0),
-    ];
-    if let Some((name, _)) = scene_only.iter().find(|(_, set)| *set) {
-        bail!("aps-check: {name} applies to a simulated scene, not to frames");
-    }
-    Ok(DvsConfig {
-        width: w,
-        height: h,
-        theta_on: theta.0,
-        theta_off: theta.1,
-        ..dvs.clone()
-    })
-}
-
 /// The emulated events of the whole file at `theta`, and with `with_recorded` the comparison
 /// with the recorded ones (else only the emulated counts are filled in).
 fn compare(
@@ -295,7 +275,11 @@ fn compare(
 ) -> eyre::Result<(ApsComparison, FrameStats)> {
     let (mut walk, mut prev, t_first, exposure0) = FrameWalk::open(&o.file)?;
     let (w, h) = walk.size;
-    let cfg = config(&o.dvs, w, h, theta)?;
+    let cfg = DvsConfig {
+        theta_on: theta.0,
+        theta_off: theta.1,
+        ..crate::frames_to_events::frames_config(&o.dvs, w, h, "aps-check")?
+    };
     let mut pixels = DvsPixels::new(&cfg, 1.0, &prev).map_err(|e| eyre!("aps-check: {e}"))?;
     let mut recorded = if with_recorded {
         let reader = open_events(&o.file, &ReadOptions::default()).map_err(|e| eyre!("{e}"))?;
@@ -553,10 +537,15 @@ mod tests {
     use crate::record::{SimulateOptions, simulate};
     use neuspike_spike_source::CameraConfig;
 
-    /// A simulated DAVIS recording of `scene` (both cameras `w x h`), its truth as APS frames
-    /// every `every` planes (20 kHz), and its events with `dvs`'s settings.
-    fn davis(dir: &Path, planes: u64, every: u64, dvs: DvsConfig) -> PathBuf {
-        let (w, h) = (80, 50);
+    /// A simulated recording of `bright-slow`: the spike camera `spike` in size, the DVS as
+    /// `dvs` says, the truth every `every` planes (20 kHz), as APS frames where the sizes agree.
+    fn recording(
+        dir: &Path,
+        planes: u64,
+        every: u64,
+        spike: (usize, usize),
+        dvs: DvsConfig,
+    ) -> PathBuf {
         simulate(&SimulateOptions {
             scene: "bright-slow".into(),
             out: dir.to_path_buf(),
@@ -565,19 +554,25 @@ mod tests {
             chunk_planes: 100,
             events: true,
             spike: CameraConfig {
-                width: w,
-                height: h,
+                width: spike.0,
+                height: spike.1,
                 ..Default::default()
             },
-            dvs: DvsConfig {
-                width: w,
-                height: h,
-                ..dvs
-            },
+            dvs,
             progress: false,
         })
         .expect("simulate");
         dir.join("events.aedat4")
+    }
+
+    /// A simulated DAVIS: both cameras 80x50, the events with `dvs`'s settings.
+    fn davis(dir: &Path, planes: u64, every: u64, dvs: DvsConfig) -> PathBuf {
+        let dvs = DvsConfig {
+            width: 80,
+            height: 50,
+            ..dvs
+        };
+        recording(dir, planes, every, (80, 50), dvs)
     }
 
     fn options(file: PathBuf) -> ApsCheckOptions {
@@ -658,28 +653,12 @@ mod tests {
     fn files_the_check_cannot_use_are_named_with_why() {
         let dir = tempfile::tempdir().expect("tempdir");
         // Cameras of two sizes: no APS frames.
-        let out = dir.path().join("two-sizes");
-        simulate(&SimulateOptions {
-            scene: "bright-slow".into(),
-            out: out.clone(),
-            planes: Some(100),
-            gt_every_planes: 20,
-            chunk_planes: 100,
-            events: true,
-            spike: CameraConfig {
-                width: 40,
-                height: 25,
-                ..Default::default()
-            },
-            dvs: DvsConfig {
-                width: 34,
-                height: 26,
-                ..DvsConfig::default()
-            },
-            progress: false,
-        })
-        .expect("simulate");
-        let file = out.join("events.aedat4");
+        let dvs = DvsConfig {
+            width: 34,
+            height: 26,
+            ..DvsConfig::default()
+        };
+        let file = recording(&dir.path().join("two-sizes"), 100, 20, (40, 25), dvs);
         let e = run(&options(file.clone()))
             .expect_err("no frames")
             .to_string();

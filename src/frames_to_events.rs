@@ -84,17 +84,24 @@ impl FramesToEventsSummary {
     }
 }
 
-/// The DVS configuration of the options for frames of `width x height`: the rig and the
-/// sampling (a scene's) are refused by name.
-fn config(o: &FramesToEventsOptions, width: usize, height: usize) -> eyre::Result<DvsConfig> {
-    let d = &o.dvs;
+/// `d` for frames of `width x height`, for `command`: the rig and the sampling (a scene's) are
+/// refused by name.
+///
+/// # Errors
+/// A rig or sampling setting is given.
+pub fn frames_config(
+    d: &DvsConfig,
+    width: usize,
+    height: usize,
+    command: &str,
+) -> eyre::Result<DvsConfig> {
     let scene_only = [
         ("--homography", d.homography.is_some()),
         ("--clock-offset-ns", d.clock_offset_ns != 0),
         ("--warp-step-ns", d.warp_step_ns != 0),
     ];
     if let Some((name, _)) = scene_only.iter().find(|(_, set)| *set) {
-        bail!("frames-to-events: {name} applies to a simulated scene, not to frames");
+        bail!("{command}: {name} applies to a simulated scene, not to frames");
     }
     Ok(DvsConfig {
         width,
@@ -150,7 +157,7 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     if t < 2 || h == 0 || w == 0 || h > u16::MAX as usize || w > u16::MAX as usize {
         bail!("{name}: shape [{t}, {h}, {w}]: needs at least 2 frames of 1..=65535 pixels a side");
     }
-    let cfg = config(o, w, h)?;
+    let cfg = frames_config(&o.dvs, w, h, "frames-to-events")?;
     // Fortran order spreads each frame over the whole file: read whole, as a standard layout.
     let whole = if reader.fortran_order() {
         let all: Array3<f32> = ndarray_npy::read_npy(&o.frames)
