@@ -20,7 +20,8 @@
 //!   events outside the frames' span.
 //!
 //! A correlation over values that do not vary (a still recording) has no value and is reported
-//! as such.
+//! as such. A file whose tail cannot be read (a recording cut off mid-packet) is checked up to
+//! there, and the report says where and why it stopped.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -112,6 +113,9 @@ pub struct ApsCheck {
     pub saturated: f64,
     /// Recorded events before the first frame or after the last.
     pub outside: u64,
+    /// Why the check stopped before the file's end (a truncated or damaged tail), if it did:
+    /// what came before was checked.
+    pub ended_early: Option<String>,
     /// At the thresholds given.
     pub given: ApsComparison,
     /// At the fitted threshold, with `--fit-threshold`.
@@ -142,6 +146,8 @@ struct FrameWalk {
     size: (usize, usize),
     k: usize,
     last_t: i64,
+    /// Why the frames ended before the file did (a truncated or damaged tail).
+    ended_early: Option<String>,
 }
 
 impl FrameWalk {
@@ -170,14 +176,25 @@ impl FrameWalk {
             size,
             k: 0,
             last_t: first.t_ns,
+            ended_early: None,
         };
         Ok((walk, lum, first.t_ns, exposure))
     }
 
-    /// The next frame's luminance, time and exposure; `None` after the last.
+    /// The next frame's luminance, time and exposure; `None` after the last, or where the
+    /// file cannot be read further (a truncated or damaged tail: the frames before it are
+    /// checked, and [`FrameWalk::ended_early`] says why).
     fn next(&mut self) -> eyre::Result<Option<(Vec<f32>, i64, i64)>> {
-        let Some(f) = self.frames.next().transpose().map_err(|e| eyre!("{e}"))? else {
+        if self.ended_early.is_some() {
             return Ok(None);
+        }
+        let f = match self.frames.next().transpose() {
+            Ok(Some(f)) => f,
+            Ok(None) => return Ok(None),
+            Err(e) => {
+                self.ended_early = Some(e.to_string());
+                return Ok(None);
+            }
         };
         self.k += 1;
         if f.t_ns <= self.last_t {
@@ -201,10 +218,13 @@ struct Recorded {
     batch: EventBatch,
     at: usize,
     done: bool,
+    /// Why the events ended before the file did.
+    ended_early: Option<String>,
 }
 
 impl Recorded {
-    /// Calls `f` on every recorded event before `t_end_ns` not yet taken.
+    /// Calls `f` on every recorded event before `t_end_ns` not yet taken; a read error ends
+    /// the events there ([`Recorded::ended_early`] says why).
     fn take_until(&mut self, t_end_ns: i64, mut f: impl FnMut(Event)) -> eyre::Result<()> {
         loop {
             while self.at < self.batch.len() {
@@ -219,11 +239,16 @@ impl Recorded {
                 return Ok(());
             }
             self.at = 0;
-            match self.reader.next_chunk(1 << 16)? {
-                Some(b) => self.batch = b,
-                None => {
+            match self.reader.next_chunk(1 << 16) {
+                Ok(Some(b)) => self.batch = b,
+                Ok(None) => {
                     self.batch = EventBatch::empty(0, 0, 0, 0, 0);
                     self.done = true;
+                }
+                Err(e) => {
+                    self.batch = EventBatch::empty(0, 0, 0, 0, 0);
+                    self.done = true;
+                    self.ended_early = Some(e.to_string());
                 }
             }
         }
@@ -297,6 +322,7 @@ fn compare(
             batch: EventBatch::empty(w, h, 0, 0, 0),
             at: 0,
             done: false,
+            ended_early: None,
         })
     } else {
         None
@@ -308,6 +334,7 @@ fn compare(
         exposure_sum_ns: exposure0,
         saturated: saturated(&prev),
         outside: 0,
+        ended_early: None,
     };
     if let Some(r) = &mut recorded {
         r.take_until(t_first, |_| stats.outside += 1)?;
@@ -360,13 +387,17 @@ fn compare(
         t_a = t_b;
     }
     if stats.frames < 2 {
-        bail!(
-            "{}: one APS frame: the check needs two or more",
-            o.file.display()
-        );
+        match &walk.ended_early {
+            Some(why) => bail!("one APS frame could be read, the check needs two or more: {why}"),
+            None => bail!(
+                "{}: one APS frame: the check needs two or more",
+                o.file.display()
+            ),
+        }
     }
     if let Some(r) = &mut recorded {
         r.take_until(i64::MAX, |_| stats.outside += 1)?;
+        stats.ended_early = walk.ended_early.take().or(r.ended_early.take());
     }
     let comparison = ApsComparison {
         theta,
@@ -394,6 +425,8 @@ struct FrameStats {
     /// Saturated pixel-frames so far.
     saturated: u64,
     outside: u64,
+    /// Why the frames or the events ended before the file did.
+    ended_early: Option<String>,
 }
 
 /// Pixels of a frame at 0 or at full scale.
@@ -446,6 +479,7 @@ pub fn run(o: &ApsCheckOptions) -> eyre::Result<ApsCheck> {
         exposure_ns: stats.exposure_sum_ns / stats.frames as i64,
         saturated: stats.saturated as f64 / pixel_frames,
         outside: stats.outside,
+        ended_early: stats.ended_early,
         given,
         fitted,
     })
@@ -511,6 +545,11 @@ impl ApsCheck {
             100.0 * self.saturated,
             self.outside
         );
+        if let Some(why) = &self.ended_early {
+            s += &format!(
+                "\nThe file could not be read to its end ({why}): the check covers what came before.\n"
+            );
+        }
         s
     }
 }
@@ -676,6 +715,18 @@ mod tests {
         o.dvs.clock_offset_ns = 5;
         let e = run(&o).expect_err("rig").to_string();
         assert!(e.contains("--clock-offset-ns"), "{e}");
+        // A tail cut off mid-packet: what came before is checked, and the report says so.
+        let file = davis(&dir.path().join("cut"), 2000, 20, DvsConfig::default());
+        let whole = run(&options(file.clone())).expect("whole");
+        assert_eq!(whole.ended_early, None);
+        let bytes = std::fs::read(&file).expect("file");
+        let cut = dir.path().join("cut.aedat4");
+        std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).expect("write");
+        let part = run(&options(cut)).expect("the part before the cut");
+        assert!(part.frames >= 2 && part.frames < whole.frames, "{part:?}");
+        let why = part.ended_early.as_deref().expect("why it stopped");
+        assert!(why.contains("truncated"), "{why}");
+        assert!(part.markdown().contains("could not be read to its end"));
         // Not a file at all.
         let e = run(&options(dir.path().join("missing.aedat4")))
             .expect_err("missing")
