@@ -395,9 +395,10 @@ fn compare(
             ),
         }
     }
+    stats.ended_early = walk.ended_early.take();
     if let Some(r) = &mut recorded {
         r.take_until(i64::MAX, |_| stats.outside += 1)?;
-        stats.ended_early = walk.ended_early.take().or(r.ended_early.take());
+        stats.ended_early = stats.ended_early.take().or(r.ended_early.take());
     }
     let comparison = ApsComparison {
         theta,
