@@ -35,7 +35,8 @@ pub enum Isa {
     /// x86-64 AVX2 and FMA (256-bit vectors; every CPU with AVX2 but a few 2013 VIA parts has
     /// FMA too).
     Avx2,
-    /// x86-64 AVX-512 F and BW (512-bit vectors; AVX-512 F includes FMA).
+    /// x86-64 AVX-512 F, BW and DQ (512-bit vectors; AVX-512 F includes FMA; every CPU with BW
+    /// has DQ).
     Avx512,
 }
 
@@ -97,6 +98,7 @@ fn cpu_isa() -> Isa {
     {
         if std::arch::is_x86_feature_detected!("avx512f")
             && std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("avx512dq")
             && std::arch::is_x86_feature_detected!("fma")
         {
             return Isa::Avx512;
@@ -127,7 +129,7 @@ pub fn with_isa<R>(isa: Isa, kernel: impl FnOnce() -> R) -> R {
     #[cfg(target_arch = "x86_64")]
     {
         match isa {
-            // SAFETY: `isa <= detect()`: the CPU supports AVX-512 F and BW.
+            // SAFETY: `isa <= detect()`: the CPU supports AVX-512 F, BW and DQ.
             #[allow(unsafe_code)]
             Isa::Avx512 => return unsafe { x86::avx512(kernel) },
             // SAFETY: `isa <= detect()`: the CPU supports AVX2 and FMA.
@@ -148,7 +150,7 @@ mod x86 {
         kernel()
     }
 
-    #[target_feature(enable = "avx512f,avx512bw,fma")]
+    #[target_feature(enable = "avx512f,avx512bw,avx512dq,fma")]
     #[inline]
     pub fn avx512<R>(kernel: impl FnOnce() -> R) -> R {
         kernel()

@@ -785,25 +785,31 @@ pub struct FireNoise<'a> {
     pub reset_delay: f32,
     /// Each pixel's threshold for its current interval.
     pub thr: &'a mut [f32],
-    /// Each pixel's xorshift32 state (never 0), advanced every tick.
+    /// Each pixel's generator state ([`lcg_step`]), advanced every tick.
     pub rng: &'a mut [u32],
 }
 
-/// One step of the xorshift32 generator (13, 17, 5).
+/// One step of the per-pixel generator: the 32-bit linear congruential generator of Numerical
+/// Recipes (`r 1664525 + 1013904223` modulo `2^32`, full period). Only its top 16 bits are drawn
+/// from, whose periods are `2^24` and more; two vector instructions a step, where xorshift32
+/// takes six.
 #[inline(always)]
-fn xorshift32(mut r: u32) -> u32 {
-    r ^= r << 13;
-    r ^= r >> 17;
-    r ^= r << 5;
-    r
+pub fn lcg_step(r: u32) -> u32 {
+    r.wrapping_mul(1_664_525).wrapping_add(1_013_904_223)
 }
 
-/// The threshold a draw gives: `phi + (u1 + u2 - 65535) scale`, the two 16-bit halves of `r` as
-/// two uniforms (a triangular draw, exact in `f32`).
+/// The threshold a draw gives: `phi + (u1 + u2 - 255) scale`, the top two bytes of `r` as two
+/// uniforms (a triangular draw; one fused multiply-add, so one rounding).
 #[inline(always)]
-fn drawn_threshold(r: u32, phi: f32, scale: f32) -> f32 {
-    let tri = ((r & 0xffff) + (r >> 16)) as i32 as f32;
-    phi + (tri - 65_535.0) * scale
+fn drawn_threshold(r: u32, scale: f32, offset: f32) -> f32 {
+    let tri = ((r >> 24) + ((r >> 16) & 0xff)) as f32;
+    tri.mul_add(scale, offset)
+}
+
+/// The constant term of [`drawn_threshold`]: `phi - 255 scale`.
+#[inline(always)]
+fn draw_offset(phi: f32, scale: f32) -> f32 {
+    (-255.0f32).mul_add(scale, phi)
 }
 
 /// The scale of a draw: `sigma phi / TRIANGLE_STD`.
@@ -826,26 +832,22 @@ pub fn integrate_tick_noisy_reference(
     plane: &mut [u8],
 ) {
     let scale = draw_scale(fire.sigma, phi);
+    let offset = draw_offset(phi, scale);
     for i in 0..px.acc.len() {
         let l = light.base[i] + light.slope[i] * light.k;
         let a = px.acc[i] + l;
-        let s = px.since[i].saturating_add(1);
-        let r = xorshift32(fire.rng[i]);
+        let s = px.since[i].wrapping_add(1);
+        let r = lcg_step(fire.rng[i]);
         fire.rng[i] = r;
-        let next = drawn_threshold(r, phi, scale);
+        let next = drawn_threshold(r, scale, offset);
         let thr = fire.thr[i];
-        let fired = if a >= thr {
-            px.acc[i] = match reset {
-                Reset::Subtract => ((a - thr) - fire.reset_delay * l).max(0.0).min(next),
-                Reset::Zero => 0.0,
-            };
-            true
-        } else if s >= px.cap[i] {
-            px.acc[i] = 0.0;
-            true
-        } else {
-            px.acc[i] = a;
-            false
+        let fired = a >= thr || s >= px.cap[i];
+        // A fire at the cap has `a < thr`, so the subtracting reset empties the accumulator
+        // (the light is never negative).
+        px.acc[i] = match (fired, reset) {
+            (false, _) => a,
+            (true, Reset::Subtract) => (-fire.reset_delay).mul_add(l, a - thr).max(0.0).min(next),
+            (true, Reset::Zero) => 0.0,
         };
         px.since[i] = if fired { 0 } else { s };
         if fired {
@@ -950,6 +952,7 @@ fn noisy_blocked<const SUBTRACT: bool>(
     }
     let n_ticks = planes.len() / per;
     let scale = draw_scale(fire.sigma, phi);
+    let offset = draw_offset(phi, scale);
     let delay = fire.reset_delay;
     let whole = n / BLOCK * BLOCK;
     let (acc, acc_tail) = px.acc.split_at_mut(whole);
@@ -977,31 +980,30 @@ fn noisy_blocked<const SUBTRACT: bool>(
         for t in 0..n_ticks {
             let k = (k0 as usize + t) as f32;
             let mut flags = [0u8; BLOCK];
+            // The new accumulators and thresholds go to fresh arrays: a select written back to
+            // the array it read from becomes a masked store, which keeps the array in memory.
+            let mut a_next = [0f32; BLOCK];
+            let mut th_next = [0f32; BLOCK];
             for j in 0..BLOCK {
                 let l = base[j] + slope[j] * k;
                 let x = a[j] + l;
-                let si = s[j].saturating_add(1);
-                let rj = xorshift32(r[j]);
+                let si = s[j].wrapping_add(1);
+                let rj = lcg_step(r[j]);
                 r[j] = rj;
-                let next = drawn_threshold(rj, phi, scale);
-                let over = x >= th[j];
-                let fired = over | (si >= cap[j]);
+                let next = drawn_threshold(rj, scale, offset);
+                let fired = (x >= th[j]) | (si >= cap[j]);
                 let reset_to = if SUBTRACT {
-                    ((x - th[j]) - delay * l).max(0.0).min(next)
+                    (-delay).mul_add(l, x - th[j]).max(0.0).min(next)
                 } else {
                     0.0
                 };
-                a[j] = if over {
-                    reset_to
-                } else if fired {
-                    0.0
-                } else {
-                    x
-                };
-                th[j] = if fired { next } else { th[j] };
+                a_next[j] = if fired { reset_to } else { x };
+                th_next[j] = if fired { next } else { th[j] };
                 s[j] = if fired { 0 } else { si };
                 flags[j] = u8::from(fired);
             }
+            a = a_next;
+            th = th_next;
             let out = &mut planes[t * per + byte0..][..BLOCK / 8];
             for (o, f) in out.iter_mut().zip(flags.chunks_exact(8)) {
                 *o = pack8(f);

@@ -21,7 +21,8 @@
 //! of the interval. The two combine into one draw per interval, `sigma = sqrt(s^2 + 1 / N)`, from
 //! a triangular distribution (the sum of two uniforms, bounded to `phi (1 +- sqrt(6) sigma)`;
 //! `sigma` is at most [`MAX_FIRE_SIGMA`], so a threshold stays above 2% of `phi`). The draws come
-//! from a per-pixel xorshift generator seeded from the camera's seed.
+//! from a per-pixel linear congruential generator seeded from the camera's seed: each tick takes
+//! the top two bytes of its state as the two uniforms (511 levels across `+- sqrt(6) sigma`).
 //!
 //! A per-pixel threshold offset is simulated as its equivalent gain: a pixel whose threshold is
 //! `phi (1 + o)` integrating `L` fires exactly as a pixel of threshold `phi` integrating
@@ -38,9 +39,9 @@ use std::path::Path;
 /// reaches `sqrt(6) sigma`, so the smallest threshold is `phi (1 - 0.98)`.
 pub const MAX_FIRE_SIGMA: f64 = 0.4;
 
-/// The standard deviation of the sum of two independent uniform integers on `0..=65535`, the raw
-/// triangular draw: `sqrt(2 (65536^2 - 1) / 12)`.
-pub const TRIANGLE_STD: f32 = 26_754.7;
+/// The standard deviation of the sum of two independent uniform integers on `0..=255`, the raw
+/// triangular draw: `sqrt(2 (256^2 - 1) / 12)`.
+pub const TRIANGLE_STD: f32 = 104.510_765;
 
 /// The noise terms, each 0 when off. See the module documentation for the model of each.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
