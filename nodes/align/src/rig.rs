@@ -20,9 +20,9 @@
 //! direction): a clock error `delta` moves every point by its flow over `delta`, and a steady
 //! pan, turn or zoom is an affine flow, so an affine change of `H` explains that alike. On a
 //! simulated rig (`tests/rig.rs`, three textures, 40 ms whose first 12 hold still) the
-//! homography comes within 0.25-0.60 px where both sensors see when the clock is known, and the
+//! homography comes within 0.25-0.63 px where both sensors see when the clock is known, and the
 //! clock within 6-27 us when the homography is known (its search takes only the events within
-//! bursts, [`BURST_NS`]); both unknown, within 0.24-0.63 px and 3-31 us (a last joint search of
+//! bursts, [`BURST_NS`]); both unknown, within 0.24-0.69 px and 1-30 us (a last joint search of
 //! the clock and the affine coefficients, kept when it scores better). Over 80 ms of the same
 //! scene the steady motion's biases outweigh its one start: for one texture the homography
 //! alone (the clock known) came within 0.30 px, the joint search's clock 0.26 ms off.
