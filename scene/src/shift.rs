@@ -8,8 +8,9 @@
 //! reproduces a shift by whole pixels exactly and a linear ramp at any shift; bilinear
 //! interpolation would blur each shifted image by up to half a pixel. Where the taps would
 //! reach past `src` (a shift larger than `margin - 2`), coordinates clamp to its edge. The fast
-//! path (a horizontal then a vertical pass, vectorised through [`neuspike_simd::dispatch`]) is
-//! checked against [`shift_reference`], which computes every tap from scratch.
+//! path (the horizontal pass four rows at a time, each output row from them, vectorised through
+//! [`neuspike_simd::dispatch`]) is checked against [`shift_reference`], which computes every tap
+//! from scratch.
 
 use ndarray::{Array2, ArrayView2, ArrayViewMut2, Zip};
 
@@ -36,7 +37,6 @@ pub struct Interpolator {
     /// The renders at the two nearest render instants (index `j`, image with margin).
     a: Option<(i64, Array2<f32>)>,
     b: Option<(i64, Array2<f32>)>,
-    moved: Array2<f32>,
     scratch: Vec<f32>,
 }
 
@@ -60,7 +60,6 @@ impl Interpolator {
             cols,
             a: None,
             b: None,
-            moved: Array2::zeros((rows, cols)),
             scratch: Vec::new(),
         }
     }
@@ -124,21 +123,8 @@ impl Interpolator {
         self.render(scene, j.saturating_add(1), true);
         let Some((_, b)) = &self.b else { return };
         let sb = to_sensor(scene.content_shift(tb, t_ns));
-        shift_into(b.view(), m, sb, self.moved.view_mut(), &mut self.scratch);
         let w = ((t_ns - ta) as f64 / (tb - ta) as f64) as f32;
-        match (dst.as_slice_mut(), self.moved.as_slice()) {
-            (Some(d), Some(m)) => neuspike_simd::dispatch(
-                #[inline(always)]
-                || {
-                    for (d, &b) in d.iter_mut().zip(m) {
-                        *d += w * (b - *d);
-                    }
-                },
-            ),
-            _ => Zip::from(&mut dst)
-                .and(&self.moved)
-                .for_each(|d, &b| *d += w * (b - *d)),
-        }
+        shift_blend_into(b.view(), m, sb, w, dst, &mut self.scratch);
     }
 }
 
@@ -195,12 +181,38 @@ pub fn shift_reference(
 }
 
 /// The content of `src` moved by `(dx, dy)` pixels into `dst` (see the module documentation);
-/// `scratch` holds the horizontal pass between calls. Equal to [`shift_reference`] up to
-/// rounding.
+/// `scratch` holds four rows of the horizontal pass between calls. Equal to [`shift_reference`]
+/// up to rounding.
 pub fn shift_into(
     src: ArrayView2<'_, f32>,
     margin: usize,
     shift: (f64, f64),
+    dst: ArrayViewMut2<'_, f32>,
+    scratch: &mut Vec<f32>,
+) {
+    shift_with::<false>(src, margin, shift, 0.0, dst, scratch);
+}
+
+/// `dst` moved a fraction `w` of the way towards the content of `src` moved by `(dx, dy)`:
+/// `dst + w (shifted - dst)`, the same bits as [`shift_into`] into an image and that blend, in
+/// one pass over `dst`.
+pub fn shift_blend_into(
+    src: ArrayView2<'_, f32>,
+    margin: usize,
+    shift: (f64, f64),
+    w: f32,
+    dst: ArrayViewMut2<'_, f32>,
+    scratch: &mut Vec<f32>,
+) {
+    shift_with::<true>(src, margin, shift, w, dst, scratch);
+}
+
+/// [`shift_into`] (`BLEND` false) or [`shift_blend_into`] (`BLEND` true, towards by `blend`).
+fn shift_with<const BLEND: bool>(
+    src: ArrayView2<'_, f32>,
+    margin: usize,
+    shift: (f64, f64),
+    blend: f32,
     mut dst: ArrayViewMut2<'_, f32>,
     scratch: &mut Vec<f32>,
 ) {
@@ -215,32 +227,56 @@ pub fn shift_into(
         && (iy as usize) + h + 2 <= sh
         && h > 0
         && w > 0;
-    let (Some(s), true) = (src.as_slice(), inside) else {
-        return shift_reference(src, margin, shift, dst);
-    };
-    let Some(d) = dst.as_slice_mut() else {
-        return shift_reference(src, margin, shift, dst);
+    let contiguous = src.as_slice().is_some() && dst.as_slice().is_some();
+    if !(inside && contiguous) {
+        if BLEND {
+            let mut moved = Array2::zeros((h, w));
+            shift_reference(src, margin, shift, moved.view_mut());
+            Zip::from(&mut dst)
+                .and(&moved)
+                .for_each(|d, &m| *d += blend * (m - *d));
+        } else {
+            shift_reference(src, margin, shift, dst);
+        }
+        return;
+    }
+    let (Some(s), Some(d)) = (src.as_slice(), dst.as_slice_mut()) else {
+        return;
     };
     let (wx, wy) = (cubic_weights(fx), cubic_weights(fy));
     let (x0, y0) = (ix as usize - 1, iy as usize - 1);
-    scratch.resize((h + 3) * w, 0.0);
+    scratch.resize(4 * w, 0.0);
     neuspike_simd::dispatch(
         #[inline(always)]
         || {
-            // Horizontal pass: the h + 3 source rows the vertical taps read.
-            for (k, t) in scratch.chunks_exact_mut(w).enumerate() {
-                let row = &s[(y0 + k) * sw + x0..(y0 + k) * sw + x0 + w + 3];
+            // Source row `k` of the window through the horizontal taps, into `t` (a function,
+            // so that it is inlined into each instruction set's variant).
+            #[inline(always)]
+            fn across(row: &[f32], wx: [f32; 4], t: &mut [f32]) {
+                let w = t.len();
                 let (a, b, c, e) = (&row[..w], &row[1..w + 1], &row[2..w + 2], &row[3..w + 3]);
                 for i in 0..w {
                     t[i] = wx[0] * a[i] + wx[1] * b[i] + wx[2] * c[i] + wx[3] * e[i];
                 }
             }
-            // Vertical pass.
+            let src_row = |k: usize| &s[(y0 + k) * sw + x0..(y0 + k) * sw + x0 + w + 3];
+            // The horizontal pass keeps the four rows the vertical taps read (row `k` in slot
+            // `k % 4`), so that both passes and the blend read and write each image once.
+            for k in 0..3 {
+                across(src_row(k), wx, &mut scratch[k * w..(k + 1) * w]);
+            }
             for (r, out) in d.chunks_exact_mut(w).enumerate() {
-                let t = &scratch[r * w..(r + 4) * w];
-                let (a, b, c, e) = (&t[..w], &t[w..2 * w], &t[2 * w..3 * w], &t[3 * w..4 * w]);
+                let k = r + 3;
+                across(src_row(k), wx, &mut scratch[(k % 4) * w..(k % 4 + 1) * w]);
+                let row = |j: usize| &scratch[((r + j) % 4) * w..((r + j) % 4 + 1) * w];
+                let (a, b, c, e) = (row(0), row(1), row(2), row(3));
                 for i in 0..w {
-                    out[i] = wy[0] * a[i] + wy[1] * b[i] + wy[2] * c[i] + wy[3] * e[i];
+                    let v = wy[0] * a[i] + wy[1] * b[i] + wy[2] * c[i] + wy[3] * e[i];
+                    out[i] = if BLEND {
+                        out[i] + blend * (v - out[i])
+                    } else {
+                        v
+                    };
                 }
             }
         },
@@ -280,6 +316,33 @@ mod tests {
             shift_reference(src.view(), margin, (dx, dy), reference.view_mut());
             for (a, b) in fast.iter().zip(&reference) {
                 prop_assert!((a - b).abs() < 1e-5, "{} vs {}", a, b);
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(100))]
+
+        /// The blend in the same pass gives the bits of the shift and then the blend, on the
+        /// fast path and where the taps clamp at the edge.
+        #[test]
+        fn shift_blend_is_the_shift_then_the_blend(
+            (h, w, margin) in (1usize..40, 1usize..40, 0usize..8),
+            (dx, dy) in (-10.0f64..10.0, -10.0f64..10.0),
+            weight in 0.0f32..=1.0,
+            seed in any::<u64>(),
+        ) {
+            let src = image(h + 2 * margin, w + 2 * margin, seed);
+            let before = image(h, w, seed ^ 1);
+            let mut scratch = Vec::new();
+            let mut moved = Array2::zeros((h, w));
+            shift_into(src.view(), margin, (dx, dy), moved.view_mut(), &mut scratch);
+            let mut want = before.clone();
+            want.zip_mut_with(&moved, |d, &m| *d += weight * (m - *d));
+            let mut got = before.clone();
+            shift_blend_into(src.view(), margin, (dx, dy), weight, got.view_mut(), &mut scratch);
+            for (a, b) in got.iter().zip(&want) {
+                prop_assert_eq!(a.to_bits(), b.to_bits());
             }
         }
     }
