@@ -15,20 +15,28 @@
 //! scale and the shift on a blurred video, Nelder-Mead over the six affine coefficients of `H`
 //! (the perspective terms are kept from the start: they are nearly invisible in a frame's middle
 //! and drift), the clock again at that geometry, the geometry at that clock, and both together.
+//! Last, the geometry is refined on every frame of every pixel, the spike counts against the
+//! light the events spell ([`levels`]): that sees finer than the polarities at the events'
+//! times, but from near the answer only.
 //!
 //! The two are only separable where the motion changes (a start, a stop, a change of speed or
 //! direction): a clock error `delta` moves every point by its flow over `delta`, and a steady
 //! pan, turn or zoom is an affine flow, so an affine change of `H` explains that alike. On a
 //! simulated rig (`tests/rig.rs`, three textures, 40 ms whose first 12 hold still) the
-//! homography comes within 0.25-0.63 px where both sensors see when the clock is known, and the
-//! clock within 6-27 us when the homography is known (its search takes only the events within
-//! bursts, [`BURST_NS`]); both unknown, within 0.24-0.69 px and 1-30 us (a last joint search of
-//! the clock and the affine coefficients, kept when it scores better). Over 80 ms of the same
-//! scene the steady motion's biases outweigh its one start: for one texture the homography
-//! alone (the clock known) came within 0.30 px, the joint search's clock 0.26 ms off.
+//! homography comes within 0.10-0.20 px where both sensors see when the clock is known (0.25-0.63
+//! without the last step), and the clock within 6-27 us when the homography is known (its search
+//! takes only the events within bursts, [`BURST_NS`]); both unknown, within 0.13-0.49 px and
+//! 1-30 us (a joint search of the clock and the affine coefficients, kept when it scores better,
+//! before the last step). Other noise draws of the same scenes move the figures: for the
+//! texture with the fewest events the homography (clock known) came within 0.33-0.75 px over six
+//! draws, the other two 0.09-0.20 px over three draws each. Over 80 ms of the same scene the
+//! steady motion's biases outweigh its one start: for one texture the joint search's clock came
+//! 0.26 ms off.
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
+
+mod levels;
 
 /// Planes per frame of the change video (2: 100 us at 20 kHz).
 pub const FRAME_PLANES: usize = 2;
@@ -720,6 +728,10 @@ pub fn estimate(
             }
             (h, offset) = (best.1, best.2);
         }
+    }
+    // Last, the geometry on the dense evidence at the clock found.
+    if let Some(better) = levels::refine(spikes, events, &h, offset) {
+        h = better;
     }
     let score = score(&video, &ev, &h, offset);
     Ok(RigEstimate {
