@@ -487,8 +487,11 @@ impl<'a> Tabled<'a> {
     }
 }
 
-/// Planes per frame of the count series (4: 200 us at 20 kHz).
+/// Planes per frame of the count series (4: 200 us at 20 kHz), at least.
 pub const COUNT_FRAME_PLANES: usize = 4;
+/// Frames of the count series, at most: longer recordings take longer frames (the series hold
+/// `pixels x frames` values, 92 MB for a DAVIS346's levels at this many).
+pub const MAX_COUNT_FRAMES: usize = 256;
 
 /// Event-camera pixels a spike pixel's point must lie inside the event camera's frame to be
 /// counted, at the geometry the refinement starts from.
@@ -527,7 +530,8 @@ pub(super) fn refine(
     h: &Homography,
     offset_ns: f64,
 ) -> Option<Homography> {
-    let counts = CountSeries::new(spikes, COUNT_FRAME_PLANES)?;
+    let frame_planes = COUNT_FRAME_PLANES.max(spikes.n_planes.div_ceil(MAX_COUNT_FRAMES));
+    let counts = CountSeries::new(spikes, frame_planes)?;
     let probe = LevelSeries::new(events, &counts, offset_ns, CONTRASTS[0]);
     if probe.changing() < 100 {
         return None;
