@@ -16,7 +16,7 @@
 //! (the perspective terms are kept from the start: they are nearly invisible in a frame's middle
 //! and drift), the clock again at that geometry, the geometry at that clock, and both together.
 //! Last, the geometry is refined on every frame of every pixel, the spike counts against the
-//! light the events spell ([`levels`]): that sees finer than the polarities at the events'
+//! light the events spell (the `levels` module): that sees finer than the polarities at the events'
 //! times, but from near the answer only.
 //!
 //! The two are only separable where the motion changes (a start, a stop, a change of speed or

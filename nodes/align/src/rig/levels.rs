@@ -71,6 +71,23 @@ impl CountSeries {
         let period_ns = (frame_planes as i64 * spikes.plane_period_ns) as f64;
         // Plane k covers (t_k - T, t_k]: frame 0 starts a period before the first plane's time.
         let t0_ns = spikes.t_first_ns as f64 - spikes.plane_period_ns as f64 + period_ns / 2.0;
+        Some(CountSeries::from_counts(
+            [w, h, frames],
+            t0_ns,
+            period_ns,
+            counts,
+        ))
+    }
+
+    /// The series of `counts` (`[pixel][frame]` of a `[width, height, frames]` recording),
+    /// frame 0 centred on `t0_ns`, a frame every `period_ns`.
+    fn from_counts(
+        [width, height, frames]: [usize; 3],
+        t0_ns: f64,
+        period_ns: f64,
+        counts: Vec<f32>,
+    ) -> CountSeries {
+        let frames = frames.max(1);
         let mean: Vec<f64> = counts
             .chunks_exact(frames)
             .map(|c| c.iter().map(|&v| f64::from(v)).sum::<f64>() / frames as f64)
@@ -80,16 +97,16 @@ impl CountSeries {
             .zip(&mean)
             .map(|(c, m)| c.iter().map(|&v| (f64::from(v) - m).powi(2)).sum())
             .collect();
-        Some(CountSeries {
-            width: w,
-            height: h,
+        CountSeries {
+            width,
+            height,
             frames,
             t0_ns,
             period_ns,
             counts,
             mean,
             spread,
-        })
+        }
     }
 }
 
@@ -488,10 +505,10 @@ impl<'a> Tabled<'a> {
 }
 
 /// Planes per frame of the count series (4: 200 us at 20 kHz), at least.
-pub const COUNT_FRAME_PLANES: usize = 4;
+pub(super) const COUNT_FRAME_PLANES: usize = 4;
 /// Frames of the count series, at most: longer recordings take longer frames (the series hold
 /// `pixels x frames` values, 92 MB for a DAVIS346's levels at this many).
-pub const MAX_COUNT_FRAMES: usize = 256;
+pub(super) const MAX_COUNT_FRAMES: usize = 256;
 
 /// Event-camera pixels a spike pixel's point must lie inside the event camera's frame to be
 /// counted, at the geometry the refinement starts from.
@@ -584,25 +601,7 @@ mod tests {
         let counts: Vec<f32> = (0..w * h * frames)
             .map(|_| (next() * 4.0).floor())
             .collect();
-        let mean: Vec<f64> = counts
-            .chunks_exact(frames)
-            .map(|c| c.iter().map(|&v| f64::from(v)).sum::<f64>() / frames as f64)
-            .collect();
-        let spread = counts
-            .chunks_exact(frames)
-            .zip(&mean)
-            .map(|(c, m)| c.iter().map(|&v| (f64::from(v) - m).powi(2)).sum())
-            .collect();
-        let counts = CountSeries {
-            width: w,
-            height: h,
-            frames,
-            t0_ns: 0.0,
-            period_ns: 100_000.0,
-            counts,
-            mean,
-            spread,
-        };
+        let counts = CountSeries::from_counts([w, h, frames], 0.0, 100_000.0, counts);
         let (lw, lh) = (10, 9);
         let levels = LevelSeries {
             width: lw,
