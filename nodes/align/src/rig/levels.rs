@@ -110,6 +110,16 @@ impl CountSeries {
     }
 }
 
+impl CountSeries {
+    /// Spike pixel `i`'s centre and the weight of its counts (the inverse of their mean, their
+    /// Poisson variance; a mean under one count in the whole series counts as that).
+    #[inline]
+    fn centre_and_weight(&self, i: usize) -> ((f64, f64), f64) {
+        let centre = ((i % self.width) as f64 + 0.5, (i / self.width) as f64 + 0.5);
+        (centre, 1.0 / self.mean[i].max(1.0 / self.frames as f64))
+    }
+}
+
 /// Every event pixel's relative light over the count frames, `exp(contrast * level)`, centred
 /// (its mean over the frames taken away): `[pixel][frame]` over the event camera's whole grid,
 /// zero where a pixel's level never changes.
@@ -317,12 +327,8 @@ pub(super) fn dense_score(
     let (mut explained, mut total) = (0.0f64, 0.0f64);
     for &i in pixels {
         let n = &counts.counts[i * f..(i + 1) * f];
-        let weight = 1.0 / counts.mean[i].max(1.0 / f as f64);
+        let ((x, y), weight) = counts.centre_and_weight(i);
         total += counts.spread[i] * weight;
-        let (x, y) = (
-            (i % counts.width) as f64 + 0.5,
-            (i / counts.width) as f64 + 0.5,
-        );
         let Some((u, v)) = inv.apply(x, y) else {
             continue;
         };
@@ -440,12 +446,8 @@ impl<'a> Tabled<'a> {
         let inv = h.inverse();
         let (mut explained, mut total) = (0.0f64, 0.0f64);
         for (k, &i) in self.pixels.iter().enumerate() {
-            let weight = 1.0 / counts.mean[i].max(1.0 / f as f64);
+            let ((x, y), weight) = counts.centre_and_weight(i);
             total += counts.spread[i] * weight;
-            let (x, y) = (
-                (i % counts.width) as f64 + 0.5,
-                (i / counts.width) as f64 + 0.5,
-            );
             let Some((u, v)) = inv.apply(x, y) else {
                 continue;
             };
@@ -517,26 +519,6 @@ const MARGIN_PX: f64 = 2.5;
 /// The contrast thresholds tried (log intensity per event), the best kept.
 const CONTRASTS: [f32; 6] = [0.1, 0.15, 0.2, 0.25, 0.3, 0.4];
 
-/// The levels at the contrast threshold that explains the counts best at `h`.
-fn best_levels(
-    events: &EventBatch,
-    counts: &CountSeries,
-    h: &Homography,
-    offset_ns: f64,
-    pixels: &[usize],
-) -> (LevelSeries, f32) {
-    let mut best: Option<(f64, LevelSeries, f32)> = None;
-    for c in CONTRASTS {
-        let lv = LevelSeries::new(events, counts, offset_ns, c);
-        let s = dense_score(counts, &lv, h, pixels);
-        if best.as_ref().is_none_or(|b| s > b.0) {
-            best = Some((s, lv, c));
-        }
-    }
-    let (_, lv, c) = best.expect("contrasts to try");
-    (lv, c)
-}
-
 /// The affine coefficients of `h` refined on the dense evidence at the clock offset `offset_ns`
 /// (the event clock minus the spike clock): Nelder-Mead, restarted once, after the contrast
 /// threshold is chosen at `h`. `None` when under 100 event pixels change within the spike
@@ -554,7 +536,20 @@ pub(super) fn refine(
         return None;
     }
     let pixels = pixels_inside(&counts, &probe, h, MARGIN_PX);
-    let (lv, contrast) = best_levels(events, &counts, h, offset_ns, &pixels);
+    // The contrast threshold that explains the counts best at `h`, the probe's first.
+    let mut best = (
+        dense_score(&counts, &probe, h, &pixels),
+        probe,
+        CONTRASTS[0],
+    );
+    for c in &CONTRASTS[1..] {
+        let lv = LevelSeries::new(events, &counts, offset_ns, *c);
+        let s = dense_score(&counts, &lv, h, &pixels);
+        if s > best.0 {
+            best = (s, lv, *c);
+        }
+    }
+    let (_, lv, contrast) = best;
     let tabled = Tabled::new(&counts, &lv, h, &pixels);
     let c0 = h.coefficients();
     let objective = |v: &[f64]| {
