@@ -76,13 +76,26 @@ fn sub_offsets(n: usize) -> Vec<f64> {
     (0..n).map(|k| (k as f64 + 0.5) / n as f64).collect()
 }
 
-/// Output clamp: without a gain map values stay in `[texture min, 1]` despite rounding.
+/// Output clamp: without a gain map values stay in `[texture min, 1]` despite rounding; with one,
+/// at or above 0. Non-finite means read as 0 first.
 fn finish(scene: &Scene, mean: f32) -> f32 {
-    let v = if mean.is_finite() { mean } else { 0.0 };
+    clamp_finite(mean, output_bounds(scene))
+}
+
+/// The bounds [`finish`] clamps to.
+fn output_bounds(scene: &Scene) -> [f32; 2] {
     match scene.gain {
-        None => v.clamp(scene.texture_min, 1.0),
-        Some(_) => v.max(0.0),
+        None => [scene.texture_min, 1.0],
+        Some(_) => [0.0, f32::INFINITY],
     }
+}
+
+/// `v` (0 if not finite) clamped to `[lo, hi]` (`lo <= hi`), branch-free so that loops of it
+/// vectorise.
+#[inline(always)]
+fn clamp_finite(v: f32, [lo, hi]: [f32; 2]) -> f32 {
+    let v = if v.is_finite() { v } else { 0.0 };
+    v.max(lo).min(hi)
 }
 
 /// The light at view point `(x, y)` (scene pixels) at the instant of `map`: the texture there,
@@ -286,7 +299,7 @@ impl<'a> Plan<'a> {
     }
 
     /// Renders destination row `r` into `acc` (`cols` long): the sum over sub-samples.
-    fn row_sums(&self, r: usize, acc: &mut [f32]) {
+    fn row_sums(&self, r: usize, acc: &mut [f32], scratch: &mut WalkScratch) {
         acc.fill(0.0);
         let tex = &self.scene.texture;
         let (tw, th) = (tex.width(), tex.height());
@@ -316,7 +329,7 @@ impl<'a> Plan<'a> {
             } else {
                 let walked = radial.is_none()
                     && self.column_gain.is_empty()
-                    && self.row_fixed_point(u_y, v_y, acc);
+                    && self.row_fixed_point(u_y, v_y, acc, scratch);
                 if walked {
                     continue;
                 }
@@ -344,17 +357,24 @@ impl<'a> Plan<'a> {
 
     /// One sub-row of a turned or zoomed view without a gain map, added into `acc`: the texture
     /// coordinates of consecutive column sub-samples step by a constant, so they are walked in
-    /// 32.32 fixed point (integer texel and fraction without a floor or a division per sample),
-    /// wrapped by one period at most per step. The coordinates differ from the reference's by at
-    /// most the steps' rounding, `cols * n * 2^-33` texels (under 1e-6 for any grid this
-    /// renders), far inside the renderer's tolerance. `false` (nothing added) where the walk does
-    /// not apply: a step of a whole period or more, or coordinates beyond 2^30 texels.
-    fn row_fixed_point(&self, u_y: f64, v_y: f64, acc: &mut [f32]) -> bool {
+    /// 32.32 fixed point (integer texel and fraction without a floor or a division per sample).
+    /// The coordinates differ from the reference's by at most the steps' rounding, `cols * n *
+    /// 2^-33` texels (under 1e-6 for any grid this renders), far inside the renderer's
+    /// tolerance. The coordinates ([`walk_corners`], vectorised through [`neuspike_simd::dispatch`])
+    /// and then the samples ([`neuspike_simd::gather::bilinear`]) go a sub-row at a time. `false`
+    /// (nothing added) where the walk does not apply: [`WALK_LANES`] steps of a whole period or
+    /// more, or coordinates beyond 2^30 texels.
+    fn row_fixed_point(
+        &self,
+        u_y: f64,
+        v_y: f64,
+        acc: &mut [f32],
+        scratch: &mut WalkScratch,
+    ) -> bool {
         const ONE: f64 = 4_294_967_296.0; // 2^32
         const LIMIT: f64 = 1_073_741_824.0; // 2^30
         let tex = &self.scene.texture;
         let (tw, th) = (tex.width(), tex.height());
-        let data = tex.data();
         let n = self.n;
         let count = self.xs.len();
         if count == 0 {
@@ -377,6 +397,11 @@ impl<'a> Plan<'a> {
             return false;
         }
         let (pu, pv) = ((tw as i64) << 32, (th as i64) << 32);
+        let (duf, dvf) = ((du * ONE).round() as i64, (dv * ONE).round() as i64);
+        let lanes = WALK_LANES as i64;
+        if lanes * duf.abs() >= pu || lanes * dvf.abs() >= pv {
+            return false;
+        }
         let fixed = |x: f64, period: usize| (x.rem_euclid(period as f64) * ONE) as i64;
         // `rem_euclid` may round up to the period itself.
         let (mut uf, mut vf) = (fixed(u0, tw), fixed(v0, th));
@@ -386,36 +411,45 @@ impl<'a> Plan<'a> {
         if vf >= pv {
             vf -= pv;
         }
-        let (duf, dvf) = ((du * ONE).round() as i64, (dv * ONE).round() as i64);
-        let frac = |x: i64| (x & 0xFFFF_FFFF) as f32 * (1.0 / ONE as f32);
-        for a in acc.iter_mut() {
-            let mut s = 0.0f32;
-            for _ in 0..n {
-                // Kept in [0, period): each step moves less than one period.
-                let c0 = (uf >> 32) as usize;
-                let r0 = (vf >> 32) as usize;
-                let c1 = if c0 + 1 == tw { 0 } else { c0 + 1 };
-                let r1 = if r0 + 1 == th { 0 } else { r0 + 1 };
-                let (wx1, wy1) = (frac(uf), frac(vf));
-                let wx0 = 1.0 - wx1;
-                let (row0, row1) = (&data[r0 * tw..(r0 + 1) * tw], &data[r1 * tw..(r1 + 1) * tw]);
-                let top = row0[c0] * wx0 + row0[c1] * wx1;
-                let bottom = row1[c0] * wx0 + row1[c1] * wx1;
-                s += top * (1.0 - wy1) + bottom * wy1;
-                uf += duf;
-                vf += dvf;
-                if uf >= pu {
-                    uf -= pu;
-                } else if uf < 0 {
-                    uf += pu;
-                }
-                if vf >= pv {
-                    vf -= pv;
-                } else if vf < 0 {
-                    vf += pv;
+        let walk = Walk {
+            size: [tw, th],
+            start: [uf, vf],
+            step: [duf, dvf],
+        };
+        let WalkScratch {
+            index,
+            weight,
+            samples,
+        } = scratch;
+        // Whole chunks of the walk; the samples stop at `count`.
+        let padded = count.next_multiple_of(WALK_LANES);
+        for v in index.iter_mut() {
+            v.resize(padded, 0);
+        }
+        for v in weight.iter_mut() {
+            v.resize(padded, 0.0);
+        }
+        samples.resize(count, 0.0);
+        neuspike_simd::dispatch(
+            #[inline(always)]
+            || walk_corners(&walk, index, weight),
+        );
+        let corners = neuspike_simd::gather::Corners {
+            texels: tex.data(),
+            index: [&index[0], &index[1], &index[2], &index[3]],
+            weight: [&weight[0], &weight[1]],
+        };
+        neuspike_simd::gather::bilinear(neuspike_simd::detect(), &corners, samples);
+        match n {
+            1 => sum_samples::<1>(samples, acc),
+            2 => sum_samples::<2>(samples, acc),
+            3 => sum_samples::<3>(samples, acc),
+            4 => sum_samples::<4>(samples, acc),
+            _ => {
+                for (a, s) in acc.iter_mut().zip(samples.chunks_exact(n)) {
+                    *a += s.iter().sum::<f32>();
                 }
             }
-            *a += s;
         }
         true
     }
@@ -435,12 +469,98 @@ impl<'a> Plan<'a> {
     /// Renders a block of consecutive rows starting at `first_row`.
     fn render_block(&self, first_row: usize, mut block: ArrayViewMut2<'_, f32>, acc: &mut [f32]) {
         let scale = 1.0 / (self.n * self.n) as f32;
+        let mut scratch = WalkScratch::default();
+        let bounds = output_bounds(self.scene);
         for (i, mut row) in block.axis_iter_mut(Axis(0)).enumerate() {
-            self.row_sums(first_row + i, acc);
-            for (d, &s) in row.iter_mut().zip(acc.iter()) {
-                *d = finish(self.scene, s * scale);
+            self.row_sums(first_row + i, acc, &mut scratch);
+            let out = |d: &mut f32, &s: &f32| *d = clamp_finite(s * scale, bounds);
+            match row.as_slice_mut() {
+                Some(row) => neuspike_simd::dispatch(
+                    #[inline(always)]
+                    || row.iter_mut().zip(acc.iter()).for_each(|(d, s)| out(d, s)),
+                ),
+                None => row.iter_mut().zip(acc.iter()).for_each(|(d, s)| out(d, s)),
             }
         }
+    }
+}
+
+/// Sub-samples whose coordinates the fixed-point walk computes from one start: each from the
+/// start without a dependency on the one before, so that the loop vectorises.
+pub(crate) const WALK_LANES: usize = 16;
+
+/// A walk along one sub-row in 32.32 fixed point: a texture of `size` = `[width, height]`, the
+/// first sub-sample's texel-centre coordinates `start` (each in `[0, period)`) and the step
+/// `step` between sub-samples (less than a period over [`WALK_LANES`] steps).
+struct Walk {
+    size: [usize; 2],
+    start: [i64; 2],
+    step: [i64; 2],
+}
+
+/// The texels and weights of a sub-row's bilinear samples ([`neuspike_simd::gather::Corners`]),
+/// kept between rows.
+#[derive(Default)]
+pub(crate) struct WalkScratch {
+    index: [Vec<u32>; 4],
+    weight: [Vec<f32>; 2],
+    samples: Vec<f32>,
+}
+
+/// The four texel indices and two weights of every sub-sample along `walk`, `index[0].len()`
+/// of them (a multiple of [`WALK_LANES`], every slice as long): sub-sample `i` at `start + i step`, wrapped into the period, bit for bit the
+/// coordinates of a walk that steps and wraps one sub-sample at a time.
+#[inline(always)]
+fn walk_corners(walk: &Walk, index: &mut [Vec<u32>; 4], weight: &mut [Vec<f32>; 2]) {
+    const FRAC: f32 = 1.0 / 4_294_967_296.0;
+    let [tw, th] = walk.size;
+    let (pu, pv) = ((tw as i64) << 32, (th as i64) << 32);
+    // One period added or taken away at most: every offset below is under a period.
+    let wrap = |x: i64, p: i64| {
+        if x >= p {
+            x - p
+        } else if x < 0 {
+            x + p
+        } else {
+            x
+        }
+    };
+    let next = |c: u32, n: u32| if c + 1 == n { 0 } else { c + 1 };
+    let offset: [[i64; WALK_LANES]; 2] =
+        std::array::from_fn(|a| std::array::from_fn(|j| j as i64 * walk.step[a]));
+    let [mut uf, mut vf] = walk.start;
+    let w = tw as u32;
+    for s in (0..index[0].len()).step_by(WALK_LANES) {
+        let mut at = [[0u32; WALK_LANES]; 4];
+        let mut by = [[0f32; WALK_LANES]; 2];
+        for j in 0..WALK_LANES {
+            let u = wrap(uf + offset[0][j], pu);
+            let v = wrap(vf + offset[1][j], pv);
+            let (c0, r0) = ((u >> 32) as u32, (v >> 32) as u32);
+            let (c1, r1) = (next(c0, w), next(r0, th as u32));
+            by[0][j] = (u as u32) as f32 * FRAC;
+            by[1][j] = (v as u32) as f32 * FRAC;
+            at[0][j] = r0 * w + c0;
+            at[1][j] = r0 * w + c1;
+            at[2][j] = r1 * w + c0;
+            at[3][j] = r1 * w + c1;
+        }
+        for (dst, src) in index.iter_mut().zip(&at) {
+            dst[s..s + WALK_LANES].copy_from_slice(src);
+        }
+        for (dst, src) in weight.iter_mut().zip(&by) {
+            dst[s..s + WALK_LANES].copy_from_slice(src);
+        }
+        uf = wrap(uf + WALK_LANES as i64 * walk.step[0], pu);
+        vf = wrap(vf + WALK_LANES as i64 * walk.step[1], pv);
+    }
+}
+
+/// Each pixel's `N` consecutive samples summed in order into `acc`.
+fn sum_samples<const N: usize>(samples: &[f32], acc: &mut [f32]) {
+    let (whole, _) = samples.as_chunks::<N>();
+    for (a, s) in acc.iter_mut().zip(whole) {
+        *a += s.iter().sum::<f32>();
     }
 }
 

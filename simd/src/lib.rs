@@ -6,7 +6,9 @@
 //! compiled for the widest instruction set the CPU has (checked once, at run time), so one binary
 //! is both portable and fast. The one loop that needs more accumulators than the vectoriser
 //! keeps in registers, [`taps::accumulate`] (a convolution's inner loop), is written here with
-//! each instruction set's intrinsics, its bounds checked before the loop. This crate holds the
+//! each instruction set's intrinsics, its bounds checked before the loop; so is the loop of
+//! loads at computed indices the vectoriser leaves scalar, [`gather::bilinear`] (a renderer's
+//! texture samples), its indices clamped inside the image. This crate holds the
 //! only `unsafe` of the project: calling a function compiled for an instruction set is sound
 //! exactly when the CPU supports it, which is checked right before each call, and the
 //! intrinsics' loads and stores stay within the bounds checked. [`fastmath`] holds the
@@ -24,6 +26,7 @@
 #![deny(missing_docs)]
 
 pub mod fastmath;
+pub mod gather;
 pub mod taps;
 
 /// The instruction sets kernels can be compiled for, narrowest first (so `a <= b` says that code
