@@ -526,20 +526,40 @@ fn walk_corners(walk: &Walk, index: &mut [Vec<u32>; 4], weight: &mut [Vec<f32>; 
         }
     };
     let next = |c: u32, n: u32| if c + 1 == n { 0 } else { c + 1 };
-    let offset: [[i64; WALK_LANES]; 2] =
-        std::array::from_fn(|a| std::array::from_fn(|j| j as i64 * walk.step[a]));
+    // Each lane's offset from the chunk's start, split into whole texels and a 32-bit
+    // fraction, so that the lanes' arithmetic is 32-bit (twice the lanes of 64-bit).
+    let offset = |a: usize, j: usize| j as i64 * walk.step[a];
+    let whole: [[i32; WALK_LANES]; 2] =
+        std::array::from_fn(|a| std::array::from_fn(|j| (offset(a, j) >> 32) as i32));
+    let part: [[u32; WALK_LANES]; 2] =
+        std::array::from_fn(|a| std::array::from_fn(|j| offset(a, j) as u32));
+    // The texel and fraction of `base + offset`, the texel wrapped into `[0, n)`: the same as
+    // wrapping the 64-bit sum.
+    let lane = |(bi, bf): (i32, u32), oi: i32, of: u32, n: u32| {
+        let f = bf.wrapping_add(of);
+        let i = bi + oi + i32::from(f < bf);
+        let i = if i >= n as i32 {
+            i - n as i32
+        } else if i < 0 {
+            i + n as i32
+        } else {
+            i
+        };
+        (i as u32, f)
+    };
     let [mut uf, mut vf] = walk.start;
-    let w = tw as u32;
+    let (w, h) = (tw as u32, th as u32);
     for s in (0..index[0].len()).step_by(WALK_LANES) {
         let mut at = [[0u32; WALK_LANES]; 4];
         let mut by = [[0f32; WALK_LANES]; 2];
+        let split = |x: i64| ((x >> 32) as i32, x as u32);
+        let (bu, bv) = (split(uf), split(vf));
         for j in 0..WALK_LANES {
-            let u = wrap(uf + offset[0][j], pu);
-            let v = wrap(vf + offset[1][j], pv);
-            let (c0, r0) = ((u >> 32) as u32, (v >> 32) as u32);
-            let (c1, r1) = (next(c0, w), next(r0, th as u32));
-            by[0][j] = (u as u32) as f32 * FRAC;
-            by[1][j] = (v as u32) as f32 * FRAC;
+            let (c0, fu) = lane(bu, whole[0][j], part[0][j], w);
+            let (r0, fv) = lane(bv, whole[1][j], part[1][j], h);
+            let (c1, r1) = (next(c0, w), next(r0, h));
+            by[0][j] = fu as f32 * FRAC;
+            by[1][j] = fv as f32 * FRAC;
             at[0][j] = r0 * w + c0;
             at[1][j] = r0 * w + c1;
             at[2][j] = r1 * w + c0;

@@ -105,26 +105,42 @@ impl Interpolator {
 
     /// The image at `t_ns` into `dst` (`rows x cols`).
     pub fn image_into(&mut self, scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32>) {
+        self.image_rows(scene, t_ns, |r, row| copy_row(row, dst.row_mut(r)));
+    }
+
+    /// The image at `t_ns` (`rows x cols`), handed to `row(r, values)` one row at a time, top
+    /// first ([`shift_rows`]): a caller that uses each row while it is in the cache reads and
+    /// writes no whole image between the renders and its own.
+    pub fn image_rows(&mut self, scene: &Scene, t_ns: i64, row: impl FnMut(usize, &[f32])) {
         let j = t_ns.saturating_sub(self.origin_ns).div_euclid(self.step_ns);
         let (ta, tb) = (self.instant(j), self.instant(j.saturating_add(1)));
         self.render(scene, j, false);
+        let blend = t_ns > ta && tb > ta;
+        if blend {
+            self.render(scene, j.saturating_add(1), true);
+        }
         let (fx, fy) = (
             self.cols as f64 / scene.width().max(1) as f64,
             self.rows as f64 / scene.height().max(1) as f64,
         );
         let to_sensor = |(dx, dy): (f64, f64)| (dx * fx, dy * fy);
-        let m = self.margin;
         let Some((_, a)) = &self.a else { return };
-        let sa = to_sensor(scene.content_shift(ta, t_ns));
-        shift_into(a.view(), m, sa, dst.view_mut(), &mut self.scratch);
-        if t_ns <= ta || tb <= ta {
-            return;
-        }
-        self.render(scene, j.saturating_add(1), true);
-        let Some((_, b)) = &self.b else { return };
-        let sb = to_sensor(scene.content_shift(tb, t_ns));
-        let w = ((t_ns - ta) as f64 / (tb - ta) as f64) as f32;
-        shift_blend_into(b.view(), m, sb, w, dst, &mut self.scratch);
+        let a = Moved {
+            src: a.view(),
+            shift: to_sensor(scene.content_shift(ta, t_ns)),
+        };
+        let b = match (&self.b, blend) {
+            (Some((_, b)), true) => Some((
+                Moved {
+                    src: b.view(),
+                    shift: to_sensor(scene.content_shift(tb, t_ns)),
+                },
+                ((t_ns - ta) as f64 / (tb - ta) as f64) as f32,
+            )),
+            _ => None,
+        };
+        let shape = (self.rows, self.cols);
+        shift_rows(self.margin, shape, a, b, &mut self.scratch, row);
     }
 }
 
@@ -181,106 +197,194 @@ pub fn shift_reference(
 }
 
 /// The content of `src` moved by `(dx, dy)` pixels into `dst` (see the module documentation);
-/// `scratch` holds four rows of the horizontal pass between calls. Equal to [`shift_reference`]
+/// `scratch` holds the rows of the horizontal pass between calls. Equal to [`shift_reference`]
 /// up to rounding.
 pub fn shift_into(
     src: ArrayView2<'_, f32>,
     margin: usize,
     shift: (f64, f64),
-    dst: ArrayViewMut2<'_, f32>,
-    scratch: &mut Vec<f32>,
-) {
-    shift_with::<false>(src, margin, shift, 0.0, dst, scratch);
-}
-
-/// `dst` moved a fraction `w` of the way towards the content of `src` moved by `(dx, dy)`:
-/// `dst + w (shifted - dst)`, the same bits as [`shift_into`] into an image and that blend, in
-/// one pass over `dst`.
-pub fn shift_blend_into(
-    src: ArrayView2<'_, f32>,
-    margin: usize,
-    shift: (f64, f64),
-    w: f32,
-    dst: ArrayViewMut2<'_, f32>,
-    scratch: &mut Vec<f32>,
-) {
-    shift_with::<true>(src, margin, shift, w, dst, scratch);
-}
-
-/// [`shift_into`] (`BLEND` false) or [`shift_blend_into`] (`BLEND` true, towards by `blend`).
-fn shift_with<const BLEND: bool>(
-    src: ArrayView2<'_, f32>,
-    margin: usize,
-    shift: (f64, f64),
-    blend: f32,
     mut dst: ArrayViewMut2<'_, f32>,
     scratch: &mut Vec<f32>,
 ) {
-    let (sh, sw) = src.dim();
     let (h, w) = dst.dim();
-    let (ix, fx) = split(margin, shift.0);
-    let (iy, fy) = split(margin, shift.1);
-    // The fast path needs every tap inside `src`, both arrays contiguous.
-    let inside = ix >= 1
-        && iy >= 1
-        && (ix as usize) + w + 2 <= sw
-        && (iy as usize) + h + 2 <= sh
-        && h > 0
-        && w > 0;
-    let contiguous = src.as_slice().is_some() && dst.as_slice().is_some();
-    if !(inside && contiguous) {
-        if BLEND {
-            let mut moved = Array2::zeros((h, w));
-            shift_reference(src, margin, shift, moved.view_mut());
-            Zip::from(&mut dst)
-                .and(&moved)
-                .for_each(|d, &m| *d += blend * (m - *d));
-        } else {
-            shift_reference(src, margin, shift, dst);
-        }
+    let moved = Moved { src, shift };
+    shift_rows(margin, (h, w), moved, None, scratch, |r, row| {
+        copy_row(row, dst.row_mut(r))
+    });
+}
+
+/// `row` into `dst`, through the slice where `dst` is contiguous.
+#[inline(always)]
+fn copy_row(row: &[f32], mut dst: ndarray::ArrayViewMut1<'_, f32>) {
+    match dst.as_slice_mut() {
+        Some(d) => d.copy_from_slice(row),
+        None => dst.iter_mut().zip(row).for_each(|(d, &v)| *d = v),
+    }
+}
+
+/// A rendered image with `margin` pixels beyond every edge and how far to move its content.
+#[derive(Clone, Copy, Debug)]
+pub struct Moved<'a> {
+    /// The render, `margin` wider than the output on every side.
+    pub src: ArrayView2<'a, f32>,
+    /// `(dx, dy)` in pixels.
+    pub shift: (f64, f64),
+}
+
+/// The `rows x cols` image `a` moved ([`shift_into`]), and where `b = Some((moved, w))`, taken
+/// the fraction `w` of the way towards `b` moved: `a' + w (b' - a')`, handed to `row(r, values)`
+/// one row at a time, top first, so that a caller can use each row while it is in the cache.
+/// `scratch` holds the horizontal pass's rows between calls. The same bits as [`shift_into`] of
+/// each and then the blend.
+pub fn shift_rows(
+    margin: usize,
+    (h, w): (usize, usize),
+    a: Moved<'_>,
+    b: Option<(Moved<'_>, f32)>,
+    scratch: &mut Vec<f32>,
+    mut row: impl FnMut(usize, &[f32]),
+) {
+    if h == 0 || w == 0 {
         return;
     }
-    let (Some(s), Some(d)) = (src.as_slice(), dst.as_slice_mut()) else {
-        return;
+    let (Some(fa), fb) = (
+        Taps::new(a, margin, (h, w)),
+        b.map(|(m, _)| Taps::new(m, margin, (h, w))),
+    ) else {
+        return slow_rows(margin, (h, w), a, b, row);
     };
-    let (wx, wy) = (cubic_weights(fx), cubic_weights(fy));
-    let (x0, y0) = (ix as usize - 1, iy as usize - 1);
-    scratch.resize(4 * w, 0.0);
+    let fb = match (b, fb) {
+        (None, _) => None,
+        (Some((_, weight)), Some(Some(t))) => Some((t, weight)),
+        _ => return slow_rows(margin, (h, w), a, b, row),
+    };
+    scratch.resize(10 * w, 0.0);
+    let (ring_a, rest) = scratch.split_at_mut(4 * w);
+    let (ring_b, rest) = rest.split_at_mut(4 * w);
+    let (row_a, row_b) = rest.split_at_mut(w);
     neuspike_simd::dispatch(
         #[inline(always)]
         || {
-            // Source row `k` of the window through the horizontal taps, into `t` (a function,
-            // so that it is inlined into each instruction set's variant).
-            #[inline(always)]
-            fn across(row: &[f32], wx: [f32; 4], t: &mut [f32]) {
-                let w = t.len();
-                let (a, b, c, e) = (&row[..w], &row[1..w + 1], &row[2..w + 2], &row[3..w + 3]);
-                for i in 0..w {
-                    t[i] = wx[0] * a[i] + wx[1] * b[i] + wx[2] * c[i] + wx[3] * e[i];
-                }
+            fa.prime(ring_a);
+            if let Some((t, _)) = &fb {
+                t.prime(ring_b);
             }
-            let src_row = |k: usize| &s[(y0 + k) * sw + x0..(y0 + k) * sw + x0 + w + 3];
-            // The horizontal pass keeps the four rows the vertical taps read (row `k` in slot
-            // `k % 4`), so that both passes and the blend read and write each image once.
-            for k in 0..3 {
-                across(src_row(k), wx, &mut scratch[k * w..(k + 1) * w]);
-            }
-            for (r, out) in d.chunks_exact_mut(w).enumerate() {
-                let k = r + 3;
-                across(src_row(k), wx, &mut scratch[(k % 4) * w..(k % 4 + 1) * w]);
-                let row = |j: usize| &scratch[((r + j) % 4) * w..((r + j) % 4 + 1) * w];
-                let (a, b, c, e) = (row(0), row(1), row(2), row(3));
-                for i in 0..w {
-                    let v = wy[0] * a[i] + wy[1] * b[i] + wy[2] * c[i] + wy[3] * e[i];
-                    out[i] = if BLEND {
-                        out[i] + blend * (v - out[i])
-                    } else {
-                        v
-                    };
+            for r in 0..h {
+                fa.row(r, ring_a, row_a);
+                if let Some((t, weight)) = &fb {
+                    t.row(r, ring_b, row_b);
+                    for (x, &y) in row_a.iter_mut().zip(row_b.iter()) {
+                        *x = blend(*x, y, *weight);
+                    }
                 }
+                row(r, row_a);
             }
         },
     );
+}
+
+/// [`shift_rows`] where a tap would reach past a source or a source is not contiguous: each
+/// moved image through [`shift_reference`].
+fn slow_rows(
+    margin: usize,
+    (h, w): (usize, usize),
+    a: Moved<'_>,
+    b: Option<(Moved<'_>, f32)>,
+    mut row: impl FnMut(usize, &[f32]),
+) {
+    let mut moved = Array2::zeros((h, w));
+    shift_reference(a.src, margin, a.shift, moved.view_mut());
+    if let Some((b, weight)) = b {
+        let mut other = Array2::zeros((h, w));
+        shift_reference(b.src, margin, b.shift, other.view_mut());
+        Zip::from(&mut moved)
+            .and(&other)
+            .for_each(|x, &y| *x = blend(*x, y, weight));
+    }
+    for (r, values) in moved.rows().into_iter().enumerate() {
+        row(r, &values.to_vec());
+    }
+}
+
+/// Four taps `w . v`, in order.
+#[inline(always)]
+fn taps4(w: [f32; 4], v: [f32; 4]) -> f32 {
+    w[0] * v[0] + w[1] * v[1] + w[2] * v[2] + w[3] * v[3]
+}
+
+/// `x` moved the fraction `w` of the way to `y`: `x + w (y - x)`.
+#[inline(always)]
+fn blend(x: f32, y: f32, w: f32) -> f32 {
+    x + w * (y - x)
+}
+
+/// One source's taps on the fast path: every tap inside a contiguous source.
+struct Taps<'a> {
+    s: &'a [f32],
+    sw: usize,
+    w: usize,
+    x0: usize,
+    y0: usize,
+    wx: [f32; 4],
+    wy: [f32; 4],
+}
+
+impl<'a> Taps<'a> {
+    /// `None` where a tap would reach past `moved.src` or it is not contiguous.
+    fn new(moved: Moved<'a>, margin: usize, (h, w): (usize, usize)) -> Option<Taps<'a>> {
+        let (sh, sw) = moved.src.dim();
+        let (ix, fx) = split(margin, moved.shift.0);
+        let (iy, fy) = split(margin, moved.shift.1);
+        let inside =
+            ix >= 1 && iy >= 1 && (ix as usize) + w + 2 <= sw && (iy as usize) + h + 2 <= sh;
+        let s = moved.src.to_slice()?;
+        inside.then(|| Taps {
+            s,
+            sw,
+            w,
+            x0: ix as usize - 1,
+            y0: iy as usize - 1,
+            wx: cubic_weights(fx),
+            wy: cubic_weights(fy),
+        })
+    }
+
+    /// Source row `k` of the window through the horizontal taps into ring slot `k % 4`.
+    #[inline(always)]
+    fn across(&self, k: usize, ring: &mut [f32]) {
+        let w = self.w;
+        let start = (self.y0 + k) * self.sw + self.x0;
+        let row = &self.s[start..start + w + 3];
+        let t = &mut ring[(k % 4) * w..(k % 4 + 1) * w];
+        let (a, b, c, e) = (&row[..w], &row[1..w + 1], &row[2..w + 2], &row[3..w + 3]);
+        let wx = self.wx;
+        for i in 0..w {
+            t[i] = taps4(wx, [a[i], b[i], c[i], e[i]]);
+        }
+    }
+
+    /// The horizontal pass of the first three rows the vertical taps read.
+    #[inline(always)]
+    fn prime(&self, ring: &mut [f32]) {
+        for k in 0..3 {
+            self.across(k, ring);
+        }
+    }
+
+    /// Output row `r` into `out`, after rows `0..r` (the ring holds rows `r..r + 3`): the
+    /// horizontal pass of row `r + 3`, then the vertical taps. Each source row goes through the
+    /// horizontal pass once.
+    #[inline(always)]
+    fn row(&self, r: usize, ring: &mut [f32], out: &mut [f32]) {
+        let w = self.w;
+        self.across(r + 3, ring);
+        let slot = |j: usize| &ring[((r + j) % 4) * w..((r + j) % 4 + 1) * w];
+        let (a, b, c, e) = (slot(0), slot(1), slot(2), slot(3));
+        let wy = self.wy;
+        for i in 0..w {
+            out[i] = taps4(wy, [a[i], b[i], c[i], e[i]]);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -323,24 +427,34 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(100))]
 
-        /// The blend in the same pass gives the bits of the shift and then the blend, on the
-        /// fast path and where the taps clamp at the edge.
+        /// Two images moved and blended row by row give the bits of each moved and then the
+        /// blend, on the fast path and where the taps clamp at the edge.
         #[test]
-        fn shift_blend_is_the_shift_then_the_blend(
+        fn shifted_rows_are_the_shifts_then_the_blend(
             (h, w, margin) in (1usize..40, 1usize..40, 0usize..8),
             (dx, dy) in (-10.0f64..10.0, -10.0f64..10.0),
+            (ex, ey) in (-10.0f64..10.0, -10.0f64..10.0),
             weight in 0.0f32..=1.0,
             seed in any::<u64>(),
         ) {
-            let src = image(h + 2 * margin, w + 2 * margin, seed);
-            let before = image(h, w, seed ^ 1);
+            let src_a = image(h + 2 * margin, w + 2 * margin, seed);
+            let src_b = image(h + 2 * margin, w + 2 * margin, seed ^ 1);
             let mut scratch = Vec::new();
-            let mut moved = Array2::zeros((h, w));
-            shift_into(src.view(), margin, (dx, dy), moved.view_mut(), &mut scratch);
-            let mut want = before.clone();
-            want.zip_mut_with(&moved, |d, &m| *d += weight * (m - *d));
-            let mut got = before.clone();
-            shift_blend_into(src.view(), margin, (dx, dy), weight, got.view_mut(), &mut scratch);
+            let mut want = Array2::zeros((h, w));
+            let mut moved_b = Array2::zeros((h, w));
+            shift_into(src_a.view(), margin, (dx, dy), want.view_mut(), &mut scratch);
+            shift_into(src_b.view(), margin, (ex, ey), moved_b.view_mut(), &mut scratch);
+            want.zip_mut_with(&moved_b, |d, &m| *d = blend(*d, m, weight));
+            let mut got = Array2::from_elem((h, w), f32::NAN);
+            let a = Moved { src: src_a.view(), shift: (dx, dy) };
+            let b = Moved { src: src_b.view(), shift: (ex, ey) };
+            let mut seen = 0;
+            shift_rows(margin, (h, w), a, Some((b, weight)), &mut scratch, |r, row| {
+                assert_eq!(r, seen);
+                seen += 1;
+                got.row_mut(r).assign(&ndarray::ArrayView1::from(row));
+            });
+            prop_assert_eq!(seen, h);
             for (a, b) in got.iter().zip(&want) {
                 prop_assert_eq!(a.to_bits(), b.to_bits());
             }

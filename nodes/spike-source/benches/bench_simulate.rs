@@ -35,14 +35,14 @@ fn bench(c: &mut Criterion) {
     // reference and the fast path on each instruction set this CPU has.
     const KEY_TICKS: usize = 20;
     let base: Vec<f32> = (0..n).map(|i| (i % 255) as f32 / 255.0).collect();
-    let slope = vec![0.0f32; n];
     let mut acc = vec![0.0f32; n];
     let mut since = vec![0u32; n];
     let cap = vec![180u32; n];
     let mut planes = vec![0u8; n / 8 * KEY_TICKS];
     let light = KeyLight {
-        base: &base,
-        slope: &slope,
+        start: &base,
+        end: &base,
+        inv_step: 0.0,
     };
     let mut variants = vec![("kernel_reference".to_string(), None)];
     for isa in Isa::ALL.into_iter().filter(|isa| isa.is_supported()) {

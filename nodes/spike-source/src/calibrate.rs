@@ -228,7 +228,6 @@ impl Reference {
             .iter()
             .map(|&(_, r, _)| (r * f64::from(phi) / (1.0 - r * d)) as f32)
             .collect();
-        let slope = vec![0.0f32; n];
         let mut acc: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * phi).collect();
         let normal = rand_distr::Normal::new(180.0f64, 50.0).expect("the paper's cap");
         let cap: Vec<u32> = (0..n)
@@ -243,9 +242,11 @@ impl Reference {
         let mut state: Vec<u32> = (0..n).map(|_| rng.random::<u32>() | 1).collect();
         let per = n.div_ceil(8);
         let mut bits = vec![0u8; per * self.planes];
+        // Still light: the same at both ends of the interval.
         let light = KeyLight {
-            base: &base,
-            slope: &slope,
+            start: &base,
+            end: &base,
+            inv_step: 0.0,
         };
         let px = PixelState {
             acc: &mut acc,

@@ -194,12 +194,12 @@ pub struct SpikeCamera {
     acc: Vec<f32>,
     since: Vec<u32>,
     cap: Vec<u32>,
-    /// Luminance at the previous and next key instants.
-    key_a: Array2<f32>,
-    key_b: Array2<f32>,
-    /// Light per tick over the current key interval: `base + slope * (tick - key_tick)`.
-    base: Vec<f32>,
-    slope: Vec<f32>,
+    /// Light per tick at the previous and next key instants (light scale, gain and dark light
+    /// applied); in between, linear in time ([`KeyLight`]).
+    key_a: Vec<f32>,
+    key_b: Vec<f32>,
+    /// The luminance of a render, without motion-compensated interpolation.
+    lum: Array2<f32>,
     key_tick: u64,
     tick: u64,
     /// Motion-compensated interpolation between renders, when on.
@@ -308,10 +308,9 @@ impl SpikeCamera {
             acc,
             since: vec![0; n],
             cap,
-            key_a: Array2::zeros(shape),
-            key_b: Array2::zeros(shape),
-            base: vec![0.0; n],
-            slope: vec![0.0; n],
+            key_a: vec![0.0; n],
+            key_b: vec![0.0; n],
+            lum: Array2::zeros(if warp.is_some() { (0, 0) } else { shape }),
             key_tick: 0,
             tick: 0,
             warp,
@@ -379,30 +378,48 @@ impl SpikeCamera {
         let period = self.period_ns;
         let t = move |k: u64| mid_tick_ns(period, k);
         let kb = key_tick + self.render_step;
-        // The scene at `t_ns`: rendered, or moved from the nearest renders.
-        let image = |warp: &mut Option<Interpolator>, t_ns: i64, dst: &mut Array2<f32>| match warp {
-            Some(w) => w.image_into(&self.scene, t_ns, dst.view_mut()),
-            None => self.scene.render_into(t_ns, dst.view_mut()),
-        };
         if key_tick == 0 || key_tick != self.key_tick + self.render_step {
-            image(&mut self.warp, t(key_tick), &mut self.key_a);
+            self.key_light(t(key_tick), false);
         } else {
             std::mem::swap(&mut self.key_a, &mut self.key_b);
         }
-        image(&mut self.warp, t(kb), &mut self.key_b);
+        self.key_light(t(kb), true);
         self.key_tick = key_tick;
-        // Light per tick, clamped to >= 0 (NaN -> 0) at both ends, so the linear path between
-        // them stays >= 0 up to rounding.
-        let ls = self.light_scale;
-        let inv_step = 1.0 / self.render_step as f32;
-        let (a, b) = (self.key_a.as_slice(), self.key_b.as_slice());
-        if let (Some(a), Some(b)) = (a, b) {
-            let (factor, dark) = (self.factor.as_deref(), self.dark.as_deref());
-            let (base, slope) = (&mut self.base[..], &mut self.slope[..]);
+    }
+
+    /// The light per tick of the scene at `t_ns` (rendered, or moved from the nearest renders)
+    /// into `key_b` (`end`) or `key_a`, row by row, so that each row of the image is used while
+    /// it is in the cache.
+    fn key_light(&mut self, t_ns: i64, end: bool) {
+        let cols = self.cfg.width;
+        let light = LightMap {
+            ls: self.light_scale,
+            factor: self.factor.as_deref(),
+            dark: self.dark.as_deref(),
+        };
+        let out = if end {
+            &mut self.key_b
+        } else {
+            &mut self.key_a
+        };
+        // Each row compiled for the CPU's widest vectors (a closure handed on is not inlined
+        // into the caller's).
+        let mut put = |r: usize, lum: &[f32]| {
             neuspike_simd::dispatch(
                 #[inline(always)]
-                || key_light([a, b], ls, inv_step, [factor, dark], base, slope),
-            );
+                || light.row(lum, r * cols, &mut out[r * cols..(r + 1) * cols]),
+            )
+        };
+        match &mut self.warp {
+            Some(w) => w.image_rows(&self.scene, t_ns, put),
+            None => {
+                self.scene.render_into(t_ns, self.lum.view_mut());
+                if let Some(lum) = self.lum.as_slice() {
+                    lum.chunks_exact(cols.max(1))
+                        .enumerate()
+                        .for_each(|(r, row)| put(r, row));
+                }
+            }
         }
     }
 
@@ -432,8 +449,9 @@ impl SpikeCamera {
             let k0 = self.tick - key;
             let run = ((self.render_step - k0) as usize).min(n - done);
             let light = KeyLight {
-                base: &self.base,
-                slope: &self.slope,
+                start: &self.key_a,
+                end: &self.key_b,
+                inv_step: 1.0 / self.render_step as f32,
             };
             let px = PixelState {
                 acc: &mut self.acc,
@@ -478,54 +496,41 @@ impl SpikeCamera {
     }
 }
 
-/// The light per tick over a key interval from the luminance at its ends `[a, b]`: `base` at
-/// the start and `slope` per tick, with the light scale `ls`, clamped to `>= 0` (NaN to 0) at
-/// both ends, then the fixed patterns `[factor, dark]` (a pixel's light factor, then its dark
-/// light).
-#[inline(always)]
-fn key_light(
-    [a, b]: [&[f32]; 2],
+/// How a render's luminance becomes each pixel's light per tick: times the light scale `ls`,
+/// clamped to `>= 0` (NaN to 0), then the fixed patterns (a pixel's light `factor`, then its
+/// `dark` light), each when on.
+struct LightMap<'a> {
     ls: f32,
-    inv_step: f32,
-    [factor, dark]: [Option<&[f32]>; 2],
-    base: &mut [f32],
-    slope: &mut [f32],
-) {
-    let light = |l: f32| {
-        if l.is_finite() {
-            (ls * l).max(0.0)
-        } else {
-            0.0
-        }
-    };
-    // One pass over the pixels, each form of it a loop without branches: the two images, the
-    // gain and the dark current are read once and `base` and `slope` written once (the arrays
-    // together exceed a core's L2 cache).
-    let out = base.iter_mut().zip(slope.iter_mut()).zip(a.iter().zip(b));
-    let put = |(bs, sl): (&mut f32, &mut f32), la: f32, lb: f32| {
-        *bs = la;
-        *sl = (lb - la) * inv_step;
-    };
-    match (factor, dark) {
-        (None, None) => {
-            for (o, (&la, &lb)) in out {
-                put(o, light(la), light(lb));
+    factor: Option<&'a [f32]>,
+    dark: Option<&'a [f32]>,
+}
+
+impl LightMap<'_> {
+    /// The light of pixels `first..first + lum.len()` from their luminance `lum` into `out`:
+    /// one loop without branches for each combination of patterns.
+    #[inline(always)]
+    fn row(&self, lum: &[f32], first: usize, out: &mut [f32]) {
+        let ls = self.ls;
+        let light = |l: f32| {
+            if l.is_finite() {
+                (ls * l).max(0.0)
+            } else {
+                0.0
             }
-        }
-        (Some(f), None) => {
-            for ((o, (&la, &lb)), &f) in out.zip(f) {
-                put(o, light(la) * f, light(lb) * f);
-            }
-        }
-        (None, Some(d)) => {
-            for ((o, (&la, &lb)), &d) in out.zip(d) {
-                put(o, light(la) + d, light(lb) + d);
-            }
-        }
-        (Some(f), Some(d)) => {
-            for (((o, (&la, &lb)), &f), &d) in out.zip(f).zip(d) {
-                put(o, light(la) * f + d, light(lb) * f + d);
-            }
+        };
+        let at = first..first + lum.len();
+        let pairs = out.iter_mut().zip(lum);
+        match (self.factor, self.dark) {
+            (None, None) => pairs.for_each(|(o, &l)| *o = light(l)),
+            (Some(f), None) => pairs
+                .zip(&f[at])
+                .for_each(|((o, &l), &f)| *o = light(l) * f),
+            (None, Some(d)) => pairs
+                .zip(&d[at])
+                .for_each(|((o, &l), &d)| *o = light(l) + d),
+            (Some(f), Some(d)) => pairs
+                .zip(f[at.clone()].iter().zip(&d[at]))
+                .for_each(|((o, &l), (&f, &d))| *o = light(l) * f + d),
         }
     }
 }
@@ -548,26 +553,61 @@ fn auto_render_step(scene: &Scene, period_ns: i64, width: usize, max_shift_px: f
     (ticks.floor() as u64).clamp(1, MAX_STEP)
 }
 
-/// The light every pixel receives in one tick: `base[i] + slope[i] * k` (light scale applied,
-/// >= 0), one entry per pixel, row-major.
+/// The light every pixel receives in one tick: `start[i] + slope * k`, `slope = (end[i] -
+/// start[i]) * inv_step` (light scale applied, >= 0), one entry per pixel, row-major.
 #[derive(Clone, Copy, Debug)]
 pub struct TickLight<'a> {
     /// Light at the start of the key interval.
-    pub base: &'a [f32],
-    /// Change of light per tick over the key interval.
-    pub slope: &'a [f32],
+    pub start: &'a [f32],
+    /// Light at its end.
+    pub end: &'a [f32],
+    /// One over the key interval's ticks.
+    pub inv_step: f32,
     /// Ticks since the start of the key interval.
     pub k: f32,
 }
 
 /// The light over one key interval: tick `k` of the interval (`k = 0, 1, ..`) gives pixel `i`
-/// `base[i] + slope[i] * k` (light scale applied, >= 0), one entry per pixel, row-major.
+/// `start[i] + slope * k`, `slope = (end[i] - start[i]) * inv_step` (light scale applied, >= 0),
+/// one entry per pixel, row-major. The kernels compute each pixel's slope from the two ends, so
+/// that no image of slopes is written and read again.
 #[derive(Clone, Copy, Debug)]
 pub struct KeyLight<'a> {
     /// Light at the start of the key interval.
-    pub base: &'a [f32],
-    /// Change of light per tick over the key interval.
-    pub slope: &'a [f32],
+    pub start: &'a [f32],
+    /// Light at its end.
+    pub end: &'a [f32],
+    /// One over the key interval's ticks.
+    pub inv_step: f32,
+}
+
+impl KeyLight<'_> {
+    /// The light of tick `k` of the interval.
+    fn tick(&self, k: f32) -> TickLight<'_> {
+        TickLight {
+            start: self.start,
+            end: self.end,
+            inv_step: self.inv_step,
+            k,
+        }
+    }
+
+    /// Pixels `from..` of the interval's light.
+    fn from(&self, from: usize) -> KeyLight<'_> {
+        KeyLight {
+            start: &self.start[from..],
+            end: &self.end[from..],
+            inv_step: self.inv_step,
+        }
+    }
+}
+
+impl TickLight<'_> {
+    /// The light of pixel `i` in this tick.
+    #[inline(always)]
+    fn at(&self, i: usize) -> f32 {
+        self.start[i] + (self.end[i] - self.start[i]) * self.inv_step * self.k
+    }
 }
 
 /// The state of every pixel, one entry per pixel, row-major.
@@ -593,7 +633,7 @@ pub fn integrate_tick_reference(
 ) {
     let n = px.acc.len();
     for i in 0..n {
-        let gain = light.base[i] + light.slope[i] * light.k;
+        let gain = light.at(i);
         let a = px.acc[i] + gain;
         let s = px.since[i].saturating_add(1);
         let fired = if a >= phi {
@@ -629,11 +669,7 @@ pub fn integrate_ticks_reference(
 ) {
     let per = px.acc.len().div_ceil(8);
     for (t, plane) in planes.chunks_exact_mut(per.max(1)).enumerate() {
-        let light = TickLight {
-            base: light.base,
-            slope: light.slope,
-            k: (k0 as usize + t) as f32,
-        };
+        let light = light.tick((k0 as usize + t) as f32);
         let px = PixelState {
             acc: &mut *px.acc,
             since: &mut *px.since,
@@ -673,6 +709,17 @@ fn pack8(flags: &[u8]) -> u8 {
     (u64::from_le_bytes(eight).wrapping_mul(GATHER) >> 56) as u8
 }
 
+/// A block's light per tick over the key interval, `(end - start) * inv_step`, as
+/// [`TickLight`] computes it.
+#[inline(always)]
+fn block_slope(start: &[f32], end: &[f32], inv_step: f32) -> [f32; BLOCK] {
+    let mut slope = [0f32; BLOCK];
+    for ((s, &a), &b) in slope.iter_mut().zip(start).zip(end) {
+        *s = (b - a) * inv_step;
+    }
+    slope
+}
+
 /// The fast path's body, inlined into each instruction-set variant of [`simd`].
 #[inline(always)]
 fn ticks_blocked<const SUBTRACT: bool>(
@@ -691,13 +738,15 @@ fn ticks_blocked<const SUBTRACT: bool>(
     let whole = n / BLOCK * BLOCK;
     let (acc, acc_tail) = px.acc.split_at_mut(whole);
     let (since, since_tail) = px.since.split_at_mut(whole);
-    let blocks = light.base[..whole]
+    let inv_step = light.inv_step;
+    let blocks = light.start[..whole]
         .chunks_exact(BLOCK)
-        .zip(light.slope[..whole].chunks_exact(BLOCK))
+        .zip(light.end[..whole].chunks_exact(BLOCK))
         .zip(acc.chunks_exact_mut(BLOCK))
         .zip(since.chunks_exact_mut(BLOCK))
         .zip(px.cap[..whole].chunks_exact(BLOCK));
-    for (b, ((((base, slope), acc), since), cap)) in blocks.enumerate() {
+    for (b, ((((base, end), acc), since), cap)) in blocks.enumerate() {
+        let slope = block_slope(base, end, inv_step);
         let mut a = [0f32; BLOCK];
         let mut s = [0u32; BLOCK];
         a.copy_from_slice(acc);
@@ -737,11 +786,8 @@ fn ticks_blocked<const SUBTRACT: bool>(
             Reset::Zero
         };
         for t in 0..n_ticks {
-            let light = TickLight {
-                base: &light.base[whole..],
-                slope: &light.slope[whole..],
-                k: (k0 as usize + t) as f32,
-            };
+            let tail = light.from(whole);
+            let light = tail.tick((k0 as usize + t) as f32);
             let px = PixelState {
                 acc: &mut *acc_tail,
                 since: &mut *since_tail,
@@ -844,7 +890,7 @@ pub fn integrate_tick_noisy_reference(
     let scale = draw_scale(fire.sigma, phi);
     let offset = draw_offset(phi, scale);
     for i in 0..px.acc.len() {
-        let l = light.base[i] + light.slope[i] * light.k;
+        let l = light.at(i);
         let a = px.acc[i] + l;
         let s = px.since[i].wrapping_add(1);
         let r = lcg_step(fire.rng[i]);
@@ -880,11 +926,7 @@ pub fn integrate_ticks_noisy_reference(
 ) {
     let per = px.acc.len().div_ceil(8);
     for (t, plane) in planes.chunks_exact_mut(per.max(1)).enumerate() {
-        let light = TickLight {
-            base: light.base,
-            slope: light.slope,
-            k: (k0 as usize + t) as f32,
-        };
+        let light = light.tick((k0 as usize + t) as f32);
         let px = PixelState {
             acc: &mut *px.acc,
             since: &mut *px.since,
@@ -969,15 +1011,17 @@ fn noisy_blocked<const SUBTRACT: bool>(
     let (since, since_tail) = px.since.split_at_mut(whole);
     let (thr, thr_tail) = fire.thr.split_at_mut(whole);
     let (rng, rng_tail) = fire.rng.split_at_mut(whole);
-    let blocks = light.base[..whole]
+    let inv_step = light.inv_step;
+    let blocks = light.start[..whole]
         .chunks_exact(BLOCK)
-        .zip(light.slope[..whole].chunks_exact(BLOCK))
+        .zip(light.end[..whole].chunks_exact(BLOCK))
         .zip(acc.chunks_exact_mut(BLOCK))
         .zip(since.chunks_exact_mut(BLOCK))
         .zip(px.cap[..whole].chunks_exact(BLOCK))
         .zip(thr.chunks_exact_mut(BLOCK))
         .zip(rng.chunks_exact_mut(BLOCK));
-    for (b, ((((((base, slope), acc), since), cap), thr), rng)) in blocks.enumerate() {
+    for (b, ((((((base, end), acc), since), cap), thr), rng)) in blocks.enumerate() {
+        let slope = block_slope(base, end, inv_step);
         let mut a = [0f32; BLOCK];
         let mut s = [0u32; BLOCK];
         let mut th = [0f32; BLOCK];
@@ -1031,11 +1075,8 @@ fn noisy_blocked<const SUBTRACT: bool>(
             Reset::Zero
         };
         for t in 0..n_ticks {
-            let light = TickLight {
-                base: &light.base[whole..],
-                slope: &light.slope[whole..],
-                k: (k0 as usize + t) as f32,
-            };
+            let tail = light.from(whole);
+            let light = tail.tick((k0 as usize + t) as f32);
             let px = PixelState {
                 acc: &mut *acc_tail,
                 since: &mut *since_tail,
@@ -1187,13 +1228,13 @@ mod tests {
             subtract in proptest::prelude::any::<bool>(),
         ) {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            let base: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
-            let slope: Vec<f32> = (0..n).map(|_| (rng.random::<f32>() - 0.5) * 0.05).collect();
+            let start: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
+            let end: Vec<f32> = start.iter().map(|&a| a + (rng.random::<f32>() - 0.5) * 0.8).collect();
             let acc0: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 2.0).collect();
             let since0: Vec<u32> = (0..n).map(|_| rng.random_range(0..20)).collect();
             let cap: Vec<u32> = (0..n).map(|_| rng.random_range(1..25)).collect();
             let reset = if subtract { Reset::Subtract } else { Reset::Zero };
-            let light = KeyLight { base: &base, slope: &slope };
+            let light = KeyLight { start: &start, end: &end, inv_step: 1.0 / 16.0 };
             let per = n.div_ceil(8);
             let (mut a1, mut s1, mut p1) = (acc0.clone(), since0.clone(), vec![0u8; per * ticks]);
             integrate_ticks_reference(light, k0, 1.0, reset, PixelState { acc: &mut a1, since: &mut s1, cap: &cap }, &mut p1);
@@ -1219,15 +1260,15 @@ mod tests {
             delay in 0.0f32..0.9,
         ) {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            let base: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
-            let slope: Vec<f32> = (0..n).map(|_| (rng.random::<f32>() - 0.5) * 0.05).collect();
+            let start: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
+            let end: Vec<f32> = start.iter().map(|&a| a + (rng.random::<f32>() - 0.5) * 0.8).collect();
             let acc0: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 2.0).collect();
             let since0: Vec<u32> = (0..n).map(|_| rng.random_range(0..20)).collect();
             let cap: Vec<u32> = (0..n).map(|_| rng.random_range(1..25)).collect();
             let thr0: Vec<f32> = (0..n).map(|_| 0.5 + rng.random::<f32>()).collect();
             let rng0: Vec<u32> = (0..n).map(|_| rng.random::<u32>() | 1).collect();
             let reset = if subtract { Reset::Subtract } else { Reset::Zero };
-            let light = KeyLight { base: &base, slope: &slope };
+            let light = KeyLight { start: &start, end: &end, inv_step: 1.0 / 16.0 };
             let per = n.div_ceil(8);
             let run = |isa: Option<Isa>| {
                 let (mut a, mut s, mut th, mut r, mut p) =
@@ -1251,12 +1292,16 @@ mod tests {
     fn the_noisy_kernel_without_noise_is_the_papers_kernel() {
         let n = 300;
         let mut rng = ChaCha8Rng::seed_from_u64(9);
-        let base: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.2).collect();
-        let slope: Vec<f32> = (0..n).map(|_| (rng.random::<f32>() - 0.5) * 0.01).collect();
+        let start: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.2).collect();
+        let end: Vec<f32> = start
+            .iter()
+            .map(|&a| a + (rng.random::<f32>() - 0.5) * 2.0)
+            .collect();
         let cap: Vec<u32> = (0..n).map(|_| rng.random_range(5..40)).collect();
         let light = KeyLight {
-            base: &base,
-            slope: &slope,
+            start: &start,
+            end: &end,
+            inv_step: 1.0 / 200.0,
         };
         let ticks = 200;
         let (mut a1, mut s1, mut p1) = (vec![0.0f32; n], vec![0u32; n], vec![0u8; 38 * ticks]);
@@ -1497,8 +1542,7 @@ mod tests {
         const RUN: usize = 64;
         let levels: [f32; 8] = [0.3, 0.5, 2.0 / 3.0, 0.123_456_7, 0.999_9, 1e-2, 1e-3, 1e-6];
         // 64 pixels (one fast-path block): pixel i gets levels[i % 8].
-        let base: Vec<f32> = (0..BLOCK).map(|i| levels[i % 8]).collect();
-        let slope = vec![0.0f32; BLOCK];
+        let light: Vec<f32> = (0..BLOCK).map(|i| levels[i % 8]).collect();
         let mut acc = vec![0.0f32; BLOCK];
         let mut since = vec![0u32; BLOCK];
         let cap = vec![u32::MAX; BLOCK];
@@ -1509,8 +1553,9 @@ mod tests {
             planes.fill(0);
             integrate_ticks(
                 KeyLight {
-                    base: &base,
-                    slope: &slope,
+                    start: &light,
+                    end: &light,
+                    inv_step: 0.0,
                 },
                 0,
                 1.0,
@@ -1568,7 +1613,7 @@ mod tests {
                 ..Default::default()
             };
             let mut cam = SpikeCamera::new(hdr_scene(), cfg).unwrap();
-            let light = cam.base.clone();
+            let light = cam.key_a.clone();
             let cap = cam.cap.clone();
             let lo = light.iter().copied().fold(f32::INFINITY, f32::min);
             let hi = light.iter().copied().fold(0.0f32, f32::max);
