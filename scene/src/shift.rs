@@ -380,6 +380,8 @@ impl<'a> Taps<'a> {
         self.across(r + 3, ring);
         let slot = |j: usize| &ring[((r + j) % 4) * w..((r + j) % 4 + 1) * w];
         let (a, b, c, e) = (slot(0), slot(1), slot(2), slot(3));
+        // As long as the slots, so that the loop has no bounds checks and vectorises.
+        let out = &mut out[..w];
         let wy = self.wy;
         for i in 0..w {
             out[i] = taps4(wy, [a[i], b[i], c[i], e[i]]);

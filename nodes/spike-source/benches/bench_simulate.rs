@@ -40,9 +40,8 @@ fn bench(c: &mut Criterion) {
     let cap = vec![180u32; n];
     let mut planes = vec![0u8; n / 8 * KEY_TICKS];
     let light = KeyLight {
-        start: &base,
-        end: &base,
-        inv_step: 0.0,
+        keys: &[&base, &base],
+        step: KEY_TICKS as u32,
     };
     let mut variants = vec![("kernel_reference".to_string(), None)];
     for isa in Isa::ALL.into_iter().filter(|isa| isa.is_supported()) {

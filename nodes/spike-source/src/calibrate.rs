@@ -244,9 +244,8 @@ impl Reference {
         let mut bits = vec![0u8; per * self.planes];
         // Still light: the same at both ends of the interval.
         let light = KeyLight {
-            start: &base,
-            end: &base,
-            inv_step: 0.0,
+            keys: &[&base, &base],
+            step: 1,
         };
         let px = PixelState {
             acc: &mut acc,

@@ -18,7 +18,8 @@
 //!
 //! The simulation is deterministic for a seed: the noise draws come from a ChaCha generator seeded
 //! with it. The scene is rendered at key instants every `render_step_ticks` ticks and linearly
-//! interpolated in time between them (1 = render every tick).
+//! interpolated in time between them (1 = render every tick); the kernel goes through
+//! [`KEY_INTERVALS`] such intervals in one pass over the pixels' state.
 #![deny(missing_docs)]
 
 use ndarray::Array2;
@@ -194,10 +195,9 @@ pub struct SpikeCamera {
     acc: Vec<f32>,
     since: Vec<u32>,
     cap: Vec<u32>,
-    /// Light per tick at the previous and next key instants (light scale, gain and dark light
-    /// applied); in between, linear in time ([`KeyLight`]).
-    key_a: Vec<f32>,
-    key_b: Vec<f32>,
+    /// Light per tick at the key instants `key_tick + s render_step`, `s = 0..=KEY_INTERVALS`
+    /// (light scale, gain and dark light applied); in between, linear in time ([`KeyLight`]).
+    keys: Vec<Vec<f32>>,
     /// The luminance of a render, without motion-compensated interpolation.
     lum: Array2<f32>,
     key_tick: u64,
@@ -308,8 +308,7 @@ impl SpikeCamera {
             acc,
             since: vec![0; n],
             cap,
-            key_a: vec![0.0; n],
-            key_b: vec![0.0; n],
+            keys: vec![vec![0.0; n]; KEY_INTERVALS as usize + 1],
             lum: Array2::zeros(if warp.is_some() { (0, 0) } else { shape }),
             key_tick: 0,
             tick: 0,
@@ -367,8 +366,13 @@ impl SpikeCamera {
         &self.scene
     }
 
-    /// Renders the key instants around `key_tick` (the middle of ticks `key_tick` and
-    /// `key_tick + render_step`) and the per-tick light between them.
+    /// Ticks the key images of one pass cover: [`KEY_INTERVALS`] render steps.
+    fn group(&self) -> u64 {
+        self.render_step * KEY_INTERVALS
+    }
+
+    /// Renders the key instants from `key_tick` (the middle of ticks `key_tick + s render_step`,
+    /// `s = 0..=KEY_INTERVALS`): the per-tick light of the intervals between them.
     fn render_key(&mut self, key_tick: u64) {
         if key_tick != 0 && self.scene.is_static() {
             // Every render gives the same image: the light of tick 0's interval holds forever.
@@ -377,31 +381,31 @@ impl SpikeCamera {
         }
         let period = self.period_ns;
         let t = move |k: u64| mid_tick_ns(period, k);
-        let kb = key_tick + self.render_step;
-        if key_tick == 0 || key_tick != self.key_tick + self.render_step {
-            self.key_light(t(key_tick), false);
+        let last = KEY_INTERVALS as usize;
+        // The last key of the group before is this group's first.
+        let first = if key_tick != 0 && key_tick == self.key_tick + self.group() {
+            self.keys.swap(0, last);
+            1
         } else {
-            std::mem::swap(&mut self.key_a, &mut self.key_b);
+            0
+        };
+        for s in first..=last {
+            self.key_light(t(key_tick + s as u64 * self.render_step), s);
         }
-        self.key_light(t(kb), true);
         self.key_tick = key_tick;
     }
 
     /// The light per tick of the scene at `t_ns` (rendered, or moved from the nearest renders)
-    /// into `key_b` (`end`) or `key_a`, row by row, so that each row of the image is used while
-    /// it is in the cache.
-    fn key_light(&mut self, t_ns: i64, end: bool) {
+    /// into key image `index`, row by row, so that each row of the image is used while it is in
+    /// the cache.
+    fn key_light(&mut self, t_ns: i64, index: usize) {
         let cols = self.cfg.width;
         let light = LightMap {
             ls: self.light_scale,
             factor: self.factor.as_deref(),
             dark: self.dark.as_deref(),
         };
-        let out = if end {
-            &mut self.key_b
-        } else {
-            &mut self.key_a
-        };
+        let out = &mut self.keys[index];
         // Each row compiled for the CPU's widest vectors (a closure handed on is not inlined
         // into the caller's).
         let mut put = |r: usize, lum: &[f32]| {
@@ -429,7 +433,7 @@ impl SpikeCamera {
     pub fn jump_to(&mut self, tick: u64) {
         self.tick = tick;
         self.since.fill(0);
-        let key = tick - tick % self.render_step;
+        let key = tick - tick % self.group();
         if key != self.key_tick {
             self.render_key(key);
         }
@@ -442,16 +446,17 @@ impl SpikeCamera {
         let first = self.tick;
         let mut done = 0;
         while done < n {
-            let key = self.tick - self.tick % self.render_step;
+            let group = self.group();
+            let key = self.tick - self.tick % group;
             if key != self.key_tick {
                 self.render_key(key);
             }
             let k0 = self.tick - key;
-            let run = ((self.render_step - k0) as usize).min(n - done);
+            let run = ((group - k0) as usize).min(n - done);
+            let keys: [&[f32]; KEY_INTERVALS as usize + 1] = std::array::from_fn(|s| &self.keys[s][..]);
             let light = KeyLight {
-                start: &self.key_a,
-                end: &self.key_b,
-                inv_step: 1.0 / self.render_step as f32,
+                keys: &keys,
+                step: u32::try_from(self.render_step).unwrap_or(u32::MAX),
             };
             let px = PixelState {
                 acc: &mut self.acc,
@@ -535,6 +540,11 @@ impl LightMap<'_> {
     }
 }
 
+/// Key intervals the kernel goes through in one pass over the pixels' state: each pass reads and
+/// writes every pixel's state once, so a moving scene's short intervals (a few ticks each) cost
+/// a quarter of the memory traffic they would one by one.
+pub const KEY_INTERVALS: u64 = 4;
+
 /// Middle of tick `k` of ticks of `period_ns`: tick `k` covers `((k - 1) T, k T]`.
 fn mid_tick_ns(period_ns: i64, k: u64) -> i64 {
     (k as i64).saturating_mul(period_ns) - period_ns / 2
@@ -567,37 +577,44 @@ pub struct TickLight<'a> {
     pub k: f32,
 }
 
-/// The light over one key interval: tick `k` of the interval (`k = 0, 1, ..`) gives pixel `i`
-/// `start[i] + slope * k`, `slope = (end[i] - start[i]) * inv_step` (light scale applied, >= 0),
-/// one entry per pixel, row-major. The kernels compute each pixel's slope from the two ends, so
-/// that no image of slopes is written and read again.
+/// The light over consecutive key intervals of `step` ticks: key image `keys[s]` holds each
+/// pixel's light at tick `s step`, and tick `k` of interval `s` (tick `s step + k` of the run)
+/// gives pixel `i` `keys[s][i] + slope * k`, `slope = (keys[s + 1][i] - keys[s][i]) / step`
+/// (light scale applied, >= 0), one entry per pixel, row-major; ticks past the last key
+/// continue the last interval's line. The kernels compute each pixel's slope from the ends, so
+/// that no image of slopes is written and read again, and go through several intervals in one
+/// pass over the pixels' state.
 #[derive(Clone, Copy, Debug)]
 pub struct KeyLight<'a> {
-    /// Light at the start of the key interval.
-    pub start: &'a [f32],
-    /// Light at its end.
-    pub end: &'a [f32],
-    /// One over the key interval's ticks.
-    pub inv_step: f32,
+    /// The key images (at least two), `step` ticks apart.
+    pub keys: &'a [&'a [f32]],
+    /// Ticks between two keys (at least 1).
+    pub step: u32,
 }
 
 impl KeyLight<'_> {
-    /// The light of tick `k` of the interval.
-    fn tick(&self, k: f32) -> TickLight<'_> {
-        TickLight {
-            start: self.start,
-            end: self.end,
-            inv_step: self.inv_step,
-            k,
-        }
+    /// The interval of tick `k` of the run (the last one for ticks past it) and the tick in it.
+    #[inline(always)]
+    fn interval(&self, k: usize) -> (usize, f32) {
+        let step = self.step.max(1) as usize;
+        let s = (k / step).min(self.keys.len().saturating_sub(2));
+        (s, (k - s * step) as f32)
     }
 
-    /// Pixels `from..` of the interval's light.
-    fn from(&self, from: usize) -> KeyLight<'_> {
-        KeyLight {
-            start: &self.start[from..],
-            end: &self.end[from..],
-            inv_step: self.inv_step,
+    /// One over the ticks between two keys.
+    #[inline(always)]
+    fn inv_step(&self) -> f32 {
+        1.0 / self.step.max(1) as f32
+    }
+
+    /// The light of pixels `from..` at tick `k` of the run.
+    fn tick(&self, k: usize, from: usize) -> TickLight<'_> {
+        let (s, k) = self.interval(k);
+        TickLight {
+            start: &self.keys[s][from..],
+            end: &self.keys[s + 1][from..],
+            inv_step: self.inv_step(),
+            k,
         }
     }
 }
@@ -669,7 +686,7 @@ pub fn integrate_ticks_reference(
 ) {
     let per = px.acc.len().div_ceil(8);
     for (t, plane) in planes.chunks_exact_mut(per.max(1)).enumerate() {
-        let light = light.tick((k0 as usize + t) as f32);
+        let light = light.tick(k0 as usize + t, 0);
         let px = PixelState {
             acc: &mut *px.acc,
             since: &mut *px.since,
@@ -709,15 +726,64 @@ fn pack8(flags: &[u8]) -> u8 {
     (u64::from_le_bytes(eight).wrapping_mul(GATHER) >> 56) as u8
 }
 
-/// A block's light per tick over the key interval, `(end - start) * inv_step`, as
-/// [`TickLight`] computes it.
-#[inline(always)]
-fn block_slope(start: &[f32], end: &[f32], inv_step: f32) -> [f32; BLOCK] {
-    let mut slope = [0f32; BLOCK];
-    for ((s, &a), &b) in slope.iter_mut().zip(start).zip(end) {
-        *s = (b - a) * inv_step;
+/// One block's light in the current key interval: its start and its slope `(end - start) /
+/// step`, as [`TickLight`] computes them, and the tick in the interval, counted without a
+/// division.
+struct BlockLight {
+    /// The block's first pixel.
+    first: usize,
+    /// The interval `base` and `slope` are of, and the tick in it.
+    interval: usize,
+    tick: usize,
+    base: [f32; BLOCK],
+    slope: [f32; BLOCK],
+}
+
+impl BlockLight {
+    /// At tick `k0` of the run.
+    #[inline(always)]
+    fn new(light: &KeyLight, first: usize, k0: usize) -> BlockLight {
+        let (interval, tick) = light.interval(k0);
+        let mut bl = BlockLight {
+            first,
+            interval,
+            tick: tick as usize,
+            base: [0.0; BLOCK],
+            slope: [0.0; BLOCK],
+        };
+        bl.load(light);
+        bl
     }
-    slope
+
+    /// The current interval's start and slope.
+    #[inline(always)]
+    fn load(&mut self, light: &KeyLight) {
+        let s = self.interval;
+        let at = self.first..self.first + BLOCK;
+        let (start, end) = (&light.keys[s][at.clone()], &light.keys[s + 1][at]);
+        let inv_step = light.inv_step();
+        self.base.copy_from_slice(start);
+        for ((sl, &a), &b) in self.slope.iter_mut().zip(start).zip(end) {
+            *sl = (b - a) * inv_step;
+        }
+    }
+
+    /// The tick in the current interval.
+    #[inline(always)]
+    fn k(&self) -> f32 {
+        self.tick as f32
+    }
+
+    /// On to the next tick: into the next interval at its end, but past the last one.
+    #[inline(always)]
+    fn advance(&mut self, light: &KeyLight) {
+        self.tick += 1;
+        if self.tick >= light.step.max(1) as usize && self.interval + 2 < light.keys.len() {
+            self.interval += 1;
+            self.tick = 0;
+            self.load(light);
+        }
+    }
 }
 
 /// The fast path's body, inlined into each instruction-set variant of [`simd`].
@@ -738,22 +804,20 @@ fn ticks_blocked<const SUBTRACT: bool>(
     let whole = n / BLOCK * BLOCK;
     let (acc, acc_tail) = px.acc.split_at_mut(whole);
     let (since, since_tail) = px.since.split_at_mut(whole);
-    let inv_step = light.inv_step;
-    let blocks = light.start[..whole]
-        .chunks_exact(BLOCK)
-        .zip(light.end[..whole].chunks_exact(BLOCK))
-        .zip(acc.chunks_exact_mut(BLOCK))
+    let blocks = acc
+        .chunks_exact_mut(BLOCK)
         .zip(since.chunks_exact_mut(BLOCK))
         .zip(px.cap[..whole].chunks_exact(BLOCK));
-    for (b, ((((base, end), acc), since), cap)) in blocks.enumerate() {
-        let slope = block_slope(base, end, inv_step);
+    for (b, ((acc, since), cap)) in blocks.enumerate() {
+        let mut bl = BlockLight::new(&light, b * BLOCK, k0 as usize);
         let mut a = [0f32; BLOCK];
         let mut s = [0u32; BLOCK];
         a.copy_from_slice(acc);
         s.copy_from_slice(since);
         let byte0 = b * (BLOCK / 8);
         for t in 0..n_ticks {
-            let k = (k0 as usize + t) as f32;
+            let k = bl.k();
+            let (base, slope) = (&bl.base, &bl.slope);
             let mut flags = [0u8; BLOCK];
             for j in 0..BLOCK {
                 let x = a[j] + (base[j] + slope[j] * k);
@@ -775,6 +839,7 @@ fn ticks_blocked<const SUBTRACT: bool>(
             for (o, f) in out.iter_mut().zip(flags.chunks_exact(8)) {
                 *o = pack8(f);
             }
+            bl.advance(&light);
         }
         acc.copy_from_slice(&a);
         since.copy_from_slice(&s);
@@ -786,8 +851,7 @@ fn ticks_blocked<const SUBTRACT: bool>(
             Reset::Zero
         };
         for t in 0..n_ticks {
-            let tail = light.from(whole);
-            let light = tail.tick((k0 as usize + t) as f32);
+            let light = light.tick(k0 as usize + t, whole);
             let px = PixelState {
                 acc: &mut *acc_tail,
                 since: &mut *since_tail,
@@ -926,7 +990,7 @@ pub fn integrate_ticks_noisy_reference(
 ) {
     let per = px.acc.len().div_ceil(8);
     for (t, plane) in planes.chunks_exact_mut(per.max(1)).enumerate() {
-        let light = light.tick((k0 as usize + t) as f32);
+        let light = light.tick(k0 as usize + t, 0);
         let px = PixelState {
             acc: &mut *px.acc,
             since: &mut *px.since,
@@ -1011,17 +1075,14 @@ fn noisy_blocked<const SUBTRACT: bool>(
     let (since, since_tail) = px.since.split_at_mut(whole);
     let (thr, thr_tail) = fire.thr.split_at_mut(whole);
     let (rng, rng_tail) = fire.rng.split_at_mut(whole);
-    let inv_step = light.inv_step;
-    let blocks = light.start[..whole]
-        .chunks_exact(BLOCK)
-        .zip(light.end[..whole].chunks_exact(BLOCK))
-        .zip(acc.chunks_exact_mut(BLOCK))
+    let blocks = acc
+        .chunks_exact_mut(BLOCK)
         .zip(since.chunks_exact_mut(BLOCK))
         .zip(px.cap[..whole].chunks_exact(BLOCK))
         .zip(thr.chunks_exact_mut(BLOCK))
         .zip(rng.chunks_exact_mut(BLOCK));
-    for (b, ((((((base, end), acc), since), cap), thr), rng)) in blocks.enumerate() {
-        let slope = block_slope(base, end, inv_step);
+    for (b, ((((acc, since), cap), thr), rng)) in blocks.enumerate() {
+        let mut bl = BlockLight::new(&light, b * BLOCK, k0 as usize);
         let mut a = [0f32; BLOCK];
         let mut s = [0u32; BLOCK];
         let mut th = [0f32; BLOCK];
@@ -1032,7 +1093,8 @@ fn noisy_blocked<const SUBTRACT: bool>(
         r.copy_from_slice(rng);
         let byte0 = b * (BLOCK / 8);
         for t in 0..n_ticks {
-            let k = (k0 as usize + t) as f32;
+            let k = bl.k();
+            let (base, slope) = (&bl.base, &bl.slope);
             let mut flags = [0u8; BLOCK];
             // The new accumulators and thresholds go to fresh arrays: a select written back to
             // the array it read from becomes a masked store, which keeps the array in memory.
@@ -1062,6 +1124,7 @@ fn noisy_blocked<const SUBTRACT: bool>(
             for (o, f) in out.iter_mut().zip(flags.chunks_exact(8)) {
                 *o = pack8(f);
             }
+            bl.advance(&light);
         }
         acc.copy_from_slice(&a);
         since.copy_from_slice(&s);
@@ -1075,8 +1138,7 @@ fn noisy_blocked<const SUBTRACT: bool>(
             Reset::Zero
         };
         for t in 0..n_ticks {
-            let tail = light.from(whole);
-            let light = tail.tick((k0 as usize + t) as f32);
+            let light = light.tick(k0 as usize + t, whole);
             let px = PixelState {
                 acc: &mut *acc_tail,
                 since: &mut *since_tail,
@@ -1226,15 +1288,17 @@ mod tests {
             seed in proptest::prelude::any::<u64>(),
             k0 in 0u32..16,
             subtract in proptest::prelude::any::<bool>(),
+            step in 1u32..12,
         ) {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             let start: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
             let end: Vec<f32> = start.iter().map(|&a| a + (rng.random::<f32>() - 0.5) * 0.8).collect();
+            let mid: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
             let acc0: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 2.0).collect();
             let since0: Vec<u32> = (0..n).map(|_| rng.random_range(0..20)).collect();
             let cap: Vec<u32> = (0..n).map(|_| rng.random_range(1..25)).collect();
             let reset = if subtract { Reset::Subtract } else { Reset::Zero };
-            let light = KeyLight { start: &start, end: &end, inv_step: 1.0 / 16.0 };
+            let light = KeyLight { keys: &[&start, &end, &mid, &start], step };
             let per = n.div_ceil(8);
             let (mut a1, mut s1, mut p1) = (acc0.clone(), since0.clone(), vec![0u8; per * ticks]);
             integrate_ticks_reference(light, k0, 1.0, reset, PixelState { acc: &mut a1, since: &mut s1, cap: &cap }, &mut p1);
@@ -1258,17 +1322,19 @@ mod tests {
             subtract in proptest::prelude::any::<bool>(),
             sigma in 0.0f32..0.4,
             delay in 0.0f32..0.9,
+            step in 1u32..12,
         ) {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             let start: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
             let end: Vec<f32> = start.iter().map(|&a| a + (rng.random::<f32>() - 0.5) * 0.8).collect();
+            let mid: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 1.5).collect();
             let acc0: Vec<f32> = (0..n).map(|_| rng.random::<f32>() * 2.0).collect();
             let since0: Vec<u32> = (0..n).map(|_| rng.random_range(0..20)).collect();
             let cap: Vec<u32> = (0..n).map(|_| rng.random_range(1..25)).collect();
             let thr0: Vec<f32> = (0..n).map(|_| 0.5 + rng.random::<f32>()).collect();
             let rng0: Vec<u32> = (0..n).map(|_| rng.random::<u32>() | 1).collect();
             let reset = if subtract { Reset::Subtract } else { Reset::Zero };
-            let light = KeyLight { start: &start, end: &end, inv_step: 1.0 / 16.0 };
+            let light = KeyLight { keys: &[&start, &end, &mid, &start], step };
             let per = n.div_ceil(8);
             let run = |isa: Option<Isa>| {
                 let (mut a, mut s, mut th, mut r, mut p) =
@@ -1299,9 +1365,8 @@ mod tests {
             .collect();
         let cap: Vec<u32> = (0..n).map(|_| rng.random_range(5..40)).collect();
         let light = KeyLight {
-            start: &start,
-            end: &end,
-            inv_step: 1.0 / 200.0,
+            keys: &[&start, &end, &start],
+            step: 100,
         };
         let ticks = 200;
         let (mut a1, mut s1, mut p1) = (vec![0.0f32; n], vec![0u32; n], vec![0u8; 38 * ticks]);
@@ -1553,9 +1618,8 @@ mod tests {
             planes.fill(0);
             integrate_ticks(
                 KeyLight {
-                    start: &light,
-                    end: &light,
-                    inv_step: 0.0,
+                    keys: &[&light, &light],
+                    step: 1,
                 },
                 0,
                 1.0,
@@ -1613,7 +1677,7 @@ mod tests {
                 ..Default::default()
             };
             let mut cam = SpikeCamera::new(hdr_scene(), cfg).unwrap();
-            let light = cam.key_a.clone();
+            let light = cam.keys[0].clone();
             let cap = cam.cap.clone();
             let lo = light.iter().copied().fold(f32::INFINITY, f32::min);
             let hi = light.iter().copied().fold(0.0f32, f32::max);
