@@ -452,8 +452,10 @@ impl SpikeCamera {
                 self.render_key(key);
             }
             let k0 = self.tick - key;
-            let run = ((group - k0) as usize).min(n - done);
-            let keys: [&[f32]; KEY_INTERVALS as usize + 1] = std::array::from_fn(|s| &self.keys[s][..]);
+            // Runs of at most `MAX_RUN_TICKS`: a block's planes stay close in memory.
+            let run = ((group - k0) as usize).min(n - done).min(MAX_RUN_TICKS);
+            let keys: [&[f32]; KEY_INTERVALS as usize + 1] =
+                std::array::from_fn(|s| &self.keys[s][..]);
             let light = KeyLight {
                 keys: &keys,
                 step: u32::try_from(self.render_step).unwrap_or(u32::MAX),
@@ -541,9 +543,13 @@ impl LightMap<'_> {
 }
 
 /// Key intervals the kernel goes through in one pass over the pixels' state: each pass reads and
-/// writes every pixel's state once, so a moving scene's short intervals (a few ticks each) cost
-/// a quarter of the memory traffic they would one by one.
+/// writes every pixel's state once, so a moving scene's short intervals (a few ticks each) read
+/// and write it a quarter as often as they would one by one.
 pub const KEY_INTERVALS: u64 = 4;
+
+/// The most ticks one call of the kernel goes through: each block writes a byte range of every
+/// tick's plane, and longer runs spread those writes over more memory than the caches hold.
+const MAX_RUN_TICKS: usize = 64;
 
 /// Middle of tick `k` of ticks of `period_ns`: tick `k` covers `((k - 1) T, k T]`.
 fn mid_tick_ns(period_ns: i64, k: u64) -> i64 {
@@ -1197,6 +1203,14 @@ mod tests {
         let mut p = Array3::zeros((chunk.n_planes, chunk.height, chunk.width));
         unpack_planes_into(&chunk.bits, p.view_mut());
         p
+    }
+
+    #[test]
+    fn pack8_puts_pixel_j_at_bit_j_for_every_byte() {
+        for byte in 0..=255u8 {
+            let flags: Vec<u8> = (0..8).map(|j| (byte >> j) & 1).collect();
+            assert_eq!(pack8(&flags), byte);
+        }
     }
 
     #[test]
