@@ -12,7 +12,7 @@
 //! [`neuspike_simd::dispatch`]) is checked against [`shift_reference`], which computes every tap
 //! from scratch.
 
-use ndarray::{Array2, ArrayView2, ArrayViewMut2, Zip};
+use ndarray::{Array2, ArrayView1, ArrayView2, ArrayViewMut2, Zip};
 
 use crate::Scene;
 
@@ -105,7 +105,9 @@ impl Interpolator {
 
     /// The image at `t_ns` into `dst` (`rows x cols`).
     pub fn image_into(&mut self, scene: &Scene, t_ns: i64, mut dst: ArrayViewMut2<'_, f32>) {
-        self.image_rows(scene, t_ns, |r, row| copy_row(row, dst.row_mut(r)));
+        self.image_rows(scene, t_ns, |r, row| {
+            dst.row_mut(r).assign(&ArrayView1::from(row))
+        });
     }
 
     /// The image at `t_ns` (`rows x cols`), handed to `row(r, values)` one row at a time, top
@@ -209,17 +211,8 @@ pub fn shift_into(
     let (h, w) = dst.dim();
     let moved = Moved { src, shift };
     shift_rows(margin, (h, w), moved, None, scratch, |r, row| {
-        copy_row(row, dst.row_mut(r))
+        dst.row_mut(r).assign(&ArrayView1::from(row))
     });
-}
-
-/// `row` into `dst`, through the slice where `dst` is contiguous.
-#[inline(always)]
-fn copy_row(row: &[f32], mut dst: ndarray::ArrayViewMut1<'_, f32>) {
-    match dst.as_slice_mut() {
-        Some(d) => d.copy_from_slice(row),
-        None => dst.iter_mut().zip(row).for_each(|(d, &v)| *d = v),
-    }
 }
 
 /// A rendered image with `margin` pixels beyond every edge and how far to move its content.
@@ -301,8 +294,11 @@ fn slow_rows(
             .and(&other)
             .for_each(|x, &y| *x = blend(*x, y, weight));
     }
-    for (r, values) in moved.rows().into_iter().enumerate() {
-        row(r, &values.to_vec());
+    // A fresh array: standard layout, each row a slice.
+    if let Some(all) = moved.as_slice() {
+        for (r, values) in all.chunks_exact(w).enumerate() {
+            row(r, values);
+        }
     }
 }
 
