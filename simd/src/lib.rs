@@ -25,6 +25,7 @@
 //! C library's exact `fmaf` on [`Isa::Baseline`] (slow, but the same bits).
 #![deny(missing_docs)]
 
+pub mod bits;
 pub mod fastmath;
 pub mod gather;
 pub mod taps;

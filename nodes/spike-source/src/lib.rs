@@ -661,7 +661,7 @@ pub fn integrate_tick_reference(
         let s = px.since[i].saturating_add(1);
         let fired = if a >= phi {
             px.acc[i] = match reset {
-                Reset::Subtract => (a - phi).min(phi),
+                Reset::Subtract => below(a - phi, phi),
                 Reset::Zero => 0.0,
             };
             true
@@ -677,6 +677,19 @@ pub fn integrate_tick_reference(
             plane[i >> 3] |= 1 << (i & 7);
         }
     }
+}
+
+/// `v`, but at most `hi`: [`f32::min`] without its case for NaN, which the kernels' values never
+/// are (one instruction in a vector loop instead of three). A NaN `v` gives `hi`.
+#[inline(always)]
+fn below(v: f32, hi: f32) -> f32 {
+    if v < hi { v } else { hi }
+}
+
+/// `v`, but at least `lo` ([`below`]'s other side). A NaN `v` gives `lo`.
+#[inline(always)]
+fn above(v: f32, lo: f32) -> f32 {
+    if v > lo { v } else { lo }
 }
 
 /// Consecutive ticks `k0, k0 + 1, ..` of one key interval, tick by tick with
@@ -720,17 +733,9 @@ pub fn integrate_ticks(
     integrate_ticks_with(neuspike_simd::detect(), light, k0, phi, reset, px, planes);
 }
 
-/// Pixels per block of the fast path (a multiple of 8: each tick of a block fills whole bytes).
+/// Pixels per block of the fast path: 64, so a tick of a block is one `u64` of fire flags.
 pub const BLOCK: usize = 64;
-
-/// Packs eight 0/1 bytes (pixel `j` in byte `j`) into one byte with pixel `j` at bit `j`.
-#[inline(always)]
-fn pack8(flags: &[u8]) -> u8 {
-    const GATHER: u64 = 0x0102_0408_1020_4080;
-    let mut eight = [0u8; 8];
-    eight.copy_from_slice(flags);
-    (u64::from_le_bytes(eight).wrapping_mul(GATHER) >> 56) as u8
-}
+const _: () = assert!(BLOCK == 64, "a block's tick is one u64 of flags");
 
 /// One block's light in the current key interval: its start and its slope `(end - start) /
 /// step`, as [`TickLight`] computes them, and the tick in the interval, counted without a
@@ -794,7 +799,8 @@ impl BlockLight {
 
 /// The fast path's body, inlined into each instruction-set variant of [`simd`].
 #[inline(always)]
-fn ticks_blocked<const SUBTRACT: bool>(
+fn ticks_blocked<const SUBTRACT: bool, P: Pack64>(
+    packer: P,
     light: KeyLight,
     k0: u32,
     phi: f32,
@@ -830,7 +836,7 @@ fn ticks_blocked<const SUBTRACT: bool>(
                 let si = s[j].saturating_add(1);
                 let over = x >= phi;
                 let fire = over | (si >= cap[j]);
-                let reset_to = if SUBTRACT { (x - phi).min(phi) } else { 0.0 };
+                let reset_to = if SUBTRACT { below(x - phi, phi) } else { 0.0 };
                 a[j] = if over {
                     reset_to
                 } else if fire {
@@ -841,10 +847,8 @@ fn ticks_blocked<const SUBTRACT: bool>(
                 s[j] = if fire { 0 } else { si };
                 flags[j] = u8::from(fire);
             }
-            let out = &mut planes[t * per + byte0..][..BLOCK / 8];
-            for (o, f) in out.iter_mut().zip(flags.chunks_exact(8)) {
-                *o = pack8(f);
-            }
+            planes[t * per + byte0..][..BLOCK / 8]
+                .copy_from_slice(&packer.pack64(&flags).to_le_bytes());
             bl.advance(&light);
         }
         acc.copy_from_slice(&a);
@@ -875,6 +879,7 @@ fn ticks_blocked<const SUBTRACT: bool>(
 }
 
 pub use neuspike_simd::Isa;
+use neuspike_simd::bits::{Pack64, Packer};
 
 pub mod playback;
 pub mod truth;
@@ -890,14 +895,30 @@ pub fn integrate_ticks_with(
     px: PixelState,
     planes: &mut [u8],
 ) {
-    neuspike_simd::with_isa(
-        isa,
-        #[inline(always)]
-        || match reset {
-            Reset::Subtract => ticks_blocked::<true>(light, k0, phi, px, planes),
-            Reset::Zero => ticks_blocked::<false>(light, k0, phi, px, planes),
-        },
-    );
+    // One variant per instruction set, each with its own way of packing the fire flags.
+    #[inline(always)]
+    fn on<P: Pack64>(
+        packer: P,
+        isa: Isa,
+        args: (KeyLight, u32, f32, Reset, PixelState, &mut [u8]),
+    ) {
+        let (light, k0, phi, reset, px, planes) = args;
+        neuspike_simd::with_isa(
+            isa,
+            #[inline(always)]
+            || match reset {
+                Reset::Subtract => ticks_blocked::<true, P>(packer, light, k0, phi, px, planes),
+                Reset::Zero => ticks_blocked::<false, P>(packer, light, k0, phi, px, planes),
+            },
+        );
+    }
+    let packer = Packer::new(isa);
+    let args = (light, k0, phi, reset, px, planes);
+    match packer {
+        Packer::Avx512(p) => on(p, packer.isa(), args),
+        Packer::Avx2(p) => on(p, packer.isa(), args),
+        Packer::Scalar(p) => on(p, packer.isa(), args),
+    }
 }
 
 /// The per-interval noise the noisy kernels draw: each pixel's threshold for its current
@@ -972,7 +993,9 @@ pub fn integrate_tick_noisy_reference(
         // (the light is never negative).
         px.acc[i] = match (fired, reset) {
             (false, _) => a,
-            (true, Reset::Subtract) => (-fire.reset_delay).mul_add(l, a - thr).max(0.0).min(next),
+            (true, Reset::Subtract) => {
+                below(above((-fire.reset_delay).mul_add(l, a - thr), 0.0), next)
+            }
             (true, Reset::Zero) => 0.0,
         };
         px.since[i] = if fired { 0 } else { s };
@@ -1047,19 +1070,37 @@ pub fn integrate_ticks_noisy_with(
     fire: FireNoise,
     planes: &mut [u8],
 ) {
-    neuspike_simd::with_isa(
-        isa,
-        #[inline(always)]
-        || match reset {
-            Reset::Subtract => noisy_blocked::<true>(light, k0, phi, px, fire, planes),
-            Reset::Zero => noisy_blocked::<false>(light, k0, phi, px, fire, planes),
-        },
-    );
+    #[inline(always)]
+    fn on<P: Pack64>(
+        packer: P,
+        isa: Isa,
+        args: (KeyLight, u32, f32, Reset, PixelState, FireNoise, &mut [u8]),
+    ) {
+        let (light, k0, phi, reset, px, fire, planes) = args;
+        neuspike_simd::with_isa(
+            isa,
+            #[inline(always)]
+            || match reset {
+                Reset::Subtract => {
+                    noisy_blocked::<true, P>(packer, light, k0, phi, px, fire, planes)
+                }
+                Reset::Zero => noisy_blocked::<false, P>(packer, light, k0, phi, px, fire, planes),
+            },
+        );
+    }
+    let packer = Packer::new(isa);
+    let args = (light, k0, phi, reset, px, fire, planes);
+    match packer {
+        Packer::Avx512(p) => on(p, packer.isa(), args),
+        Packer::Avx2(p) => on(p, packer.isa(), args),
+        Packer::Scalar(p) => on(p, packer.isa(), args),
+    }
 }
 
 /// The noisy fast path's body (see [`ticks_blocked`]).
 #[inline(always)]
-fn noisy_blocked<const SUBTRACT: bool>(
+fn noisy_blocked<const SUBTRACT: bool, P: Pack64>(
+    packer: P,
     light: KeyLight,
     k0: u32,
     phi: f32,
@@ -1115,7 +1156,7 @@ fn noisy_blocked<const SUBTRACT: bool>(
                 let next = drawn_threshold(rj, scale, offset);
                 let fired = (x >= th[j]) | (si >= cap[j]);
                 let reset_to = if SUBTRACT {
-                    (-delay).mul_add(l, x - th[j]).max(0.0).min(next)
+                    below(above((-delay).mul_add(l, x - th[j]), 0.0), next)
                 } else {
                     0.0
                 };
@@ -1126,10 +1167,8 @@ fn noisy_blocked<const SUBTRACT: bool>(
             }
             a = a_next;
             th = th_next;
-            let out = &mut planes[t * per + byte0..][..BLOCK / 8];
-            for (o, f) in out.iter_mut().zip(flags.chunks_exact(8)) {
-                *o = pack8(f);
-            }
+            planes[t * per + byte0..][..BLOCK / 8]
+                .copy_from_slice(&packer.pack64(&flags).to_le_bytes());
             bl.advance(&light);
         }
         acc.copy_from_slice(&a);
@@ -1203,14 +1242,6 @@ mod tests {
         let mut p = Array3::zeros((chunk.n_planes, chunk.height, chunk.width));
         unpack_planes_into(&chunk.bits, p.view_mut());
         p
-    }
-
-    #[test]
-    fn pack8_puts_pixel_j_at_bit_j_for_every_byte() {
-        for byte in 0..=255u8 {
-            let flags: Vec<u8> = (0..8).map(|j| (byte >> j) & 1).collect();
-            assert_eq!(pack8(&flags), byte);
-        }
     }
 
     #[test]
