@@ -8,9 +8,12 @@
 //! keeps in registers, [`taps::accumulate`] (a convolution's inner loop), is written here with
 //! each instruction set's intrinsics, its bounds checked before the loop; so is the loop of
 //! loads at computed indices the vectoriser leaves scalar, [`gather::bilinear`] (a renderer's
-//! texture samples), its indices clamped inside the image. This crate holds the
+//! texture samples), its indices clamped inside the image; and packing 64 flags into a word,
+//! [`bits::Pack64`], which the vectoriser does with a multiply per eight flags where AVX-512 has one
+//! byte test into a mask register. This crate holds the
 //! only `unsafe` of the project: calling a function compiled for an instruction set is sound
-//! exactly when the CPU supports it, which is checked right before each call, and the
+//! exactly when the CPU supports it, which is checked right before each call (or when a
+//! [`bits::Packer`] is made), and the
 //! intrinsics' loads and stores stay within the bounds checked. [`fastmath`] holds the
 //! project's branch-free elementary functions (`exp`, `ln`), which vectorise inside such loops.
 //! The environment variable `NEUSPIKE_ISA` (`baseline`, `avx2`) makes a wider CPU run the
