@@ -23,15 +23,14 @@
 //! direction): a clock error `delta` moves every point by its flow over `delta`, and a steady
 //! pan, turn or zoom is an affine flow, so an affine change of `H` explains that alike. On a
 //! simulated rig (`tests/rig.rs`, three textures, 40 ms whose first 12 hold still) the
-//! homography comes within 0.10-0.20 px where both sensors see when the clock is known (0.25-0.63
+//! homography comes within 0.09-0.20 px where both sensors see when the clock is known (0.25-0.63
 //! without the last step), and the clock within 6-27 us when the homography is known (its search
-//! takes only the events within bursts, [`BURST_NS`]); both unknown, within 0.13-0.49 px and
+//! takes only the events within bursts, [`BURST_NS`]); both unknown, within 0.12-0.45 px and
 //! 1-30 us (a joint search of the clock and the affine coefficients, kept when it scores better,
-//! before the last step). Other noise draws of the same scenes move the figures: for the
-//! texture with the fewest events the homography (clock known) came within 0.33-0.75 px over six
-//! draws, the other two 0.09-0.20 px over three draws each. Over 80 ms of the same scene the
-//! steady motion's biases outweigh its one start: for one texture the joint search's clock came
-//! 0.26 ms off.
+//! before the last step). Other noise draws of the same scenes move the figures: over four
+//! draws of each texture the homography (clock known) came within 0.06-0.27 px, but both
+//! unknown the clock came up to 0.68 ms off: the motion here moves a point 0.04 px per 100 us,
+//! so a tenth of a pixel of geometry buys a quarter of a millisecond of clock.
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
