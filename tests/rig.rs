@@ -253,10 +253,11 @@ fn worst_error(h: &Homography) -> f64 {
 /// has the scale 6% and the shift 10 pixels off: the homography to within 0.5 px where both
 /// sensors see when the clock offset is known (measured 0.09-0.20 px; 0.21 and 0.27 px under two
 /// more noise draws of the texture of fewest edges), the clock offset to within 50 us when the
-/// homography is known (measured -6 to +27 us), and both unknown, within 0.75 px and 50 us
-/// (measured 0.12-0.45 px, +1 to +30 us), though under a steady pan, turn or zoom a clock error
-/// and an affine change of the homography explain the events alike, and only the start of the
-/// motion tells them apart.
+/// homography is known (measured -6 to +27 us), and both unknown, within 0.5 px and 100 us
+/// (measured 0.06-0.30 px, -54 to +55 us; over four noise draws of each texture 0.05-0.40 px,
+/// -54 to +98 us): under a steady pan, turn or zoom a clock error and an affine change of the
+/// homography explain the events alike, so the clock comes from the activity over time, where
+/// the start of the motion tells them apart.
 #[test]
 fn the_rig_is_estimated_from_what_the_two_sensors_recorded() {
     use neuspike_align::rig::{Clock, estimate, estimate_offset};
@@ -286,11 +287,11 @@ fn the_rig_is_estimated_from_what_the_two_sensors_recorded() {
         let (joint_worst, joint_clock) =
             (worst_error(&joint.homography), joint.offset_ns - OFFSET_NS);
         assert!(
-            joint_worst < 0.75,
+            joint_worst < 0.5,
             "seed {seed}: both unknown, {joint_worst} px"
         );
         assert!(
-            joint_clock.abs() < 50_000,
+            joint_clock.abs() < 100_000,
             "seed {seed}: both unknown, clock {joint_clock} ns off"
         );
         // Against the start: the estimate is closer.
@@ -312,7 +313,8 @@ fn the_rig_is_estimated_from_what_the_two_sensors_recorded() {
 
 /// align estimates the rig itself when none is given (`--estimate-rig-planes`): from the first
 /// 600 planes of a turning, zooming scene and the events over them it finds the homography
-/// (within 1.5 px where both sensors see) and the clock (within 0.4 ms), then lets every window
+/// (within 0.5 px where both sensors see; measured 0.06 px) and the clock (within 100 us;
+/// measured 54 us), then lets every window
 /// through: as many as with the rig given, carrying as many events within 5%.
 #[test]
 fn align_estimates_the_rig_when_none_is_given() {
@@ -351,8 +353,8 @@ fn align_estimates_the_rig_when_none_is_given() {
         worst_error(&h),
         offset + OFFSET_NS
     );
-    assert!(worst_error(&h) < 1.5, "{h}");
-    assert!((offset + OFFSET_NS).abs() < 400_000, "{offset}");
+    assert!(worst_error(&h) < 0.5, "{h}");
+    assert!((offset + OFFSET_NS).abs() < 100_000, "{offset}");
     assert_eq!(windows, given_windows);
     assert!(
         (n as f64 / given_n as f64 - 1.0).abs() < 0.05,

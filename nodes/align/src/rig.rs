@@ -11,26 +11,28 @@
 //! moves the estimate up to 1 px, a different way at each edge. The counts' difference peaks with
 //! the edge, and the square root, the Poisson noise of the counts, keeps a bright edge from
 //! outweighing a dark one. [`estimate`] maximises their correlation (Pearson, over a sample of
-//! the events): the clock from the two sensors' activity over time (or known), a grid over the
-//! scale and the shift on a blurred video, Nelder-Mead over the six affine coefficients of `H`
-//! (the perspective terms are kept from the start: they are nearly invisible in a frame's middle
-//! and drift), the clock again at that geometry, the geometry at that clock, and both together.
-//! Last, the geometry is refined on every frame of every pixel, the spike counts against the
-//! light the events spell (the `levels` module): that sees finer than the polarities at the events'
-//! times, but from near the answer only.
+//! the events): a grid over the scale and the shift on a blurred video, then Nelder-Mead over
+//! the six affine coefficients of `H` (the perspective terms are kept from the start: they are
+//! nearly invisible in a frame's middle and drift). Last, the geometry is refined on every frame
+//! of every pixel, the spike counts against the light the events spell (the `levels` module):
+//! that sees finer than the polarities at the events' times, but from near the answer only.
 //!
-//! The two are only separable where the motion changes (a start, a stop, a change of speed or
-//! direction): a clock error `delta` moves every point by its flow over `delta`, and a steady
-//! pan, turn or zoom is an affine flow, so an affine change of `H` explains that alike. On a
-//! simulated rig (`tests/rig.rs`, three textures, 40 ms whose first 12 hold still) the
+//! The clock is known, or comes first from the two sensors' activity over time, geometry-free,
+//! and is kept. The geometry and the clock are only separable where the motion changes (a
+//! start, a stop, a change of speed or direction): a clock error `delta` moves every point by
+//! its flow over `delta`, and a steady pan, turn or zoom is an affine flow, so an affine change
+//! of `H` explains that alike. The activity sees the changes of motion alone; the polarities'
+//! own clock trades against the geometry's last tenths of a pixel (on the simulated rig a point
+//! moves 0.04 px per 100 us, and a search of both together came up to 0.68 ms off over noise
+//! draws). Only when the activity never changes is the clock searched with the geometry: on a
+//! grid at each round, then both together.
+//!
+//! On a simulated rig (`tests/rig.rs`, three textures, 40 ms whose first 12 hold still) the
 //! homography comes within 0.09-0.20 px where both sensors see when the clock is known (0.25-0.63
 //! without the last step), and the clock within 6-27 us when the homography is known (its search
-//! takes only the events within bursts, [`BURST_NS`]); both unknown, within 0.12-0.45 px and
-//! 1-30 us (a joint search of the clock and the affine coefficients, kept when it scores better,
-//! before the last step). Other noise draws of the same scenes move the figures: over four
-//! draws of each texture the homography (clock known) came within 0.06-0.27 px, but both
-//! unknown the clock came up to 0.68 ms off: the motion here moves a point 0.04 px per 100 us,
-//! so a tenth of a pixel of geometry buys a quarter of a millisecond of clock.
+//! takes only the events within bursts, [`BURST_NS`]); both unknown, within 0.06-0.30 px and
+//! 14-55 us. Over four noise draws of each texture: 0.06-0.27 px with the clock known, and
+//! 0.05-0.40 px and 98 us at worst with neither known.
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
@@ -357,12 +359,64 @@ fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: &[f64], iters: usize
     simplex.swap_remove(0).0
 }
 
+/// Every event's time for the activity over time (event clock, ns): the middle of the interval
+/// since the previous event at its pixel, as the change that fired it took that interval. The
+/// first event after a pause (none at its pixel within [`MAX_INTERVAL_NS`]) fired only once the
+/// change had reached a threshold: the middle of an interval as long as the one to the next
+/// event at its pixel (its own time when there is none within [`MAX_INTERVAL_NS`] either).
+/// Leaving those events out put the activity's clock 0.5-0.7 ms late on the simulated rig,
+/// where every pixel's first event is at the motion's start.
+fn activity_times(events: &EventBatch) -> Vec<f64> {
+    let (w, h) = (events.width.max(1), events.height.max(1));
+    let n = events.len();
+    let pixel = |i: usize| {
+        let (x, y) = (usize::from(events.x[i]), usize::from(events.y[i]));
+        (x < w && y < h).then_some(y * w + x)
+    };
+    // The time to the next event at the same pixel, from the end.
+    let mut to_next = vec![i64::MAX; n];
+    let mut later = vec![i64::MIN; w * h];
+    for i in (0..n).rev() {
+        if let Some(p) = pixel(i) {
+            if later[p] != i64::MIN {
+                to_next[i] = later[p].saturating_sub(events.t_ns[i]);
+            }
+            later[p] = events.t_ns[i];
+        }
+    }
+    let mut earlier = later;
+    earlier.fill(i64::MIN);
+    let mut times = Vec::with_capacity(n);
+    for (i, &next) in to_next.iter().enumerate() {
+        let Some(p) = pixel(i) else {
+            continue;
+        };
+        let t = events.t_ns[i];
+        let prev = std::mem::replace(&mut earlier[p], t);
+        let since = if prev == i64::MIN {
+            i64::MAX
+        } else {
+            t.saturating_sub(prev)
+        };
+        let interval = if since <= MAX_INTERVAL_NS {
+            since
+        } else if next <= MAX_INTERVAL_NS {
+            next
+        } else {
+            0
+        };
+        times.push(t as f64 - interval as f64 / 2.0);
+    }
+    times
+}
+
 /// The clock offset from the two sensors' activity over time, geometry-free: the spike camera's
-/// mean absolute change `|D|` frame by frame against the events' count on the same frames,
-/// smoothed by the kernel `D` applies (a box of the rate window, differenced `2 tau` apart),
-/// correlated over offsets within `max_offset_ns` (a grid of 1/16 frame, the peak refined by a
-/// parabola). `None` when the activity never changes (a constant pan: use [`estimate`]).
-fn activity_offset(video: &ChangeVideo, events: &Sample, max_offset_ns: f64) -> Option<(f64, f64)> {
+/// mean absolute change `|D|` frame by frame against the count of events (`times`, see
+/// [`activity_times`]) on the same frames, smoothed by the kernel `D` applies (a box of the
+/// rate window, differenced `2 tau` apart), correlated over offsets within `max_offset_ns` (a
+/// grid of 1/16 frame, the peak refined by a parabola). `None` when the activity never changes
+/// (a constant pan: use [`estimate`]).
+fn activity_offset(video: &ChangeVideo, times: &[f64], max_offset_ns: f64) -> Option<(f64, f64)> {
     let n = video.width * video.height;
     let spike: Vec<f64> = (0..video.frames)
         .map(|f| {
@@ -389,7 +443,7 @@ fn activity_offset(video: &ChangeVideo, events: &Sample, max_offset_ns: f64) -> 
         let t_lo = video.t0_ns - margin;
         let bins = (video.frames * SUB) + 2 * (rate + gap);
         let mut hist = vec![0f64; bins];
-        for &t in &events.t {
+        for &t in times {
             let b = ((t - offset - t_lo) / fine).floor();
             if b >= 0.0 && (b as usize) < bins {
                 hist[b as usize] += 1.0;
@@ -574,19 +628,21 @@ pub fn estimate(
             .unwrap_or((center, 0.0))
     };
     let mut h = init;
-    // The clock: from the activity over time when it varies; else coarse (half a frame) at the
-    // initial geometry, refined with it.
-    let known = match clock {
+    // The clock: known, or from the activity over time when it varies, and then kept: a clock
+    // error moves the events by their flow, and under a steady pan, turn or zoom an affine
+    // change of the geometry does the same, so the polarities' own clock trades against the
+    // geometry's last tenths of a pixel (on the simulated rig it came up to 0.68 ms off over
+    // noise draws, the activity's within 0.1 ms). Else coarse (half a frame) at the initial
+    // geometry, refined with it.
+    let fixed = match clock {
         Clock::Known(ns) => Some(ns as f64),
-        Clock::Within(_) => None,
+        Clock::Within(_) => {
+            activity_offset(&video, &activity_times(events), max_offset_ns as f64).map(|(o, _)| o)
+        }
     };
-    let from_activity = match known {
-        Some(o) => Some((o, 1.0)),
-        None => activity_offset(&video, &ev, max_offset_ns as f64),
-    };
-    let (mut offset, _) = match from_activity {
-        Some((o, _)) => (o, 0.0),
-        None => offsets(&h, 0.0, max_offset_ns as f64, video.period_ns / 2.0),
+    let mut offset = match fixed {
+        Some(o) => o,
+        None => offsets(&h, 0.0, max_offset_ns as f64, video.period_ns / 2.0).0,
     };
     // Scale and shift, coarse: scales of the event camera's frame about its centre within
     // 10% (2% steps) and shifts within 16 pixels (2-pixel steps), on the video blurred over 5
@@ -674,18 +730,18 @@ pub fn estimate(
         h
     };
     for round in 0..4 {
-        if from_activity.is_none() {
+        if fixed.is_none() {
             (offset, _) = offsets(&h, offset, video.period_ns * 2.0, video.period_ns / 8.0);
         }
         h = refine(h, offset, round);
     }
     // The clock again with the geometry found (within 5 frames), the geometry at that clock,
     // then the clock fine: a parabola through the best of a 1/16-frame grid and its neighbours.
-    if known.is_none() {
+    if fixed.is_none() {
         (offset, _) = offsets(&h, offset, video.period_ns * 5.0, video.period_ns / 8.0);
     }
     h = refine(h, offset, 4);
-    if known.is_none() {
+    if fixed.is_none() {
         offset = fine_offset(&video, clock_ev, &h, offset);
         // Clock and geometry together: along a motion a clock error and a shift explain the
         // events alike, and refining one at a time stops in that valley.
@@ -739,4 +795,43 @@ pub fn estimate(
         score,
         events: ev.x.len(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A burst's first event is timed half the burst's next interval early, the others at the
+    /// middle of the interval since the one before; a lone event (nothing at its pixel within
+    /// [`MAX_INTERVAL_NS`] either side) at itself; another pixel's events do not mix in.
+    #[test]
+    fn an_events_activity_time_is_the_middle_of_its_interval() {
+        let mut ev = EventBatch::empty(3, 2, 0, 40_000_000, 0);
+        for (t, x, y) in [
+            (10_000_000, 0, 0),
+            (10_100_000, 2, 1),
+            (10_200_000, 0, 0),
+            (10_400_000, 0, 0),
+            (11_000_000, 2, 1),
+            (30_000_000, 1, 0),
+        ] {
+            ev.t_ns.push(t);
+            ev.x.push(x);
+            ev.y.push(y);
+            ev.polarity.push(1);
+        }
+        let times = activity_times(&ev);
+        let expected = [
+            9_900_000.0,
+            9_650_000.0,
+            10_100_000.0,
+            10_300_000.0,
+            10_550_000.0,
+            30_000_000.0,
+        ];
+        assert_eq!(times.len(), expected.len());
+        for (t, e) in times.iter().zip(expected) {
+            assert!((t - e).abs() < 1.0, "{times:?}");
+        }
+    }
 }
