@@ -61,6 +61,13 @@ pub struct BenchOptions {
     /// Give each setting its own `--out`.
     #[command(flatten)]
     pub noise: neuspike_spike_source::NoiseArgs,
+    /// The event camera as a sensor of its own, as in a real rig: a DAVIS346 (346x260) seeing
+    /// the scene through a homography (1.16 spike pixels a pixel, turned 0.5 degree), its clock
+    /// 3 ms ahead; its events reach the methods through align's mapping onto the spike grid and
+    /// clock (what `--homography` and `--event-offset-ns` do in a graph). Give it its own
+    /// `--out`.
+    #[arg(long)]
+    pub rig: bool,
     /// The folder of the networks (`*.onnx`).
     #[arg(long, default_value = "models")]
     pub models: PathBuf,
@@ -325,7 +332,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             if let Some(b) = &bar {
                 b.set_message(format!("{} texture {t}: simulating", class.name));
             }
-            let (rec, label) = run::simulate(class, opts.set, *t, &opts.noise)
+            let (rec, label) = run::simulate(class, opts.set, *t, &opts.noise, opts.rig)
                 .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
             let stats = run::window_stats(&rec);
             let template = with_stats(

@@ -257,7 +257,40 @@ pub fn window_stats(rec: &Recording) -> Vec<(WindowStats, f64)> {
         .collect()
 }
 
-/// Simulates texture `texture` of `class` with both cameras, the spike camera with `noise`.
+/// The event camera of `neuspike bench --rig`, a DAVIS346's size.
+pub const RIG_DVS_SIZE: (usize, usize) = (346, 260);
+/// The `--rig` event camera's clock reads this much later than the spike camera's.
+pub const RIG_CLOCK_OFFSET_NS: i64 = 3_000_000;
+/// The `--rig` event camera's view turned against the spike camera's, degrees.
+pub const RIG_TURN_DEG: f64 = 0.5;
+
+/// The `--rig` event camera's pixel -> the spike camera's: the spike sensor's width over its
+/// own (a DAVIS346 pixel is 1.16 spike pixels across, its frame 300 spike rows high, so it sees
+/// all of the spike camera's view), turned [`RIG_TURN_DEG`], the two frames' centres together.
+pub fn rig_homography() -> neuspike_geometry::Homography {
+    let (ew, eh) = (RIG_DVS_SIZE.0 as f64, RIG_DVS_SIZE.1 as f64);
+    let k = grid::WIDTH as f64 / ew;
+    let (sin, cos) = RIG_TURN_DEG.to_radians().sin_cos();
+    let (a, b, d, e) = (k * cos, -k * sin, k * sin, k * cos);
+    let (cx, cy) = (ew / 2.0, eh / 2.0);
+    let (sx, sy) = (grid::WIDTH as f64 / 2.0, grid::HEIGHT as f64 / 2.0);
+    neuspike_geometry::Homography::new([
+        a,
+        b,
+        sx - (a * cx + b * cy),
+        d,
+        e,
+        sy - (d * cx + e * cy),
+        0.0,
+        0.0,
+        1.0,
+    ])
+    .expect("a turn and a scale are invertible")
+}
+
+/// Simulates texture `texture` of `class` with both cameras, the spike camera with `noise`;
+/// with `rig`, the event camera as a sensor of its own ([`rig_homography`]), its events put on
+/// the spike grid and clock as align puts them.
 ///
 /// # Errors
 /// A scene or camera setting out of range.
@@ -266,6 +299,7 @@ pub fn simulate(
     set: TextureSet,
     texture: usize,
     noise: &neuspike_spike_source::NoiseArgs,
+    rig: bool,
 ) -> eyre::Result<(Recording, String)> {
     let (scene, label) = grid::scene(class, set, texture)?;
     let seed = 1_000 + texture as u64;
@@ -284,20 +318,39 @@ pub fn simulate(
     let spikes = camera.next_chunk(grid::PLANES as usize, 0);
     let period = spikes.plane_period_ns;
     let theta = class.theta();
-    let mut dvs = EventCamera::new(
-        scene,
+    let same_view = DvsConfig {
+        width: grid::WIDTH,
+        height: grid::HEIGHT,
+        theta_on: theta,
+        theta_off: theta,
+        seed,
+        ..DvsConfig::default()
+    };
+    let cfg = if rig {
         DvsConfig {
-            width: grid::WIDTH,
-            height: grid::HEIGHT,
-            theta_on: theta,
-            theta_off: theta,
-            seed,
-            ..DvsConfig::default()
-        },
-        spikes.t_first_ns - period,
-    )
-    .map_err(|e| eyre!("{e}"))?;
-    let events = dvs.advance_to(spikes.plane_time_ns(spikes.n_planes - 1), 0);
+            width: RIG_DVS_SIZE.0,
+            height: RIG_DVS_SIZE.1,
+            homography: Some(rig_homography()),
+            rig_width: grid::WIDTH,
+            rig_height: grid::HEIGHT,
+            clock_offset_ns: RIG_CLOCK_OFFSET_NS,
+            ..same_view
+        }
+    } else {
+        same_view
+    };
+    let mut dvs =
+        EventCamera::new(scene, cfg, spikes.t_first_ns - period).map_err(|e| eyre!("{e}"))?;
+    let mut events = dvs.advance_to(spikes.plane_time_ns(spikes.n_planes - 1), 0);
+    if rig {
+        events = neuspike_align::onto_spike_grid(
+            &events,
+            &rig_homography(),
+            (grid::WIDTH, grid::HEIGHT),
+            -RIG_CLOCK_OFFSET_NS,
+        )
+        .0;
+    }
     let scored = grid::SCORED_PLANES.to_vec();
     let truth = scored.iter().map(|&k| camera.ground_truth(k)).collect();
     Ok((

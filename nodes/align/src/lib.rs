@@ -31,7 +31,7 @@ use std::collections::VecDeque;
 pub mod rig;
 
 use neuspike_geometry::Homography;
-use neuspike_schemas::{AlignedWindow, EventBatch, SpikeChunk, bytes_per_plane};
+use neuspike_schemas::{AlignedWindow, Event, EventBatch, SpikeChunk, bytes_per_plane};
 
 /// Aligner settings. Every field is a node argument in the graph YAML.
 #[derive(Clone, Debug, clap::Args)]
@@ -219,6 +219,58 @@ impl PixelMap {
         let i = y * self.event_size.0 + x;
         &self.spike[self.start[i] as usize..self.start[i + 1] as usize]
     }
+}
+
+/// Each event of `batch` on the spike clock (its time plus `offset_ns`) and, through
+/// `pixel_map`, at every spike pixel it feeds (at its own pixel without one), handed to `out`.
+/// Returns the events that fed no spike pixel.
+fn map_events(
+    batch: &EventBatch,
+    pixel_map: Option<&PixelMap>,
+    offset_ns: i64,
+    mut out: impl FnMut(Event),
+) -> u64 {
+    let mut dropped = 0;
+    for i in 0..batch.len() {
+        let mut e = batch.get(i);
+        e.t_ns = e.t_ns.saturating_add(offset_ns);
+        match pixel_map {
+            Some(m) => {
+                let targets = m.targets(e.x, e.y);
+                if targets.is_empty() {
+                    dropped += 1;
+                }
+                for &(x, y) in targets {
+                    (e.x, e.y) = (x, y);
+                    out(e);
+                }
+            }
+            None => out(e),
+        }
+    }
+    dropped
+}
+
+/// An event camera's batch on a spike grid of `grid` = `(width, height)` pixels, as align puts
+/// every batch of a rig: each event through `h` (event pixel -> spike pixel) at every spike
+/// pixel it feeds, its time and the batch's span plus `offset_ns` (align's
+/// `--event-offset-ns`). With the events that fed no spike pixel (outside the spike frame).
+pub fn onto_spike_grid(
+    batch: &EventBatch,
+    h: &Homography,
+    grid: (usize, usize),
+    offset_ns: i64,
+) -> (EventBatch, u64) {
+    let map = PixelMap::new(h, grid, (batch.width, batch.height));
+    let mut out = EventBatch::empty(
+        grid.0,
+        grid.1,
+        batch.t_start_ns.saturating_add(offset_ns),
+        batch.t_end_ns.saturating_add(offset_ns),
+        batch.seq,
+    );
+    let dropped = map_events(batch, Some(&map), offset_ns, |e| out.push(e));
+    (out, dropped)
 }
 
 impl Aligner {
@@ -547,23 +599,8 @@ impl Aligner {
             }
         }
         let pixel_map = map.and(self.pixel_map.as_ref());
-        for i in 0..batch.len() {
-            let mut e = batch.get(i);
-            e.t_ns = e.t_ns.saturating_add(off);
-            match pixel_map {
-                Some(m) => {
-                    let targets = m.targets(e.x, e.y);
-                    if targets.is_empty() {
-                        self.dropped_events += 1;
-                    }
-                    for &(x, y) in targets {
-                        (e.x, e.y) = (x, y);
-                        self.events.push(e);
-                    }
-                }
-                None => self.events.push(e),
-            }
-        }
+        let events = &mut self.events;
+        self.dropped_events += map_events(&batch, pixel_map, off, |e| events.push(e));
         self.events_cover_until_ns = self
             .events_cover_until_ns
             .max(batch.t_end_ns.saturating_add(off));
@@ -756,6 +793,35 @@ mod tests {
         assert_eq!(got, vec![(0, 0), (2, 1)]);
         assert_eq!(a.dropped_events(), 4);
         w.events.validate("mapped").unwrap();
+    }
+
+    /// `onto_spike_grid` puts a batch where align's windows put it: the same events at the
+    /// same spike pixels, the same ones dropped, the times and the span on the spike clock.
+    #[test]
+    fn onto_spike_grid_maps_as_align_does() {
+        let h = Homography::scale_translate(0.5, 0.5, -1.0, 0.0).unwrap();
+        let mut b = EventBatch::empty(8, 4, 0, 10 * P, 0);
+        for (x, y) in [(0u16, 0u16), (1, 0), (3, 1), (7, 3), (5, 2), (9, 1)] {
+            b.push(Event {
+                t_ns: P + 7,
+                x,
+                y,
+                polarity: -1,
+            });
+        }
+        let (mapped, dropped) = onto_spike_grid(&b, &h, (4, 2), -7);
+        assert_eq!(dropped, 4);
+        assert_eq!((mapped.width, mapped.height), (4, 2));
+        assert_eq!((mapped.t_start_ns, mapped.t_end_ns), (-7, 10 * P - 7));
+        let got: Vec<Event> = (0..mapped.len()).map(|i| mapped.get(i)).collect();
+        let at = |x, y| Event {
+            t_ns: P,
+            x,
+            y,
+            polarity: -1,
+        };
+        assert_eq!(got, vec![at(0, 0), at(2, 1)]);
+        mapped.validate("mapped").unwrap();
     }
 
     /// A coarser event sensor (a 3x2 one over a 4x3 grid): every spike pixel takes the events of
