@@ -377,9 +377,10 @@ fn run(cli: Cli) -> eyre::Result<()> {
         Command::CalibrateRig(opts) => {
             let (est, size) = neuspike::rig::run(&opts)?;
             println!(
-                "homography {} (event camera pixel -> spike camera pixel)\nclock offset {} ns (event camera minus spike camera)\nagreement {:.3} over {} events\n{}",
+                "homography {} (event camera pixel -> spike camera pixel)\nclock offset {} ns (event camera minus spike camera), {}\nagreement {:.3} over {} events\n{}",
                 est.homography,
                 est.offset_ns,
+                est.clock,
                 est.score,
                 est.events,
                 neuspike::rig::arguments(&est, size)

@@ -414,8 +414,12 @@ impl Aligner {
             score = found.score,
             events = found.events,
             planes = spikes.n_planes,
+            clock = %found.clock,
             "align: the rig estimated"
         );
+        if let rig::ClockSource::Searched(_) = found.clock {
+            tracing::warn!("align: the rig's clock offset is {}", found.clock);
+        }
         self.cfg.homography = Some(found.homography);
         self.cfg.event_offset_ns = found.offset_ns.saturating_neg();
         for c in est.chunks {

@@ -24,8 +24,9 @@
 //! of `H` explains that alike. The activity sees the changes of motion alone; the polarities'
 //! own clock trades against the geometry's last tenths of a pixel (on the simulated rig a point
 //! moves 0.04 px per 100 us, and a search of both together came up to 0.68 ms off over noise
-//! draws). Only when the activity never changes is the clock searched with the geometry: on a
-//! grid at each round, then both together.
+//! draws). Only when the activity does not correlate ([`ACTIVITY_MIN_CORRELATION`]: no change
+//! of motion) is the clock searched with the geometry, on a grid at each round, then both
+//! together, and the estimate says so ([`ClockSource::Searched`]).
 //!
 //! On a simulated rig (`tests/rig.rs`, three textures, 40 ms whose first 12 hold still) the
 //! homography comes within 0.09-0.20 px where both sensors see when the clock is known (0.25-0.63
@@ -52,6 +53,45 @@ pub const JOINT_RESTARTS: usize = 1;
 /// Coefficients fitted in the last rounds (8: the perspective terms too; 6: affine).
 pub const PERSPECTIVE: usize = 6;
 
+/// The least correlation of the two sensors' activity over time at which [`estimate`] takes
+/// its clock from the activity. With a change of motion in the recordings it reached 0.98-0.995
+/// on the simulated rig; under a steady motion alone, 0.08-0.41 (at a clock milliseconds off).
+pub const ACTIVITY_MIN_CORRELATION: f64 = 0.8;
+
+/// Where an estimate's clock offset came from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ClockSource {
+    /// Given.
+    Known,
+    /// The two sensors' activity over time, which correlated this well (at least
+    /// [`ACTIVITY_MIN_CORRELATION`]): the recordings hold a change of motion that times it.
+    Activity(f64),
+    /// Searched together with the geometry, as the activity correlated only this well (or
+    /// never changed: 0): under a steady motion a clock error and an affine change of the
+    /// geometry explain the events alike, so both may be off (milliseconds and pixels on the
+    /// simulated rig). Give the clock, or a stretch where the motion starts, stops or turns.
+    Searched(f64),
+}
+
+impl std::fmt::Display for ClockSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ClockSource::Known => write!(f, "given"),
+            ClockSource::Activity(c) => write!(
+                f,
+                "from the two sensors' activity over time (correlation {c:.3})"
+            ),
+            ClockSource::Searched(c) => write!(
+                f,
+                "uncertain: the two sensors' activity over time correlates {c:.3} (under \
+                 {ACTIVITY_MIN_CORRELATION}): the recordings hold no start, stop or turn of the \
+                 motion to time the clock, and under a steady motion a clock error and the \
+                 geometry trade off; give the clock offset, or a stretch where the motion changes"
+            ),
+        }
+    }
+}
+
 /// What [`estimate`] found.
 #[derive(Clone, Debug)]
 pub struct RigEstimate {
@@ -64,6 +104,8 @@ pub struct RigEstimate {
     pub score: f64,
     /// Events used.
     pub events: usize,
+    /// Where the clock offset came from.
+    pub clock: ClockSource,
 }
 
 /// Why a rig cannot be estimated.
@@ -632,12 +674,17 @@ pub fn estimate(
     // error moves the events by their flow, and under a steady pan, turn or zoom an affine
     // change of the geometry does the same, so the polarities' own clock trades against the
     // geometry's last tenths of a pixel (on the simulated rig it came up to 0.68 ms off over
-    // noise draws, the activity's within 0.1 ms). Else coarse (half a frame) at the initial
-    // geometry, refined with it.
-    let fixed = match clock {
-        Clock::Known(ns) => Some(ns as f64),
+    // noise draws, the activity's within 0.1 ms). Else, when the activity does not correlate
+    // (no change of motion), coarse (half a frame) at the initial geometry, refined with it.
+    let (fixed, source) = match clock {
+        Clock::Known(ns) => (Some(ns as f64), ClockSource::Known),
         Clock::Within(_) => {
-            activity_offset(&video, &activity_times(events), max_offset_ns as f64).map(|(o, _)| o)
+            match activity_offset(&video, &activity_times(events), max_offset_ns as f64) {
+                Some((o, c)) if c >= ACTIVITY_MIN_CORRELATION => {
+                    (Some(o), ClockSource::Activity(c))
+                }
+                found => (None, ClockSource::Searched(found.map_or(0.0, |(_, c)| c))),
+            }
         }
     };
     let mut offset = match fixed {
@@ -794,6 +841,7 @@ pub fn estimate(
         offset_ns: offset.round() as i64,
         score,
         events: ev.x.len(),
+        clock: source,
     })
 }
 
