@@ -571,7 +571,8 @@ fn fine_offset(video: &ChangeVideo, ev: &Sample, h: &Homography, around_ns: f64)
 }
 
 /// The clock offset at a known geometry `h`, searched within `max_offset_ns` (a grid of half a
-/// frame, then [`fine_offset`]).
+/// frame, then 1/8 and 1/16 of a frame within 5 frames of the best, a parabola through the
+/// peak).
 ///
 /// # Errors
 /// Too few planes or events.
