@@ -249,6 +249,14 @@ fn worst_error(h: &Homography) -> f64 {
     worst
 }
 
+/// What a user knows of the rig: the two sensors' widths, square pixels, the frames' centres
+/// together.
+fn user_start() -> Homography {
+    let k = W as f64 / 138.0;
+    Homography::scale_translate(k, k, W as f64 / 2.0 - 69.0 * k, H as f64 / 2.0 - 52.0 * k)
+        .expect("the centres together")
+}
+
 /// The rig estimated from what the two sensors recorded, over three textures, from a start that
 /// has the scale 6% and the shift 10 pixels off: the homography to within 0.5 px where both
 /// sensors see when the clock offset is known (measured 0.09-0.20 px; 0.21 and 0.27 px under two
@@ -261,11 +269,7 @@ fn worst_error(h: &Homography) -> f64 {
 #[test]
 fn the_rig_is_estimated_from_what_the_two_sensors_recorded() {
     use neuspike_align::rig::{Clock, ClockSource, estimate, estimate_offset};
-    // What a user knows: the two sensors' widths, square pixels, the frames' centres together.
-    let k = W as f64 / 138.0;
-    let init =
-        Homography::scale_translate(k, k, W as f64 / 2.0 - 69.0 * k, H as f64 / 2.0 - 52.0 * k)
-            .expect("the centres together");
+    let init = user_start();
     for seed in [9, 21, 33] {
         let (chunk, events) = rig_recording(seed);
         let geometry = estimate(&chunk, &events, init, Clock::Known(OFFSET_NS)).expect("estimate");
@@ -469,10 +473,7 @@ fn calibrate_rig_reads_two_recordings_and_prints_the_nodes_arguments() {
 #[test]
 fn a_steady_motion_alone_leaves_the_clock_uncertain_and_says_so() {
     use neuspike_align::rig::{Clock, ClockSource, estimate};
-    let k = W as f64 / 138.0;
-    let init =
-        Homography::scale_translate(k, k, W as f64 / 2.0 - 69.0 * k, H as f64 / 2.0 - 52.0 * k)
-            .expect("the centres together");
+    let init = user_start();
     let (chunk, events) = rig_recording(9);
     let whole = estimate(&chunk, &events, init, Clock::Within(5_000_000)).expect("estimate");
     assert!(
