@@ -228,21 +228,17 @@ impl Scene {
     /// Part of what a `sensor_rows x sensor_cols` camera sees, as [`Scene::render_into`] renders
     /// it: destination pixel `(r, c)` is sensor pixel `(row0 + r, col0 + c)`, which may lie
     /// beyond the sensor's edges (the scene goes on past the view: a margin for shifting the
-    /// image later).
+    /// image later) and between its pixels (a fractional origin samples the view that much
+    /// further on). A non-finite origin counts as 0.
     pub fn render_region_into(
         &self,
         t_ns: i64,
         sensor: [usize; 2],
-        origin: [i64; 2],
+        origin: [f64; 2],
         dst: ArrayViewMut2<'_, f32>,
     ) {
         let (rows, cols) = dst.dim();
-        let region = render::Region {
-            sensor_rows: sensor[0],
-            sensor_cols: sensor[1],
-            row0: origin[0],
-            col0: origin[1],
-        };
+        let region = render::Region::at(sensor, origin);
         let parallel = render::worth_parallel(self, rows, cols);
         render::render_fast_region(self, t_ns, region, dst, parallel);
     }
@@ -275,6 +271,42 @@ impl Scene {
         (finite(shift.0), finite(shift.1))
     }
 
+    /// Where the content at the view's centre has moved since the motion started, at `t_ns`, in
+    /// scene pixels `(dx, dy)`: the integral of the velocity [`Scene::content_shift`] takes at
+    /// its end, `s(t) R(theta(t)) v`, in closed form (the log zoom held at its clamp once it
+    /// reaches it). The difference between two instants is how far the centre's content moves
+    /// between them, to first order in the turn and zoom between; unlike `content_shift`'s,
+    /// such differences add up along a path. Times before the motion starts count as its start;
+    /// finite for any instant.
+    pub fn content_path(&self, t_ns: i64) -> (f64, f64) {
+        let m = &self.spec.motion;
+        let start = i64::try_from(m.start_ns).unwrap_or(i64::MAX);
+        let t = t_ns.saturating_sub(start).max(0) as f64 / render::NS_PER_S;
+        let omega = m.rotation_deg_s.to_radians();
+        let z = m.zoom_per_s;
+        // Until the log zoom reaches its clamp (`z t = +-MAX_LOG_ZOOM`), then at the clamp.
+        let t_clamp = if z == 0.0 {
+            f64::INFINITY
+        } else {
+            render::MAX_LOG_ZOOM / z.abs()
+        };
+        let t1 = t.min(t_clamp);
+        let mut path = exp_integral(z, omega, t1);
+        if t > t_clamp {
+            let held = (z.signum() * render::MAX_LOG_ZOOM).exp();
+            let (sin, cos) = (omega * t_clamp).sin_cos();
+            let (re, im) = exp_integral(0.0, omega, t - t_clamp);
+            path.0 += held * (cos * re - sin * im);
+            path.1 += held * (sin * re + cos * im);
+        }
+        let (vx, vy) = (m.vx_px_s, m.vy_px_s);
+        let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        (
+            finite(path.0 * vx - path.1 * vy),
+            finite(path.1 * vx + path.0 * vy),
+        )
+    }
+
     /// Whether the image never changes: no translation, rotation or zoom (nothing else in a scene
     /// depends on time).
     pub fn is_static(&self) -> bool {
@@ -295,6 +327,24 @@ impl Scene {
         let zoom = m.zoom_per_s.abs() * corner;
         translation + rotation + zoom
     }
+}
+
+/// `(e^{lambda t} - 1) / lambda` for `lambda = a + i b`, as `(re, im)`: the integral of
+/// `e^{lambda u}` over `[0, t]`. Where `|lambda t|` is tiny the quotient would cancel, and its
+/// series `t (1 + lambda t / 2 + (lambda t)^2 / 6)` is used; `lambda = 0` gives `t`.
+fn exp_integral(a: f64, b: f64, t: f64) -> (f64, f64) {
+    let (x, y) = (a * t, b * t);
+    if x.hypot(y) < 1e-4 {
+        // t (1 + w / 2 + w^2 / 6), w = x + i y.
+        let (w2r, w2i) = (x * x - y * y, 2.0 * x * y);
+        return (t * (1.0 + x / 2.0 + w2r / 6.0), t * (y / 2.0 + w2i / 6.0));
+    }
+    let e = x.exp();
+    let (sin, cos) = y.sin_cos();
+    let (nr, ni) = (e * cos - 1.0, e * sin);
+    // (nr + i ni) / (a + i b)
+    let d = a * a + b * b;
+    ((nr * a + ni * b) / d, (ni * a - nr * b) / d)
 }
 
 /// serde_yaml starts a message with the field path (`texture.kind: ...`) when there is one;
@@ -321,15 +371,10 @@ pub fn render_reference_region(
     scene: &Scene,
     t_ns: i64,
     sensor: [usize; 2],
-    origin: [i64; 2],
+    origin: [f64; 2],
     dst: ArrayViewMut2<'_, f32>,
 ) {
-    let region = render::Region {
-        sensor_rows: sensor[0],
-        sensor_cols: sensor[1],
-        row0: origin[0],
-        col0: origin[1],
-    };
+    let region = render::Region::at(sensor, origin);
     render::render_reference_region(scene, t_ns, region, dst);
 }
 

@@ -118,18 +118,30 @@ fn sample_view(scene: &Scene, map: &ViewMap, x: f64, y: f64) -> f64 {
 pub(crate) struct Region {
     pub sensor_rows: usize,
     pub sensor_cols: usize,
-    pub row0: i64,
-    pub col0: i64,
+    pub row0: f64,
+    pub col0: f64,
 }
 
 impl Region {
+    /// The region of a `sensor` (`[rows, cols]`) whose first pixel is sensor pixel `origin`
+    /// (`[row, col]`, a non-finite one counting as 0).
+    pub fn at(sensor: [usize; 2], origin: [f64; 2]) -> Region {
+        let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        Region {
+            sensor_rows: sensor[0],
+            sensor_cols: sensor[1],
+            row0: finite(origin[0]),
+            col0: finite(origin[1]),
+        }
+    }
+
     /// The whole sensor of `rows x cols`.
     pub fn whole(rows: usize, cols: usize) -> Region {
         Region {
             sensor_rows: rows,
             sensor_cols: cols,
-            row0: 0,
-            col0: 0,
+            row0: 0.0,
+            col0: 0.0,
         }
     }
 
@@ -163,7 +175,7 @@ pub(crate) fn render_reference_region(
     let n = scene.spec().samples_per_pixel;
     let offsets = sub_offsets(n);
     let (sx, sy) = region.scale(scene);
-    let (row0, col0) = (region.row0 as f64, region.col0 as f64);
+    let (row0, col0) = (region.row0, region.col0);
     for r in 0..rows {
         for c in 0..cols {
             let mut sum = 0.0f64;
@@ -265,7 +277,7 @@ impl<'a> Plan<'a> {
         let n = scene.spec().samples_per_pixel;
         let offsets = sub_offsets(n);
         let (sx, sy) = region.scale(scene);
-        let col0 = region.col0 as f64;
+        let col0 = region.col0;
         let xs: Vec<f64> = (0..cols)
             .flat_map(|c| offsets.iter().map(move |&ox| (col0 + c as f64 + ox) * sx))
             .collect();
@@ -291,7 +303,7 @@ impl<'a> Plan<'a> {
             n,
             offsets,
             sy,
-            row0: region.row0 as f64,
+            row0: region.row0,
             xs,
             taps,
             column_gain,

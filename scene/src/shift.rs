@@ -7,12 +7,14 @@
 //! pixels, read from a source rendered with `margin` pixels beyond every edge of `dst`. The cubic
 //! reproduces a shift by whole pixels exactly and a linear ramp at any shift; bilinear
 //! interpolation would blur each shifted image by up to half a pixel. Where the taps would
-//! reach past `src` (a shift larger than `margin - 2`), coordinates clamp to its edge. The fast
-//! path (the horizontal pass four rows at a time, each output row from them, vectorised through
-//! [`neuspike_simd::dispatch`]) is checked against [`shift_reference`], which computes every tap
-//! from scratch.
+//! reach past `src` (a shift larger than `margin - 2`), coordinates clamp to its edge.
+//! [`shift_rows`] can first blend a second source into the first ([`Blended`]: read a whole
+//! number of pixels further on), so that two renders of one instant's content cost one move.
+//! The fast path (the horizontal pass four rows at a time, each output row from them, vectorised
+//! through [`neuspike_simd::dispatch`]) is checked against [`blend_reference`] and
+//! [`shift_reference`], which compute every value from scratch.
 
-use ndarray::{Array2, ArrayView1, ArrayView2, ArrayViewMut2, Zip};
+use ndarray::{Array2, ArrayView1, ArrayView2, ArrayViewMut2};
 
 use crate::Scene;
 
@@ -22,22 +24,35 @@ pub const MAX_MARGIN: usize = 256;
 
 /// Images of a moving scene at any instant, made from renders every `step_ns` (at `origin_ns +
 /// j step_ns`): the image at `t` between renders at `a <= t < b` is `(1 - w) A' + w B'`, `w = (t -
-/// a) / (b - a)`, where `A'` and `B'` are the two renders moved ([`shift_into`]) by how far the
-/// content at the view's centre moves from their instants to `t` ([`Scene::content_shift`]).
-/// Translation is followed exactly (up to the cubic's interpolation); the turn and zoom about the
-/// centre between two renders are not, and the blend of the two takes them up. Renders carry a
-/// margin beyond every edge as wide as the fastest point moves between two renders (at most
-/// [`MAX_MARGIN`]).
+/// a) / (b - a)`, where `A'` and `B'` are the two renders moved by how far the content at the
+/// view's centre moves from their instants to `t` ([`Scene::content_path`]).
+///
+/// Each render samples the view displaced by the fraction of a pixel its content has moved
+/// since the motion started, so every render lies on one grid that moves with the content,
+/// whole pixels apart: `A'` and `B'` then need the same fraction of a pixel's move, and
+/// [`shift_rows`] blends the two renders first (B read the whole pixels further on) and moves
+/// the blend once. Translation is followed exactly (up to the cubic); the turn and zoom about
+/// the centre between two renders are not, and the blend of the two takes them up. Renders
+/// carry a margin beyond every edge as wide as the fastest point moves between two renders (at
+/// most [`MAX_MARGIN`]).
 pub struct Interpolator {
     origin_ns: i64,
     step_ns: i64,
     margin: usize,
     rows: usize,
     cols: usize,
-    /// The renders at the two nearest render instants (index `j`, image with margin).
-    a: Option<(i64, Array2<f32>)>,
-    b: Option<(i64, Array2<f32>)>,
+    /// The renders at the two nearest render instants.
+    a: Option<Render>,
+    b: Option<Render>,
     scratch: Vec<f32>,
+}
+
+/// Render `j` with a margin, sampled `frac` of a pixel further on, where the content's path
+/// (sensor pixels, `[row, col]`) is `whole + frac`.
+struct Render {
+    j: i64,
+    whole: [i64; 2],
+    img: Array2<f32>,
 }
 
 impl Interpolator {
@@ -80,9 +95,18 @@ impl Interpolator {
             .saturating_add(j.saturating_mul(self.step_ns))
     }
 
+    /// The content's path at `t_ns` ([`Scene::content_path`]) in sensor pixels, `[row, col]`.
+    fn path(&self, scene: &Scene, t_ns: i64) -> [f64; 2] {
+        let (dx, dy) = scene.content_path(t_ns);
+        [
+            dy * self.rows as f64 / scene.height().max(1) as f64,
+            dx * self.cols as f64 / scene.width().max(1) as f64,
+        ]
+    }
+
     /// Render `j` into slot `a` or `b`, reusing the other slot when it holds it.
     fn render(&mut self, scene: &Scene, j: i64, slot_b: bool) {
-        let has = |s: &Option<(i64, Array2<f32>)>| s.as_ref().is_some_and(|(i, _)| *i == j);
+        let has = |s: &Option<Render>| s.as_ref().is_some_and(|r| r.j == j);
         if (!slot_b && has(&self.a)) || (slot_b && has(&self.b)) {
             return;
         }
@@ -93,14 +117,19 @@ impl Interpolator {
         let t = self.instant(j);
         let m = self.margin;
         let shape = (self.rows + 2 * m, self.cols + 2 * m);
+        // The whole pixels of the path (clamped far beyond any image), and the fraction the
+        // render is sampled further on.
+        let path = self.path(scene, t);
+        let whole = path.map(|p| p.floor().clamp(-1e15, 1e15) as i64);
+        let frac = [path[0] - whole[0] as f64, path[1] - whole[1] as f64];
         let slot = if slot_b { &mut self.b } else { &mut self.a };
         let mut img = match slot.take() {
-            Some((_, img)) if img.dim() == shape => img,
+            Some(r) if r.img.dim() == shape => r.img,
             _ => Array2::zeros(shape),
         };
-        let origin = -(m as i64);
-        scene.render_region_into(t, [self.rows, self.cols], [origin, origin], img.view_mut());
-        *slot = Some((j, img));
+        let origin = frac.map(|f| f - m as f64);
+        scene.render_region_into(t, [self.rows, self.cols], origin, img.view_mut());
+        *slot = Some(Render { j, whole, img });
     }
 
     /// The image at `t_ns` into `dst` (`rows x cols`).
@@ -121,28 +150,26 @@ impl Interpolator {
         if blend {
             self.render(scene, j.saturating_add(1), true);
         }
-        let (fx, fy) = (
-            self.cols as f64 / scene.width().max(1) as f64,
-            self.rows as f64 / scene.height().max(1) as f64,
-        );
-        let to_sensor = |(dx, dy): (f64, f64)| (dx * fx, dy * fy);
-        let Some((_, a)) = &self.a else { return };
-        let a = Moved {
-            src: a.view(),
-            shift: to_sensor(scene.content_shift(ta, t_ns)),
+        let path = self.path(scene, t_ns);
+        let Some(a) = &self.a else { return };
+        // Render a's grid moved by the path since its whole pixels.
+        let moved = Moved {
+            src: a.img.view(),
+            shift: (path[1] - a.whole[1] as f64, path[0] - a.whole[0] as f64),
         };
         let b = match (&self.b, blend) {
-            (Some((_, b)), true) => Some((
-                Moved {
-                    src: b.view(),
-                    shift: to_sensor(scene.content_shift(tb, t_ns)),
-                },
-                ((t_ns - ta) as f64 / (tb - ta) as f64) as f32,
-            )),
+            (Some(b), true) => Some(Blended {
+                src: b.img.view(),
+                offset: [
+                    b.whole[0].saturating_sub(a.whole[0]),
+                    b.whole[1].saturating_sub(a.whole[1]),
+                ],
+                weight: ((t_ns - ta) as f64 / (tb - ta) as f64) as f32,
+            }),
             _ => None,
         };
         let shape = (self.rows, self.cols);
-        shift_rows(self.margin, shape, a, b, &mut self.scratch, row);
+        shift_rows(self.margin, shape, moved, b, &mut self.scratch, row);
     }
 }
 
@@ -224,76 +251,83 @@ pub struct Moved<'a> {
     pub shift: (f64, f64),
 }
 
-/// The `rows x cols` image `a` moved ([`shift_into`]), and where `b = Some((moved, w))`, taken
-/// the fraction `w` of the way towards `b` moved: `a' + w (b' - a')`, handed to `row(r, values)`
-/// one row at a time, top first, so that a caller can use each row while it is in the cache.
-/// `scratch` holds the horizontal pass's rows between calls. The same bits as [`shift_into`] of
-/// each and then the blend.
-pub fn shift_rows(
+/// A second render blended into a [`Moved`] one before the move: `src` read `offset` pixels
+/// (`[rows, cols]`) further on than the first, taken the fraction `weight` of the way:
+/// `a + weight (b - a)`.
+#[derive(Clone, Copy, Debug)]
+pub struct Blended<'a> {
+    /// The second render.
+    pub src: ArrayView2<'a, f32>,
+    /// Where its pixels lie against the first's, `[rows, cols]`.
+    pub offset: [i64; 2],
+    /// How far towards it, 0 to 1.
+    pub weight: f32,
+}
+
+/// The scalar oracle of the blend of [`shift_rows`]: over `a`'s shape, `a[r][c] + weight
+/// (b[r + offset_r][c + offset_c] - a[r][c])`, `b`'s coordinates clamped to its edges (`a`
+/// itself where `b` is empty).
+pub fn blend_reference(a: ArrayView2<'_, f32>, b: &Blended<'_>) -> Array2<f32> {
+    let (bh, bw) = b.src.dim();
+    if bh == 0 || bw == 0 {
+        return a.to_owned();
+    }
+    let clamp = |i: usize, d: i64, n: usize| (i as i64).saturating_add(d).clamp(0, n as i64 - 1);
+    Array2::from_shape_fn(a.dim(), |(r, c)| {
+        let y = clamp(r, b.offset[0], bh) as usize;
+        let x = clamp(c, b.offset[1], bw) as usize;
+        blend(a[[r, c]], b.src[[y, x]], b.weight)
+    })
+}
+
+/// The `rows x cols` image `a` moved ([`shift_into`]) after, where `b` is given, blending `b`
+/// into it ([`Blended`]), handed to `row(r, values)` one row at a time, top first, so that a
+/// caller can use each row while it is in the cache. `scratch` holds the horizontal pass's rows
+/// between calls. The same bits as [`blend_reference`] and then [`shift_reference`].
+pub fn shift_rows<'a>(
     margin: usize,
     (h, w): (usize, usize),
-    a: Moved<'_>,
-    b: Option<(Moved<'_>, f32)>,
+    a: Moved<'a>,
+    b: Option<Blended<'a>>,
     scratch: &mut Vec<f32>,
     mut row: impl FnMut(usize, &[f32]),
 ) {
     if h == 0 || w == 0 {
         return;
     }
-    let (Some(fa), fb) = (
-        Taps::new(a, margin, (h, w)),
-        b.map(|(m, _)| Taps::new(m, margin, (h, w))),
-    ) else {
+    let Some(taps) = Taps::new(a, margin, (h, w), b.as_ref()) else {
         return slow_rows(margin, (h, w), a, b, row);
     };
-    let fb = match (b, fb) {
-        (None, _) => None,
-        (Some((_, weight)), Some(Some(t))) => Some((t, weight)),
-        _ => return slow_rows(margin, (h, w), a, b, row),
-    };
-    scratch.resize(10 * w, 0.0);
-    let (ring_a, rest) = scratch.split_at_mut(4 * w);
-    let (ring_b, rest) = rest.split_at_mut(4 * w);
-    let (row_a, row_b) = rest.split_at_mut(w);
+    scratch.resize(6 * w + 3, 0.0);
+    let (ring, rest) = scratch.split_at_mut(4 * w);
+    let (out, mixed) = rest.split_at_mut(w);
     neuspike_simd::dispatch(
         #[inline(always)]
         || {
-            fa.prime(ring_a);
-            if let Some((t, _)) = &fb {
-                t.prime(ring_b);
-            }
+            taps.prime(ring, mixed);
             for r in 0..h {
-                fa.row(r, ring_a, row_a);
-                if let Some((t, weight)) = &fb {
-                    t.row(r, ring_b, row_b);
-                    for (x, &y) in row_a.iter_mut().zip(row_b.iter()) {
-                        *x = blend(*x, y, *weight);
-                    }
-                }
-                row(r, row_a);
+                taps.row(r, ring, mixed, out);
+                row(r, out);
             }
         },
     );
 }
 
-/// [`shift_rows`] where a tap would reach past a source or a source is not contiguous: each
-/// moved image through [`shift_reference`].
+/// [`shift_rows`] where a tap would reach past a source or a source is not contiguous: the
+/// blend through [`blend_reference`], moved through [`shift_reference`].
 fn slow_rows(
     margin: usize,
     (h, w): (usize, usize),
     a: Moved<'_>,
-    b: Option<(Moved<'_>, f32)>,
+    b: Option<Blended<'_>>,
     mut row: impl FnMut(usize, &[f32]),
 ) {
+    let mixed = match &b {
+        Some(b) => blend_reference(a.src, b),
+        None => a.src.to_owned(),
+    };
     let mut moved = Array2::zeros((h, w));
-    shift_reference(a.src, margin, a.shift, moved.view_mut());
-    if let Some((b, weight)) = b {
-        let mut other = Array2::zeros((h, w));
-        shift_reference(b.src, margin, b.shift, other.view_mut());
-        Zip::from(&mut moved)
-            .and(&other)
-            .for_each(|x, &y| *x = blend(*x, y, weight));
-    }
+    shift_reference(mixed.view(), margin, a.shift, moved.view_mut());
     // A fresh array: standard layout, each row a slice.
     if let Some(all) = moved.as_slice() {
         for (r, values) in all.chunks_exact(w).enumerate() {
@@ -314,7 +348,8 @@ fn blend(x: f32, y: f32, w: f32) -> f32 {
     w.mul_add(y - x, x)
 }
 
-/// One source's taps on the fast path: every tap inside a contiguous source.
+/// The taps on the fast path: every tap inside a contiguous source, and the blended source's
+/// window inside it too.
 struct Taps<'a> {
     s: &'a [f32],
     sw: usize,
@@ -323,34 +358,76 @@ struct Taps<'a> {
     y0: usize,
     wx: [f32; 4],
     wy: [f32; 4],
+    /// The blended source, its stride, where the window starts in it, and the weight.
+    b: Option<(&'a [f32], usize, usize, f32)>,
 }
 
 impl<'a> Taps<'a> {
-    /// `None` where a tap would reach past `moved.src` or it is not contiguous.
-    fn new(moved: Moved<'a>, margin: usize, (h, w): (usize, usize)) -> Option<Taps<'a>> {
+    /// `None` where a tap would reach past `moved.src` or `b.src`, or one is not contiguous.
+    fn new(
+        moved: Moved<'a>,
+        margin: usize,
+        (h, w): (usize, usize),
+        b: Option<&Blended<'a>>,
+    ) -> Option<Taps<'a>> {
         let (sh, sw) = moved.src.dim();
         let (ix, fx) = split(margin, moved.shift.0);
         let (iy, fy) = split(margin, moved.shift.1);
         let inside =
             ix >= 1 && iy >= 1 && (ix as usize) + w + 2 <= sw && (iy as usize) + h + 2 <= sh;
         let s = moved.src.to_slice()?;
-        inside.then(|| Taps {
+        if !inside {
+            return None;
+        }
+        let (x0, y0) = (ix as usize - 1, iy as usize - 1);
+        let b = match b {
+            None => None,
+            Some(b) => {
+                let (bh, bw) = b.src.dim();
+                let bx = i64::try_from(x0).ok()?.checked_add(b.offset[1])?;
+                let by = i64::try_from(y0).ok()?.checked_add(b.offset[0])?;
+                let fits = bx >= 0
+                    && by >= 0
+                    && (bx as usize).checked_add(w + 3)? <= bw
+                    && (by as usize).checked_add(h + 3)? <= bh;
+                if !fits {
+                    return None;
+                }
+                Some((
+                    b.src.to_slice()?,
+                    bw,
+                    by as usize * bw + bx as usize,
+                    b.weight,
+                ))
+            }
+        };
+        Some(Taps {
             s,
             sw,
             w,
-            x0: ix as usize - 1,
-            y0: iy as usize - 1,
+            x0,
+            y0,
             wx: cubic_weights(fx),
             wy: cubic_weights(fy),
+            b,
         })
     }
 
-    /// Source row `k` of the window through the horizontal taps into ring slot `k % 4`.
+    /// Source row `k` of the window (blended, when a second source is) through the horizontal
+    /// taps into ring slot `k % 4`; `mixed` holds the blended row.
     #[inline(always)]
-    fn across(&self, k: usize, ring: &mut [f32]) {
+    fn across(&self, k: usize, ring: &mut [f32], mixed: &mut [f32]) {
         let w = self.w;
         let start = (self.y0 + k) * self.sw + self.x0;
-        let row = &self.s[start..start + w + 3];
+        let mut row = &self.s[start..start + w + 3];
+        if let Some((b, bw, b0, weight)) = self.b {
+            let other = &b[b0 + k * bw..b0 + k * bw + w + 3];
+            let mixed = &mut mixed[..w + 3];
+            for i in 0..w + 3 {
+                mixed[i] = blend(row[i], other[i], weight);
+            }
+            row = mixed;
+        }
         let t = &mut ring[(k % 4) * w..(k % 4 + 1) * w];
         let (a, b, c, e) = (&row[..w], &row[1..w + 1], &row[2..w + 2], &row[3..w + 3]);
         let wx = self.wx;
@@ -361,9 +438,9 @@ impl<'a> Taps<'a> {
 
     /// The horizontal pass of the first three rows the vertical taps read.
     #[inline(always)]
-    fn prime(&self, ring: &mut [f32]) {
+    fn prime(&self, ring: &mut [f32], mixed: &mut [f32]) {
         for k in 0..3 {
-            self.across(k, ring);
+            self.across(k, ring, mixed);
         }
     }
 
@@ -371,9 +448,9 @@ impl<'a> Taps<'a> {
     /// horizontal pass of row `r + 3`, then the vertical taps. Each source row goes through the
     /// horizontal pass once.
     #[inline(always)]
-    fn row(&self, r: usize, ring: &mut [f32], out: &mut [f32]) {
+    fn row(&self, r: usize, ring: &mut [f32], mixed: &mut [f32], out: &mut [f32]) {
         let w = self.w;
-        self.across(r + 3, ring);
+        self.across(r + 3, ring, mixed);
         let slot = |j: usize| &ring[((r + j) % 4) * w..((r + j) % 4 + 1) * w];
         let (a, b, c, e) = (slot(0), slot(1), slot(2), slot(3));
         // As long as the slots, so that the loop has no bounds checks and vectorises.
@@ -425,29 +502,27 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(100))]
 
-        /// Two images moved and blended row by row give the bits of each moved and then the
-        /// blend, on the fast path and where the taps clamp at the edge.
+        /// Two images blended and moved row by row give the bits of the blend and then the
+        /// move, on the fast path and where the taps clamp at an edge of either.
         #[test]
-        fn shifted_rows_are_the_shifts_then_the_blend(
+        fn blended_rows_are_the_blend_then_the_move(
             (h, w, margin) in (1usize..40, 1usize..40, 0usize..8),
             (dx, dy) in (-10.0f64..10.0, -10.0f64..10.0),
-            (ex, ey) in (-10.0f64..10.0, -10.0f64..10.0),
+            (oy, ox) in (-6i64..6, -6i64..6),
             weight in 0.0f32..=1.0,
             seed in any::<u64>(),
         ) {
             let src_a = image(h + 2 * margin, w + 2 * margin, seed);
             let src_b = image(h + 2 * margin, w + 2 * margin, seed ^ 1);
-            let mut scratch = Vec::new();
+            let b = Blended { src: src_b.view(), offset: [oy, ox], weight };
+            let mixed = blend_reference(src_a.view(), &b);
             let mut want = Array2::zeros((h, w));
-            let mut moved_b = Array2::zeros((h, w));
-            shift_into(src_a.view(), margin, (dx, dy), want.view_mut(), &mut scratch);
-            shift_into(src_b.view(), margin, (ex, ey), moved_b.view_mut(), &mut scratch);
-            want.zip_mut_with(&moved_b, |d, &m| *d = blend(*d, m, weight));
+            shift_reference(mixed.view(), margin, (dx, dy), want.view_mut());
             let mut got = Array2::from_elem((h, w), f32::NAN);
             let a = Moved { src: src_a.view(), shift: (dx, dy) };
-            let b = Moved { src: src_b.view(), shift: (ex, ey) };
+            let mut scratch = Vec::new();
             let mut seen = 0;
-            shift_rows(margin, (h, w), a, Some((b, weight)), &mut scratch, |r, row| {
+            shift_rows(margin, (h, w), a, Some(b), &mut scratch, |r, row| {
                 assert_eq!(r, seen);
                 seen += 1;
                 got.row_mut(r).assign(&ndarray::ArrayView1::from(row));
@@ -457,6 +532,47 @@ mod tests {
                 prop_assert_eq!(a.to_bits(), b.to_bits());
             }
         }
+    }
+
+    /// The blend reads the second image `offset` further on: an image blended with itself moved
+    /// by that offset is itself, at any weight, where the offset stays inside.
+    #[test]
+    fn the_blend_reads_the_second_image_its_offset_further_on() {
+        let a = image(20, 30, 3);
+        let (oy, ox) = (2usize, 3usize);
+        // b[y][x] = a[y - oy][x - ox]: a's content `offset` further on.
+        let b = Array2::from_shape_fn((20 + oy, 30 + ox), |(y, x)| {
+            a[[y.saturating_sub(oy), x.saturating_sub(ox)]]
+        });
+        let mixed = blend_reference(
+            a.view(),
+            &Blended {
+                src: b.view(),
+                offset: [oy as i64, ox as i64],
+                weight: 0.37,
+            },
+        );
+        assert_eq!(mixed, a);
+        let mut scratch = Vec::new();
+        let mut got = Array2::zeros((16, 26));
+        shift_rows(
+            2,
+            (16, 26),
+            Moved {
+                src: a.view(),
+                shift: (0.25, -0.5),
+            },
+            Some(Blended {
+                src: b.view(),
+                offset: [oy as i64, ox as i64],
+                weight: 0.8,
+            }),
+            &mut scratch,
+            |r, row| got.row_mut(r).assign(&ndarray::ArrayView1::from(row)),
+        );
+        let mut alone = Array2::zeros((16, 26));
+        shift_into(a.view(), 2, (0.25, -0.5), alone.view_mut(), &mut scratch);
+        assert_eq!(got, alone);
     }
 
     #[test]

@@ -74,15 +74,27 @@ proptest! {
         c in case(),
         (r0, c0) in (-12i64..12, -12i64..12),
         (extra_r, extra_c) in (0usize..24, 0usize..24),
+        (fr, fc) in (0.0f64..1.0, 0.0f64..1.0),
     ) {
         let scene = Scene::from_yaml_str(&c.yaml, "proptest", None)
             .map_err(|e| TestCaseError::fail(e.to_string()))?;
         let shape = (c.rows + extra_r, c.cols + extra_c);
         let mut reference = Array2::zeros(shape);
-        render_reference_region(&scene, c.t_ns, [c.rows, c.cols], [r0, c0], reference.view_mut());
+        let origin = [r0 as f64, c0 as f64];
+        render_reference_region(&scene, c.t_ns, [c.rows, c.cols], origin, reference.view_mut());
         let mut fast = Array2::zeros(shape);
-        scene.render_region_into(c.t_ns, [c.rows, c.cols], [r0, c0], fast.view_mut());
+        scene.render_region_into(c.t_ns, [c.rows, c.cols], origin, fast.view_mut());
         prop_assert!(worst_difference(&fast, &reference) < 1e-5, "case={:?}", c);
+        // Between the sensor's pixels too.
+        let between = [r0 as f64 + fr, c0 as f64 + fc];
+        let mut reference_between = Array2::zeros(shape);
+        render_reference_region(&scene, c.t_ns, [c.rows, c.cols], between, reference_between.view_mut());
+        let mut fast_between = Array2::zeros(shape);
+        scene.render_region_into(c.t_ns, [c.rows, c.cols], between, fast_between.view_mut());
+        prop_assert!(
+            worst_difference(&fast_between, &reference_between) < 1e-5,
+            "origin {:?}, case={:?}", between, c
+        );
         let whole = scene.render(c.t_ns, c.rows, c.cols);
         for ((i, j), v) in fast.indexed_iter() {
             let (r, cc) = (r0 + i as i64, c0 + j as i64);

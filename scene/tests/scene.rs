@@ -563,6 +563,75 @@ fn content_shift_follows_the_translation_turned_with_the_view() {
     assert!(close(late.content_shift(0, 11_000_000), (1.0, 0.0)));
 }
 
+/// The content's path is the integral of the velocity `content_shift` takes at its end: against
+/// a fine numerical integral for a pan that turns and zooms (out to where the zoom is held at its
+/// clamp), zero before the motion starts, and a plain pan's distance.
+#[test]
+fn content_path_integrates_the_centres_velocity() {
+    let scene = |motion: &str| {
+        Scene::from_yaml_str(
+            &format!("texture: {{ kind: noise }}\nmotion: {{ {motion} }}\n"),
+            "path",
+            None,
+        )
+        .unwrap_or_else(|e| panic!("{e}"))
+    };
+    let pan = scene("vx_px_s: 1000, vy_px_s: -500, start_ns: 1000000");
+    assert_eq!(pan.content_path(0), (0.0, 0.0));
+    assert_eq!(pan.content_path(1_000_000), (0.0, 0.0));
+    let (x, y) = pan.content_path(3_000_000);
+    assert!(
+        (x - 2.0).abs() < 1e-12 && (y + 1.0).abs() < 1e-12,
+        "{x} {y}"
+    );
+    // The velocity at `t`: content_shift over a short step ending at `t`, per second.
+    let numeric = |s: &Scene, t_end_ns: i64| {
+        let step = 10_000i64;
+        let (mut x, mut y) = (0.0, 0.0);
+        let mut t = 0;
+        while t < t_end_ns {
+            // The velocity at the step's middle (midpoint rule).
+            let mid = t + step / 2;
+            let (dx, dy) = s.content_shift(mid - 1, mid);
+            x += dx * step as f64;
+            y += dy * step as f64;
+            t += step;
+        }
+        (x, y)
+    };
+    // 60 s of zoom at 0.8/s passes the clamp of 30 in log zoom at 37.5 s.
+    for motion in [
+        "vx_px_s: 300, vy_px_s: 100, rotation_deg_s: 90, zoom_per_s: 0.5",
+        "vx_px_s: -50, rotation_deg_s: -30, zoom_per_s: -0.8",
+        "vx_px_s: 2, vy_px_s: 3, rotation_deg_s: 7, zoom_per_s: 0.8",
+    ] {
+        let s = scene(motion);
+        for t in [100_000i64, 1_000_000, 250_000_000, 2_000_000_000] {
+            let (a, b) = s.content_path(t);
+            let (c, d) = numeric(&s, t);
+            let scale = c.hypot(d).max(1.0);
+            assert!(
+                (a - c).hypot(b - d) < 1e-6 * scale,
+                "{motion} at {t} ns: {a} {b} against {c} {d}"
+            );
+        }
+        let far = 60_000_000_000i64;
+        let (a, b) = s.content_path(far);
+        assert!(a.is_finite() && b.is_finite(), "{motion}: {a} {b}");
+    }
+    let s = scene("vx_px_s: 2, vy_px_s: 3, rotation_deg_s: 7, zoom_per_s: 0.8");
+    // Past the clamp the path goes on at the held zoom: the velocity there times the time.
+    let (t1, t2) = (50_000_000_000i64, 50_001_000_000i64);
+    let (a, b) = (s.content_path(t1), s.content_path(t2));
+    let (vx, vy) = s.content_shift(t2 - 1_000, t2);
+    let v = (vx * 1e3, vy * 1e3);
+    let step = ((b.0 - a.0) - v.0, (b.1 - a.1) - v.1);
+    assert!(
+        step.0.hypot(step.1) < 1e-3 * v.0.hypot(v.1),
+        "{step:?} against {v:?}"
+    );
+}
+
 /// Motion-compensated interpolation on `bright-fast` (2,000 px/s while turning 90 deg/s), renders
 /// every 64 ticks of 50 us: each tick's image against a render at that tick. Per-tick PSNR of the
 /// light: the interpolator above 34 dB; blending the two renders without moving them (linear
