@@ -280,9 +280,9 @@ pub fn blend_reference(a: ArrayView2<'_, f32>, b: &Blended<'_>) -> Array2<f32> {
     })
 }
 
-/// The `rows x cols` image `a` moved ([`shift_into`]) after, where `b` is given, blending `b`
-/// into it ([`Blended`]), handed to `row(r, values)` one row at a time, top first, so that a
-/// caller can use each row while it is in the cache. `scratch` holds the horizontal pass's rows
+/// The `rows x cols` image `a` moved ([`shift_into`]), where `b` is given blended into `a`
+/// first ([`Blended`]) and the blend moved, handed to `row(r, values)` one row at a time, top
+/// first, so that a caller can use each row while it is in the cache. `scratch` holds the horizontal pass's rows
 /// between calls. The same bits as [`blend_reference`] and then [`shift_reference`].
 pub fn shift_rows<'a>(
     margin: usize,
