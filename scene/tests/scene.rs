@@ -535,19 +535,22 @@ fn spec_round_trips_through_yaml_and_builds_programmatically() {
     assert!(e.to_string().contains("light_scale"), "{e}");
 }
 
+/// A noise texture under `motion` (the fields of a scene's `motion:` map).
+fn noise_moving(motion: &str) -> Scene {
+    Scene::from_yaml_str(
+        &format!("texture: {{ kind: noise }}\nmotion: {{ {motion} }}\n"),
+        "motion",
+        None,
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
 /// The content at the view's centre moves by the motion's translation, turned and scaled as the
 /// view is at the later instant; rotation and zoom alone move it not; before the motion starts
 /// nothing moves.
 #[test]
 fn content_shift_follows_the_translation_turned_with_the_view() {
-    let scene = |motion: &str| {
-        Scene::from_yaml_str(
-            &format!("texture: {{ kind: noise }}\nmotion: {{ {motion} }}\n"),
-            "shift",
-            None,
-        )
-        .unwrap_or_else(|e| panic!("{e}"))
-    };
+    let scene = noise_moving;
     let close = |a: (f64, f64), b: (f64, f64)| (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9;
     let pan = scene("vx_px_s: 1000, vy_px_s: -500");
     assert!(close(pan.content_shift(0, 2_000_000), (2.0, -1.0)));
@@ -568,14 +571,7 @@ fn content_shift_follows_the_translation_turned_with_the_view() {
 /// clamp), zero before the motion starts, and a plain pan's distance.
 #[test]
 fn content_path_integrates_the_centres_velocity() {
-    let scene = |motion: &str| {
-        Scene::from_yaml_str(
-            &format!("texture: {{ kind: noise }}\nmotion: {{ {motion} }}\n"),
-            "path",
-            None,
-        )
-        .unwrap_or_else(|e| panic!("{e}"))
-    };
+    let scene = noise_moving;
     let pan = scene("vx_px_s: 1000, vy_px_s: -500, start_ns: 1000000");
     assert_eq!(pan.content_path(0), (0.0, 0.0));
     assert_eq!(pan.content_path(1_000_000), (0.0, 0.0));
