@@ -24,6 +24,7 @@
 //!   rotation_deg_s: 0.0 # about the view centre
 //!   zoom_per_s: 0.0     # content scaled by s(t) = exp(zoom_per_s * t) about the view centre
 //!   start_ns: 0         # the view holds still until then; the rates apply to t - start_ns
+//!   stop_ns: 40000000   # optional: the view holds still again from then on
 //! light:
 //!   gain_map:           # optional
 //!     kind: horizontal  # horizontal (log-linear ramp, left dim) | radial (bright centre)
@@ -44,7 +45,8 @@
 //!
 //! Geometry: view point `p` at time `t` shows texture point `R(-theta(t)) (p - c) / s(t) + c - v t`
 //! where `c` is the view centre, `theta(t) = rotation_deg_s * t`, `s(t) = exp(zoom_per_s * t)`,
-//! and `t` counts from `motion.start_ns` (0 before it).
+//! and `t` counts from `motion.start_ns` (0 before it), held at its value at `motion.stop_ns`
+//! from then on when a stop is given.
 //! The gain map is fixed to the view (a static lighting gradient the content moves under).
 //!
 //! ```
@@ -257,9 +259,7 @@ impl Scene {
     /// motion starts count as its start; finite for any instants.
     pub fn content_shift(&self, t_from_ns: i64, t_to_ns: i64) -> (f64, f64) {
         let m = &self.spec.motion;
-        let start = i64::try_from(m.start_ns).unwrap_or(i64::MAX);
-        let motion_s = |t: i64| t.saturating_sub(start).max(0) as f64 / render::NS_PER_S;
-        let (t1, t2) = (motion_s(t_from_ns), motion_s(t_to_ns));
+        let (t1, t2) = (m.elapsed_s(t_from_ns), m.elapsed_s(t_to_ns));
         let theta = (m.rotation_deg_s * t2).rem_euclid(360.0).to_radians();
         let (sin, cos) = theta.sin_cos();
         let s = (m.zoom_per_s * t2)
@@ -280,8 +280,7 @@ impl Scene {
     /// finite for any instant.
     pub fn content_path(&self, t_ns: i64) -> (f64, f64) {
         let m = &self.spec.motion;
-        let start = i64::try_from(m.start_ns).unwrap_or(i64::MAX);
-        let t = t_ns.saturating_sub(start).max(0) as f64 / render::NS_PER_S;
+        let t = m.elapsed_s(t_ns);
         let omega = m.rotation_deg_s.to_radians();
         let z = m.zoom_per_s;
         // Until the log zoom reaches its clamp (`z t = +-MAX_LOG_ZOOM`), then at the clamp.

@@ -36,9 +36,8 @@ impl ViewMap {
     /// with the translation reduced modulo the texture period (exact, the texture is periodic).
     pub fn at(scene: &Scene, t_ns: i64) -> ViewMap {
         let m = &scene.spec().motion;
-        // Motion time: 0 until the motion starts (saturating: any `t_ns` is defined).
-        let start = i64::try_from(m.start_ns).unwrap_or(i64::MAX);
-        let t = t_ns.saturating_sub(start).max(0) as f64 / NS_PER_S; // 1 ms is exactly 0.001 s
+        // Motion time: 0 until the motion starts, held once it stops.
+        let t = m.elapsed_s(t_ns);
         let theta = (m.rotation_deg_s * t).rem_euclid(360.0).to_radians();
         let (sin, cos) = if theta == 0.0 {
             (0.0, 1.0)

@@ -157,6 +157,10 @@ pub struct MotionSpec {
     /// from static to moving).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub start_ns: u64,
+    /// The instant the motion stops, nanoseconds, after `start_ns`: from it on the view holds
+    /// still where the motion left it (a scene that starts and stops). None: it never stops.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stop_ns: Option<u64>,
 }
 
 fn is_zero(v: &u64) -> bool {
@@ -476,6 +480,18 @@ impl TextureSpec {
 }
 
 impl MotionSpec {
+    /// The motion's own time at `t_ns`, seconds: 0 until `start_ns`, then `t - start_ns`, held
+    /// from `stop_ns` on (saturating: any `t_ns` is defined).
+    pub fn elapsed_s(&self, t_ns: i64) -> f64 {
+        let start = i64::try_from(self.start_ns).unwrap_or(i64::MAX);
+        let stop = self
+            .stop_ns
+            .map_or(i64::MAX, |s| i64::try_from(s).unwrap_or(i64::MAX))
+            .max(start);
+        // 1 ms is exactly 0.001 s.
+        t_ns.clamp(start, stop).saturating_sub(start) as f64 / 1e9
+    }
+
     fn validate(&self, origin: &str) -> Result<(), SceneError> {
         for (field, value) in [
             ("motion.vx_px_s", self.vx_px_s),
@@ -486,6 +502,16 @@ impl MotionSpec {
             if !value.is_finite() {
                 return Err(invalid(origin, field, value, "must be finite"));
             }
+        }
+        if let Some(stop) = self.stop_ns
+            && stop <= self.start_ns
+        {
+            return Err(invalid(
+                origin,
+                "motion.stop_ns",
+                stop,
+                "must be after motion.start_ns",
+            ));
         }
         Ok(())
     }

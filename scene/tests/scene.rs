@@ -566,6 +566,51 @@ fn content_shift_follows_the_translation_turned_with_the_view() {
     assert!(close(late.content_shift(0, 11_000_000), (1.0, 0.0)));
 }
 
+/// A motion that stops holds the view where it left it: renders after the stop are the render at
+/// the stop, the content's path and shift stop growing, and a stop not after the start is an
+/// error naming the field.
+#[test]
+fn a_motion_that_stops_holds_the_view_where_it_left_it() {
+    let scene = noise_moving;
+    let s = scene(
+        "vx_px_s: 1000, vy_px_s: -500, rotation_deg_s: 30, zoom_per_s: 0.2, start_ns: 1000000, stop_ns: 5000000",
+    );
+    let free = scene(
+        "vx_px_s: 1000, vy_px_s: -500, rotation_deg_s: 30, zoom_per_s: 0.2, start_ns: 1000000",
+    );
+    // Until the stop, the same motion as one that never stops.
+    assert_eq!(s.render(4_000_000, 40, 60), free.render(4_000_000, 40, 60));
+    assert_eq!(s.content_path(4_000_000), free.content_path(4_000_000));
+    // From the stop on, still.
+    let at_stop = s.render(5_000_000, 40, 60);
+    assert_ne!(at_stop, s.render(4_000_000, 40, 60));
+    assert_eq!(s.render(9_000_000, 40, 60), at_stop);
+    assert_eq!(s.content_path(9_000_000), s.content_path(5_000_000));
+    assert_eq!(s.content_shift(5_000_000, 9_000_000), (0.0, 0.0));
+    let (dx, dy) = s.content_shift(4_000_000, 9_000_000);
+    let (ex, ey) = free.content_shift(4_000_000, 5_000_000);
+    assert!(
+        (dx - ex).abs() < 1e-9 && (dy - ey).abs() < 1e-9,
+        "{dx} {dy} vs {ex} {ey}"
+    );
+    for bad in [
+        "start_ns: 2000000, stop_ns: 2000000",
+        "start_ns: 2000000, stop_ns: 1000",
+    ] {
+        let e = Scene::from_yaml_str(
+            &format!("texture: {{ kind: noise }}\nmotion: {{ vx_px_s: 10, {bad} }}\n"),
+            "stop",
+            None,
+        )
+        .expect_err(bad)
+        .to_string();
+        assert!(
+            e.contains("motion.stop_ns") && e.contains("after motion.start_ns"),
+            "{e}"
+        );
+    }
+}
+
 /// The content's path is the integral of the velocity `content_shift` takes at its end: against
 /// a fine numerical integral for a pan that turns and zooms (out to where the zoom is held at its
 /// clamp), zero before the motion starts, and a plain pan's distance.
