@@ -35,7 +35,9 @@
 //! 14-55 us. Over four noise draws of each texture: 0.06-0.27 px with the clock known, and
 //! 0.05-0.40 px and 98 us at worst with neither known. On a 400x250 spike camera with a
 //! DAVIS346 (`neuspike simulate`, three textures, the same motion) the activity's clock came
-//! 0.14-0.25 ms late (a search of both together: -0.52 to +0.39 ms).
+//! 0.14-0.25 ms late (a search of both together: -0.52 to +0.39 ms). When the motion also stops
+//! (`motion.stop_ns` at 28 or 32 ms), the activity's clock came 37-133 us early on the simulated
+//! rig over the four draws of each texture.
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
