@@ -1329,6 +1329,24 @@ mod tests {
         assert_eq!((b.t_start_ns, b.t_end_ns, b.seq), (0, 5_000_000, 3));
     }
 
+    /// A scene that starts and stops (`motion.start_ns`, `stop_ns`) fires only while it moves:
+    /// nothing before the start, nothing after the stop, plenty between.
+    #[test]
+    fn a_scene_fires_only_while_it_moves() {
+        let s = scene(
+            "motion:\n  vx_px_s: 500.0\n  start_ns: 4000000\n  stop_ns: 9000000\n",
+            1.0,
+        );
+        let mut cam = EventCamera::new(s, cfg(), 0).unwrap();
+        let b = cam.advance_to(16_000_000, 0);
+        assert!(b.len() > 100, "{} events", b.len());
+        let (first, last) = (b.t_ns[0], b.t_ns[b.len() - 1]);
+        assert!(
+            first > 4_000_000 && last <= 9_000_000,
+            "events from {first} to {last} ns"
+        );
+    }
+
     /// Summing the events times the threshold gives back the change of log intensity, to within
     /// one threshold per pixel: no crossing is lost.
     #[test]
