@@ -28,16 +28,19 @@
 //! of motion) is the clock searched with the geometry, on a grid at each round, then both
 //! together, and the estimate says so ([`ClockSource::Searched`]).
 //!
-//! On a simulated rig (`tests/rig.rs`, three textures, 40 ms whose first 12 hold still) the
+//! On a small simulated rig (`tests/rig.rs`: a 160x100 spike camera, a 138x104 DVS, three
+//! textures, 40 ms whose first 12 hold still) the
 //! homography comes within 0.09-0.20 px where both sensors see when the clock is known (0.25-0.63
 //! without the last step), and the clock within 6-27 us when the homography is known (its search
 //! takes only the events within bursts, [`BURST_NS`]); both unknown, within 0.06-0.30 px and
 //! 14-55 us. Over four noise draws of each texture: 0.06-0.27 px with the clock known, and
-//! 0.05-0.40 px and 98 us at worst with neither known. On a 400x250 spike camera with a
-//! DAVIS346 (`neuspike simulate`, three textures, the same motion) the activity's clock came
-//! 0.14-0.25 ms late (a search of both together: -0.52 to +0.39 ms). When the motion also stops
-//! (`motion.stop_ns` at 28 or 32 ms), the activity's clock came 37-133 us early on the simulated
-//! rig over the four draws of each texture.
+//! 0.05-0.40 px and 98 us at worst with neither known. On the paper's rig, a 400x250 spike camera
+//! with a DAVIS346 (the same motion and textures, four noise draws each), neither known: 0.06-0.22
+//! px and -51 to +60 us (`neuspike calibrate-rig` on `neuspike simulate`'s recordings: 0.07-0.24
+//! px, -42 to +55 us). The clock's error follows the texture more than the noise draw (on the
+//! small rig one texture came 55-98 us late, another 14-54 us early). When the motion also stops
+//! (`motion.stop_ns` at 28 or 32 ms), the activity's clock came 37-133 us early on the small rig
+//! over the four draws of each texture.
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{EventBatch, SpikeChunk, fired_pixels};
