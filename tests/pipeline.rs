@@ -3,6 +3,8 @@
 //! The graphs' `build:` commands build the node binaries first (release profile, as the graphs
 //! name `target/release`), so this test works on a fresh clone.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
@@ -237,19 +239,7 @@ fn fusion_graph_runs_every_method_and_loses_nothing() {
 fn fusion_graph_runs_on_a_rig_of_two_sensor_sizes_and_clocks() {
     let out = tempfile::tempdir().expect("tempdir");
     // 346x260 over the 400x250 view, turned by half a degree.
-    let (sx, sy, a) = (400.0 / 346.0, 250.0 / 260.0, 0.5f64.to_radians());
-    let h = neuspike_geometry::Homography::new([
-        sx * a.cos(),
-        -sy * a.sin(),
-        1.0,
-        sx * a.sin(),
-        sy * a.cos(),
-        -1.0,
-        0.0,
-        0.0,
-        1.0,
-    ])
-    .expect("homography");
+    let h = common::davis346_rig();
     let dvs = format!(
         "--scene bright-slow --width 346 --height 260 --batch-ns 1000000 --seed 2 --homography {h} --clock-offset-ns 3000000"
     );

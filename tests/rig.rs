@@ -4,6 +4,8 @@
 //! homography and undoes the clock; what comes out must be what a DVS on the spike grid itself,
 //! on the spike clock, gives.
 
+mod common;
+
 use ndarray::Array2;
 use neuspike_align::{AlignConfig, Aligner};
 use neuspike_event_source::{DvsConfig, EventCamera};
@@ -27,19 +29,7 @@ fn scene() -> Scene {
 
 /// DVS pixel -> spike pixel: 1.16x the pitch, turned 1 degree, shifted.
 fn rig() -> Homography {
-    let (s, a) = (1.16f64, 1.0f64.to_radians());
-    Homography::new([
-        s * a.cos(),
-        -s * a.sin(),
-        -0.5,
-        s * a.sin(),
-        s * a.cos(),
-        -1.0,
-        0.0,
-        0.0,
-        1.0,
-    ])
-    .expect("the rig's homography")
+    common::turned_rig((1.16, 1.16), 1.0, (-0.5, -1.0))
 }
 
 /// The rig's DVS: 138x104, seeing the scene through [`rig`], its clock [`OFFSET_NS`] ahead.
@@ -231,15 +221,21 @@ fn rig_recording_drawn(
 /// The largest distance between where `h` and the true rig send the DVS's pixels that both
 /// sensors see (a 12x12 grid over the DVS frame, those landing on the spike frame), spike pixels.
 fn worst_error(h: &Homography) -> f64 {
+    error_against(&rig(), h, (138.0, 104.0), (W as f64, H as f64))
+}
+
+/// [`worst_error`] against the rig `truth` of a `dvs` sized event camera and a `spike` sized
+/// spike camera.
+fn error_against(truth: &Homography, h: &Homography, dvs: (f64, f64), spike: (f64, f64)) -> f64 {
     let mut worst = 0.0f64;
     for i in 0..12 {
         for j in 0..12 {
             let (x, y) = (
-                138.0 * (i as f64 + 0.5) / 12.0,
-                104.0 * (j as f64 + 0.5) / 12.0,
+                dvs.0 * (i as f64 + 0.5) / 12.0,
+                dvs.1 * (j as f64 + 0.5) / 12.0,
             );
-            let (a, b) = rig().apply(x, y).expect("in front");
-            if !(0.0..W as f64).contains(&a) || !(0.0..H as f64).contains(&b) {
+            let (a, b) = truth.apply(x, y).expect("in front");
+            if !(0.0..spike.0).contains(&a) || !(0.0..spike.1).contains(&b) {
                 continue;
             }
             let (c, d) = h.apply(x, y).expect("in front");
@@ -507,47 +503,7 @@ fn a_steady_motion_alone_leaves_the_clock_uncertain_and_says_so() {
     assert!(est.clock.to_string().contains("uncertain"), "{}", est.clock);
 }
 
-/// The paper's rig: a 400x250 spike camera and a DAVIS346 seeing the view through a homography
-/// (its frame 1.16x the pitch across, 0.96x down, turned half a degree, shifted), its clock 3 ms
-/// ahead.
-fn davis_rig() -> Homography {
-    let (sx, sy, a) = (400.0 / 346.0, 250.0 / 260.0, 0.5f64.to_radians());
-    Homography::new([
-        sx * a.cos(),
-        -sy * a.sin(),
-        1.0,
-        sx * a.sin(),
-        sy * a.cos(),
-        -1.0,
-        0.0,
-        0.0,
-        1.0,
-    ])
-    .expect("the rig's homography")
-}
-
-/// The largest distance between where `h` and [`davis_rig`] send the DAVIS346's pixels that both
-/// sensors see (a 12x12 grid), spike pixels.
-fn davis_worst_error(h: &Homography) -> f64 {
-    let mut worst = 0.0f64;
-    for i in 0..12 {
-        for j in 0..12 {
-            let (x, y) = (
-                346.0 * (i as f64 + 0.5) / 12.0,
-                260.0 * (j as f64 + 0.5) / 12.0,
-            );
-            let (a, b) = davis_rig().apply(x, y).expect("in front");
-            if !(0.0..400.0).contains(&a) || !(0.0..250.0).contains(&b) {
-                continue;
-            }
-            let (c, d) = h.apply(x, y).expect("in front");
-            worst = worst.max((a - c).hypot(b - d));
-        }
-    }
-    worst
-}
-
-/// On the paper's rig (400x250 and a DAVIS346, [`davis_rig`]), the same motion as
+/// On the paper's rig (400x250 and a DAVIS346, `common::davis346_rig`), the same motion as
 /// [`rig_recording`], both unknown, from the two frames' widths and centres together: the
 /// homography within 0.5 px and the clock within 100 us, on the texture whose clock came furthest
 /// off (measured 0.065 px, +54 us; over four noise draws of three textures 0.06-0.22 px and -51
@@ -578,7 +534,7 @@ fn the_papers_rig_is_estimated_from_what_its_two_sensors_recorded() {
         DvsConfig {
             width: 346,
             height: 260,
-            homography: Some(davis_rig()),
+            homography: Some(common::davis346_rig()),
             rig_width: 400,
             rig_height: 250,
             clock_offset_ns: OFFSET_NS,
@@ -592,10 +548,9 @@ fn the_papers_rig_is_estimated_from_what_its_two_sensors_recorded() {
     let init = Homography::scale_translate(k, k, 200.0 - 173.0 * k, 125.0 - 130.0 * k)
         .expect("the centres together");
     let est = estimate(&chunk, &events, init, Clock::Within(10_000_000)).expect("estimate");
-    let (worst, clock) = (
-        davis_worst_error(&est.homography),
-        est.offset_ns - OFFSET_NS,
-    );
+    let error =
+        |h: &Homography| error_against(&common::davis346_rig(), h, (346.0, 260.0), (400.0, 250.0));
+    let (worst, clock) = (error(&est.homography), est.offset_ns - OFFSET_NS);
     eprintln!("the paper's rig: {worst:.3} px, clock {clock} ns off");
     assert!(
         matches!(est.clock, ClockSource::Activity(_)),
@@ -604,5 +559,5 @@ fn the_papers_rig_is_estimated_from_what_its_two_sensors_recorded() {
     );
     assert!(worst < 0.5, "{worst} px");
     assert!(clock.abs() < 100_000, "{clock} ns");
-    assert!(worst < davis_worst_error(&init) / 4.0);
+    assert!(worst < error(&init) / 4.0);
 }

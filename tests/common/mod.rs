@@ -1,5 +1,5 @@
-//! What the whole-graph tests share: the repository's root, Python's packages, and running a
-//! graph that must succeed.
+//! What the whole-graph tests share: the repository's root, Python's packages, running a graph
+//! that must succeed, and the paper's rig of two sensors.
 
 #![allow(dead_code)]
 
@@ -45,4 +45,33 @@ pub fn run_graph(graph: &str, overrides: &[(&str, String)]) -> neuspike::graph::
     .unwrap_or_else(|e| panic!("{graph}: {e:#}"));
     assert!(report.failures.is_empty(), "{graph}: {:?}", report.failures);
     report
+}
+
+/// The paper's rig: a DAVIS346 beside a 400x250 spike camera, its frame 1.16x the spike pitch
+/// across and 0.96x down (the two views the same size), turned half a degree, shifted a pixel:
+/// DAVIS346 pixel -> spike pixel.
+pub fn davis346_rig() -> neuspike_geometry::Homography {
+    turned_rig((400.0 / 346.0, 250.0 / 260.0), 0.5, (1.0, -1.0))
+}
+
+/// An event camera pixel -> spike pixel mapping: the pitch scaled by `(sx, sy)`, turned by `deg`
+/// degrees, shifted by `(dx, dy)` spike pixels.
+pub fn turned_rig(
+    (sx, sy): (f64, f64),
+    deg: f64,
+    (dx, dy): (f64, f64),
+) -> neuspike_geometry::Homography {
+    let a = deg.to_radians();
+    neuspike_geometry::Homography::new([
+        sx * a.cos(),
+        -sy * a.sin(),
+        dx,
+        sx * a.sin(),
+        sy * a.cos(),
+        dy,
+        0.0,
+        0.0,
+        1.0,
+    ])
+    .expect("the rig's homography")
 }
