@@ -256,7 +256,8 @@ impl Scene {
     /// pixels `(dx, dy)`: the translation `s(t_to) R(theta(t_to)) v (t_to - t_from)` (rotation and
     /// zoom turn about the centre, so they move it not). Elsewhere in the view a turning or
     /// zooming scene moves by this plus its rotation and scale about the centre. Times before the
-    /// motion starts count as its start; finite for any instants.
+    /// motion starts count as its start, times after it stops as its stop; finite for any
+    /// instants.
     pub fn content_shift(&self, t_from_ns: i64, t_to_ns: i64) -> (f64, f64) {
         let m = &self.spec.motion;
         let (t1, t2) = (m.elapsed_s(t_from_ns), m.elapsed_s(t_to_ns));
@@ -276,8 +277,8 @@ impl Scene {
     /// its end, `s(t) R(theta(t)) v`, in closed form (the log zoom held at its clamp once it
     /// reaches it). The difference between two instants is how far the centre's content moves
     /// between them, to first order in the turn and zoom between; unlike `content_shift`'s,
-    /// such differences add up along a path. Times before the motion starts count as its start;
-    /// finite for any instant.
+    /// such differences add up along a path. Times before the motion starts count as its start,
+    /// times after it stops as its stop; finite for any instant.
     pub fn content_path(&self, t_ns: i64) -> (f64, f64) {
         let m = &self.spec.motion;
         let t = m.elapsed_s(t_ns);

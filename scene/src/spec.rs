@@ -488,8 +488,7 @@ impl MotionSpec {
             .stop_ns
             .map_or(i64::MAX, |s| i64::try_from(s).unwrap_or(i64::MAX))
             .max(start);
-        // 1 ms is exactly 0.001 s.
-        t_ns.clamp(start, stop).saturating_sub(start) as f64 / 1e9
+        t_ns.clamp(start, stop).saturating_sub(start) as f64 / crate::render::NS_PER_S
     }
 
     fn validate(&self, origin: &str) -> Result<(), SceneError> {
