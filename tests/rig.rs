@@ -27,6 +27,9 @@ fn scene() -> Scene {
     .unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The rigs' motion: still for 12 ms, then a pan that turns and zooms.
+const RIG_MOTION: &str = "motion: { vx_px_s: 400, vy_px_s: -150, rotation_deg_s: 60, zoom_per_s: 0.5, start_ns: 12000000 }";
+
 /// DVS pixel -> spike pixel: 1.16x the pitch, turned 1 degree, shifted.
 fn rig() -> Homography {
     common::turned_rig((1.16, 1.16), 1.0, (-0.5, -1.0))
@@ -195,8 +198,7 @@ fn rig_recording_drawn(
 ) -> (neuspike_schemas::SpikeChunk, neuspike_schemas::EventBatch) {
     let s = Scene::from_yaml_str(
         &format!(
-            "width: 160\nheight: 100\nduration_ms: 60\nseed: {seed}\ntexture: {{ kind: shapes }}\n\
-             motion: {{ vx_px_s: 400, vy_px_s: -150, rotation_deg_s: 60, zoom_per_s: 0.5, start_ns: 12000000 }}\n"
+            "width: 160\nheight: 100\nduration_ms: 60\nseed: {seed}\ntexture: {{ kind: shapes }}\n{RIG_MOTION}\n"
         ),
         "rig estimate",
         None,
@@ -248,9 +250,19 @@ fn error_against(truth: &Homography, h: &Homography, dvs: (f64, f64), spike: (f6
 /// What a user knows of the rig: the two sensors' widths, square pixels, the frames' centres
 /// together.
 fn user_start() -> Homography {
-    let k = W as f64 / 138.0;
-    Homography::scale_translate(k, k, W as f64 / 2.0 - 69.0 * k, H as f64 / 2.0 - 52.0 * k)
-        .expect("the centres together")
+    centres_together((138.0, 104.0), (W as f64, H as f64))
+}
+
+/// [`user_start`] for a `dvs` sized event camera and a `spike` sized spike camera.
+fn centres_together(dvs: (f64, f64), spike: (f64, f64)) -> Homography {
+    let k = spike.0 / dvs.0;
+    Homography::scale_translate(
+        k,
+        k,
+        spike.0 / 2.0 - dvs.0 / 2.0 * k,
+        spike.1 / 2.0 - dvs.1 / 2.0 * k,
+    )
+    .expect("the centres together")
 }
 
 /// The rig estimated from what the two sensors recorded, over three textures, from a start that
@@ -390,8 +402,9 @@ fn calibrate_rig_reads_two_recordings_and_prints_the_nodes_arguments() {
     let scene = dir.path().join("rig.yml");
     std::fs::write(
         &scene,
-        "width: 160\nheight: 100\nduration_ms: 40\nseed: 9\ntexture: { kind: shapes }\n\
-         motion: { vx_px_s: 400, vy_px_s: -150, rotation_deg_s: 60, zoom_per_s: 0.5, start_ns: 12000000 }\n",
+        format!(
+            "width: 160\nheight: 100\nduration_ms: 40\nseed: 9\ntexture: {{ kind: shapes }}\n{RIG_MOTION}\n"
+        ),
     )
     .expect("scene file");
     let out = dir.path().join("rec");
@@ -512,8 +525,9 @@ fn a_steady_motion_alone_leaves_the_clock_uncertain_and_says_so() {
 fn the_papers_rig_is_estimated_from_what_its_two_sensors_recorded() {
     use neuspike_align::rig::{Clock, ClockSource, estimate};
     let s = Scene::from_yaml_str(
-        "width: 400\nheight: 250\nduration_ms: 60\nseed: 33\ntexture: { kind: shapes }\n\
-         motion: { vx_px_s: 400, vy_px_s: -150, rotation_deg_s: 60, zoom_per_s: 0.5, start_ns: 12000000 }\n",
+        &format!(
+            "width: 400\nheight: 250\nduration_ms: 60\nseed: 33\ntexture: {{ kind: shapes }}\n{RIG_MOTION}\n"
+        ),
         "the paper's rig",
         None,
     )
@@ -544,9 +558,7 @@ fn the_papers_rig_is_estimated_from_what_its_two_sensors_recorded() {
     )
     .expect("DVS");
     let events = dvs.advance_to(t_end, 0);
-    let k = 400.0 / 346.0;
-    let init = Homography::scale_translate(k, k, 200.0 - 173.0 * k, 125.0 - 130.0 * k)
-        .expect("the centres together");
+    let init = centres_together((346.0, 260.0), (400.0, 250.0));
     let est = estimate(&chunk, &events, init, Clock::Within(10_000_000)).expect("estimate");
     let error =
         |h: &Homography| error_against(&common::davis346_rig(), h, (346.0, 260.0), (400.0, 250.0));
