@@ -12,6 +12,7 @@ use dora_message::common::{LogLevel, LogLevelOrStdout, LogMessage};
 use dora_message::coordinator_to_cli::DataflowResult;
 use dora_message::descriptor::Descriptor;
 use eyre::{WrapErr, bail, eyre};
+use neuspike_sink::report::SummaryFile;
 use serde_yaml::Value;
 
 /// The message types of `schemas/types`, built in: written beside every graph the program writes
@@ -38,13 +39,23 @@ pub fn node_dir() -> eyre::Result<PathBuf> {
     })
 }
 
-/// The source checkout this program was built from, when it runs from that checkout's
-/// `target/` (`cargo run`, the tests): node binaries are built there. `None` for an installed or
-/// copied program, and when the checkout has moved.
+/// The source checkout this program was built from, when it runs from a cargo build of that
+/// checkout (`cargo run`, the tests; its `target/` or the `CARGO_TARGET_DIR` it was built into):
+/// node binaries are built beside it. `None` for an installed or copied program, and when the
+/// checkout has moved.
 pub fn source_checkout() -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).canonicalize().ok()?;
+    if !dir.join("Cargo.toml").is_file() {
+        return None;
+    }
     let nodes = node_dir().ok()?.canonicalize().ok()?;
-    (dir.join("Cargo.toml").is_file() && nodes.starts_with(dir.join("target"))).then_some(dir)
+    let holds_nodes = |target: &Path| target.canonicalize().is_ok_and(|t| nodes.starts_with(t));
+    // `cargo run` and `cargo test` tell the program its package's folder.
+    let run_by_cargo = std::env::var_os("CARGO_MANIFEST_DIR")
+        .is_some_and(|d| Path::new(&d).canonicalize().is_ok_and(|d| d == dir));
+    let in_target_dir =
+        std::env::var_os("CARGO_TARGET_DIR").is_some_and(|t| holds_nodes(Path::new(&t)));
+    (holds_nodes(&dir.join("target")) || run_by_cargo || in_target_dir).then_some(dir)
 }
 
 /// The command that builds the node binaries in the source checkout, if there is one.
@@ -141,7 +152,8 @@ pub const CREDIT_WINDOW: u64 = 8;
 /// fed by another node of the graph gets `queue_size: window` and dora's default queue policy
 /// (the zero-copy path), its node an output `credits`, and the producer an input
 /// `credits-<consumer>` reading it (through the daemon: credits are small and must not be lost).
-/// Inputs already reading `credits`, timers and unknown sources are left alone.
+/// Inputs already reading `credits`, inputs under dora's backpressure, timers and unknown sources
+/// are left alone.
 pub fn wire_credits(graph: &mut Value, window: u64) {
     use serde_yaml::Mapping;
     let Some(list) = graph.get_mut("nodes").and_then(Value::as_sequence_mut) else {
@@ -172,7 +184,11 @@ pub fn wire_credits(graph: &mut Value, window: u64) {
             let Some((producer, output)) = source.split_once('/') else {
                 continue;
             };
-            if output == "credits" || !ids.iter().any(|i| i == producer) {
+            // Not flow controlled by credits: a credit edge itself, a source outside the graph,
+            // or an edge left to dora's backpressure (a node that does not speak credits).
+            let backpressure =
+                spec.get("queue_policy").and_then(Value::as_str) == Some("backpressure");
+            if output == "credits" || backpressure || !ids.iter().any(|i| i == producer) {
                 continue;
             }
             let mut m = Mapping::new();
@@ -185,13 +201,17 @@ pub fn wire_credits(graph: &mut Value, window: u64) {
             }
         }
     }
+    // The node's `key` mapping (a missing or empty key, `inputs:` with nothing under it, is a new
+    // one).
     let entry = |node: &mut Value, key: &str| -> Option<Value> {
         let map = node.as_mapping_mut()?;
-        Some(
-            map.entry(Value::from(key))
-                .or_insert_with(|| Value::Mapping(Mapping::new()))
-                .clone(),
-        )
+        let v = map
+            .entry(Value::from(key))
+            .or_insert_with(|| Value::Mapping(Mapping::new()));
+        if v.is_null() {
+            *v = Value::Mapping(Mapping::new());
+        }
+        Some(v.clone())
     };
     for node in list.iter_mut() {
         let Some(id) = node.get("id").and_then(Value::as_str).map(str::to_string) else {
@@ -259,6 +279,8 @@ pub fn write_built_in(
 ) -> eyre::Result<PathBuf> {
     let mut g: Value = serde_yaml::from_str(text)
         .wrap_err_with(|| format!("{by}: the built-in graph is not YAML"))?;
+    crate::derive::derive(&mut g, CREDIT_WINDOW, None)
+        .wrap_err_with(|| format!("{by}: the built-in graph"))?;
     let list = g.get_mut("nodes").and_then(Value::as_sequence_mut);
     for node in list.into_iter().flatten() {
         let Some(map) = node.as_mapping_mut() else {
@@ -282,6 +304,55 @@ pub fn write_built_in(
     std::fs::write(&path, format!("# Written by `{by}`.\n{body}"))
         .wrap_err_with(|| format!("cannot write {}", path.display()))?;
     Ok(path)
+}
+
+/// Writes `graph` (prepared: derived, its nodes pointed at their binaries) to `out` for the stock
+/// dora CLI: the message types into `types/` beside it, every relative `path:` made absolute
+/// from `graph_path`'s folder, the nodes' `build:` commands put back where this program runs
+/// from its sources. dora runs the nodes in the written graph's folder: relative paths in their
+/// arguments (a sink's `--out`) hold when it is written beside the original.
+///
+/// # Errors
+/// A file cannot be written.
+pub fn write_full(graph: &mut Value, graph_path: &Path, out: &Path) -> eyre::Result<()> {
+    let graph_dir = graph_path.parent().unwrap_or(Path::new("."));
+    let build = build_command();
+    let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);
+    for node in list.into_iter().flatten() {
+        let Some(map) = node.as_mapping_mut() else {
+            continue;
+        };
+        if let Some(p) = map.get("path").and_then(Value::as_str)
+            && Path::new(p).is_relative()
+            && graph_dir.join(p).exists()
+        {
+            let abs = graph_dir.join(p).display().to_string();
+            map.insert("path".into(), abs.into());
+        }
+        let neuspike = map.get("path").and_then(Value::as_str).is_some_and(|p| {
+            p.rsplit('/')
+                .next()
+                .is_some_and(|f| f.starts_with("neuspike-"))
+        });
+        if let (Some(cmd), true) = (&build, neuspike) {
+            map.insert("build".into(), Value::from(cmd.clone()));
+        }
+    }
+    let dir = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).wrap_err_with(|| format!("cannot create {}", dir.display()))?;
+    write_types(dir)?;
+    let body = serde_yaml::to_string(graph).wrap_err("cannot write the graph")?;
+    std::fs::write(
+        out,
+        format!(
+            "# Written by `neuspike graph` from {}: run it with `dora run` or `neuspike run`.\n{body}",
+            graph_path.display()
+        ),
+    )
+    .wrap_err_with(|| format!("cannot write {}", out.display()))
 }
 
 /// Appends `extra` to the `args:` of node `id`; an unknown node is an error.
@@ -436,15 +507,53 @@ impl Report {
         self.failures.iter().map(|(n, _)| n.clone()).collect()
     }
 
-    /// An error when any node failed.
+    /// What this run's sinks say was lost or cut: `<folder>: <input>: N missing, cut short,
+    /// never ended` for each input that did not come whole (none when no sink wrote a summary).
+    pub fn losses(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for dir in &self.out_dirs {
+            let path = dir.join("summary.yml");
+            let fresh = std::fs::metadata(&path)
+                .and_then(|m| m.modified())
+                .is_ok_and(|t| t >= self.started_at);
+            let Some(file) = fresh
+                .then(|| std::fs::read_to_string(&path).ok())
+                .flatten()
+                .and_then(|t| serde_yaml::from_str::<SummaryFile>(&t).ok())
+            else {
+                continue;
+            };
+            for (input, f) in &file.inputs {
+                let c = &f.counts;
+                if c.missing == 0 && !c.cut && c.ended {
+                    continue;
+                }
+                let mut what = vec![format!("{} of {} missing", c.missing, c.expected)];
+                if c.cut {
+                    what.push("cut short".into());
+                }
+                if !c.ended {
+                    what.push("never ended".into());
+                }
+                out.push(format!("{}: {input}: {}", dir.display(), what.join(", ")));
+            }
+        }
+        out
+    }
+
+    /// An error when any node failed, or a sink's input lost or cut data.
     pub fn into_result(self) -> eyre::Result<()> {
-        if self.failures.is_empty() {
-            Ok(())
-        } else {
-            Err(eyre!(
+        if !self.failures.is_empty() {
+            return Err(eyre!(
                 "the graph failed: nodes {}",
                 self.failed_nodes().join(", ")
-            ))
+            ));
+        }
+        let lost = self.losses();
+        if lost.is_empty() {
+            Ok(())
+        } else {
+            Err(eyre!("the run lost data: {}", lost.join("; ")))
         }
     }
 }
@@ -461,8 +570,9 @@ fn restarts_nodes(graph: &Value) -> bool {
 }
 
 /// Reads the graph at `graph_path` (canonical), appends the `--set` overrides to its nodes'
-/// arguments, runs its build commands (when `build_first`) and points its nodes at the node
-/// binaries; the `build:` keys are removed (done).
+/// arguments, derives what the runtime needs beyond its nodes, arguments and data edges
+/// ([`crate::derive::derive`]), runs its build commands (when `build_first`) and points its
+/// nodes at the node binaries; the `build:` keys are removed (done).
 ///
 /// # Errors
 /// The graph cannot be read, names an unknown node in an override, a build fails, or a node
@@ -476,6 +586,8 @@ pub fn prepare(
     for (id, extra) in overrides {
         apply_override(&mut graph, id, extra)?;
     }
+    crate::derive::derive(&mut graph, CREDIT_WINDOW, build_command().as_deref())
+        .wrap_err_with(|| format!("{}", graph_path.display()))?;
     if build_first {
         build(graph_path, &graph)?;
     }
@@ -635,7 +747,7 @@ mod tests {
     #[test]
     fn credits_are_wired_from_every_consumer_back_to_its_producers() {
         let mut g: Value = serde_yaml::from_str(
-            "nodes:\n  - id: src\n    outputs: [a, b]\n  - id: mid\n    inputs: { a: { source: src/a, queue_size: 1000, queue_policy: backpressure }, t: dora/timer/millis/10 }\n    outputs: [c]\n  - id: sink\n    inputs: { c: mid/c, b: src/b }\n",
+            "nodes:\n  - id: src\n    outputs: [a, b, v]\n  - id: mid\n    inputs: { a: { source: src/a, queue_size: 1000 }, t: dora/timer/millis/10 }\n    outputs: [c]\n  - id: sink\n    inputs: { c: mid/c, b: src/b }\n  - id: viewer\n    inputs: { v: { source: src/v, queue_policy: backpressure } }\n",
         )
         .expect("yaml");
         wire_credits(&mut g, 8);
@@ -662,7 +774,11 @@ mod tests {
             mid["inputs"]["credits-sink"]["source"].as_str(),
             Some("sink/credits")
         );
-        assert!(src["outputs"].as_sequence().is_some_and(|o| o.len() == 2));
+        assert!(src["outputs"].as_sequence().is_some_and(|o| o.len() == 3));
+        // An input left to dora's backpressure is not flow controlled by credits.
+        let viewer = node("viewer");
+        assert!(viewer["inputs"]["v"]["queue_size"].is_null());
+        assert!(src["inputs"]["credits-viewer"].is_null() && viewer["outputs"].is_null());
         assert_eq!(mid["outputs"][1].as_str(), Some("credits"));
         assert_eq!(sink["outputs"][0].as_str(), Some("credits"));
         assert_eq!(

@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
+use eyre::WrapErr;
 use neuspike::{graph, record};
 
 /// Spike and event cameras to high-speed video, as a dora dataflow.
@@ -41,6 +42,10 @@ enum Command {
         /// must be at the same path on every machine.
         #[arg(long, value_name = "ADDR[:PORT]")]
         coordinator: Option<String>,
+        /// Run every node's stage in this process, as one chain: no dora, no copies between
+        /// stages; every node must be a neuspike stage. Prints each stage's time.
+        #[arg(long, conflicts_with_all = ["coordinator", "one_daemon", "stop_after_s"])]
+        in_process: bool,
     },
     /// Run the default graph (both simulated cameras, TFP and TFI) on a built-in scene and print
     /// where the frames and metrics are, with the mean PSNR/SSIM per method.
@@ -51,6 +56,19 @@ enum Command {
         /// Skip the nodes' `build:` commands.
         #[arg(long)]
         no_build: bool,
+    },
+    /// Check a graph and draw it; with `--out`, write the whole dora graph it runs as (message
+    /// types, credit edges, `build:`, node binaries), with the message types beside it, for the
+    /// stock dora CLI (`dora run`, `dora validate --strict-types`).
+    Graph {
+        /// The graph file, as a user writes it (nodes, `path`, `args`, data edges).
+        graph: PathBuf,
+        /// Append arguments to a node's `args:`, as `run --set` does. Repeatable.
+        #[arg(long = "set", value_name = "NODE=ARGS")]
+        set: Vec<String>,
+        /// Write the whole graph here (a `.yml` file; its folder gets `types/`).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
     /// List the built-in scenes.
     Scenes,
@@ -283,11 +301,19 @@ fn run(cli: Cli) -> eyre::Result<()> {
             stop_after_s,
             one_daemon,
             coordinator,
+            in_process,
         } => {
             let overrides = set
                 .iter()
                 .map(|s| graph::parse_override(s))
                 .collect::<eyre::Result<Vec<_>>>()?;
+            if in_process {
+                let graph = neuspike::in_process::enter_graph_folder(&graph)?;
+                let (report, chain) = neuspike::in_process::run(&graph, &overrides)?;
+                neuspike::in_process::print_stages(&chain);
+                report.print();
+                return neuspike::in_process::check(&chain);
+            }
             let cluster = match coordinator {
                 Some(c) => Some(neuspike::cluster::parse_coordinator(&c)?),
                 None if !one_daemon && neuspike::cluster::places_nodes(&graph)? => {
@@ -524,6 +550,25 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 events.resolution = Some(neuspike_formats::Resolution::new(w, h));
             }
             println!("{}", record::describe(&file, &spikes, &events)?);
+            Ok(())
+        }
+        Command::Graph { graph, set, out } => {
+            let overrides = set
+                .iter()
+                .map(|s| graph::parse_override(s))
+                .collect::<eyre::Result<Vec<_>>>()?;
+            let graph = graph
+                .canonicalize()
+                .wrap_err_with(|| format!("graph {} not found", graph.display()))?;
+            let mut g = graph::prepare(&graph, &overrides, false)?;
+            print!("{}", neuspike::derive::draw(&g)?);
+            if let Some(out) = out {
+                graph::write_full(&mut g, &graph, &out)?;
+                println!(
+                    "\nwritten: {} (message types in its folder's types/)",
+                    out.display()
+                );
+            }
             Ok(())
         }
         Command::Scenes => {

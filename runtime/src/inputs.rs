@@ -8,10 +8,10 @@ use neuspike_schemas::arrow::array::ArrayRef;
 use neuspike_schemas::meta::{CUT, LINK_N, SEQ};
 use neuspike_schemas::{Meta, MetaExt, SeqStatus, SeqTracker, is_end_of_stream};
 
-use crate::Link;
 use crate::link::Polled;
 use crate::metadata::meta_from_dora;
 use crate::reorder::{Pushed, Reorder};
+use crate::{Flow, Link};
 
 /// What the receive loop hands a node.
 #[derive(Debug)]
@@ -33,15 +33,6 @@ pub enum Received<'a> {
         /// How many messages the sender announced.
         count: u64,
     },
-}
-
-/// Whether the receive loop goes on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Flow {
-    /// Take the next message.
-    Continue,
-    /// The node has all it needs: leave the loop.
-    Stop,
 }
 
 /// One input's stream: its sequence numbers and whether its end-of-stream marker came.

@@ -14,9 +14,9 @@ use neuspike_schemas::arrow::datatypes::DataType;
 use neuspike_schemas::meta::{CUT, LINK_N, ORIGIN_UNIX_NS, SEQ};
 use neuspike_schemas::{Credit, Message, MetaExt, end_of_stream_header};
 
-use crate::Flow;
 use crate::credit::{CREDITS, CreditLedger, CreditReturns};
 use crate::metadata::{meta_from_dora, meta_to_dora};
+use crate::{Flow, unix_now_ns};
 
 /// What waiting for an event gave.
 pub(crate) enum Polled {
@@ -77,13 +77,6 @@ struct Restarted {
 
 /// How often a restarted producer is sent its credits until a message from it arrives.
 const GREET_EVERY: std::time::Duration = std::time::Duration::from_millis(200);
-
-/// Now, Unix nanoseconds (0 before 1970, saturated after 2262).
-pub fn unix_now_ns() -> i64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| i64::try_from(d.as_nanos()).unwrap_or(i64::MAX))
-}
 
 /// The inputs of `node` that carry its consumers' credits.
 pub(crate) fn credit_inputs(node: &DoraNode) -> BTreeSet<String> {
@@ -403,10 +396,15 @@ impl Link {
 
     /// Declares output `id`, carrying messages of type `M`.
     pub fn declare<M: Message>(&mut self, id: &str) -> &mut Self {
+        self.declare_as(id, M::data_type())
+    }
+
+    /// Declares output `id`, carrying messages whose payload is `data_type` (a stage's port).
+    pub fn declare_as(&mut self, id: &str, data_type: DataType) -> &mut Self {
         if !self.declared(id) {
             self.outputs.push(Output {
                 id: DataId::from(id.to_string()),
-                data_type: M::data_type(),
+                data_type,
                 count: 0,
                 sent: 0,
                 ended: false,
@@ -541,6 +539,17 @@ pub fn produce(
     link: &mut Link,
     mut step: impl FnMut(&mut Link) -> eyre::Result<Flow>,
 ) -> eyre::Result<()> {
+    produce_with(link, &mut (), |link, ()| step(link), |_, ()| Ok(()))
+}
+
+/// [`produce`] over a source's `state`, with `finish` called once the steps are over (whatever
+/// happened), before the outputs end.
+pub(crate) fn produce_with<S: ?Sized>(
+    link: &mut Link,
+    state: &mut S,
+    mut step: impl FnMut(&mut Link, &mut S) -> eyre::Result<Flow>,
+    finish: impl FnOnce(&mut Link, &mut S) -> eyre::Result<()>,
+) -> eyre::Result<()> {
     let result = loop {
         match link.stop_requested() {
             Ok(true) => break Ok(()),
@@ -553,12 +562,13 @@ pub fn produce(
             tracing::warn!("every node this source feeds has ended before it: stopping");
             break Ok(());
         }
-        match step(link) {
+        match step(link, state) {
             Ok(Flow::Continue) => {}
             Ok(Flow::Stop) => break Ok(()),
             Err(e) => break Err(e),
         }
     };
+    let result = result.and(finish(link, state));
     if result.is_err() {
         link.mark_cut();
     }

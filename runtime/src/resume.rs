@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use dora_node_api::DoraNode;
 use eyre::WrapErr;
 
-use crate::link::unix_now_ns;
+use crate::unix_now_ns;
 
 /// A source's first start, found again after a restart.
 #[derive(Debug)]

@@ -29,6 +29,9 @@
 use std::collections::VecDeque;
 
 pub mod rig;
+mod stage;
+
+pub use stage::AlignStage;
 
 use neuspike_geometry::Homography;
 use neuspike_schemas::{AlignedWindow, Event, EventBatch, SpikeChunk, bytes_per_plane};

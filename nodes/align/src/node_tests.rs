@@ -2,6 +2,8 @@
 
 use super::*;
 use neuspike_runtime::testing::{CannedInputs, output_ids, payload_len};
+#[allow(unused_imports)]
+use neuspike_schemas::{AlignedWindow, EventBatch, Message, SpikeChunk};
 
 fn chunk(first: u64, n: usize, seq: u64) -> SpikeChunk {
     SpikeChunk {
@@ -35,7 +37,7 @@ fn windows_then_end_of_stream() {
         ..Default::default()
     };
     let out = c
-        .run(|node, events| run(node, events, Aligner::new(cfg, true)))
+        .run(|node, events| run(node, events, AlignStage::new(cfg, true, false)))
         .unwrap();
     // 100 planes: references 20, 40, 60, 80 (80 + 16 = 96 <= 99; 100 would need plane 116).
     assert_eq!(output_ids(&out), vec!["windows"; 5]);
@@ -71,7 +73,7 @@ fn event_stream_follows_each_window_and_ends() {
         ..Default::default()
     };
     let out = c
-        .run(|node, events| run(node, events, Aligner::new(cfg, true).with_event_stream()))
+        .run(|node, events| run(node, events, AlignStage::new(cfg, true, true)))
         .unwrap();
     let ids = output_ids(&out);
     assert_eq!(
@@ -100,7 +102,13 @@ fn bad_chunk_stops_with_a_named_error() {
     );
     c.raw("spikes", meta, data).unwrap();
     let err = c
-        .run(|node, events| run(node, events, Aligner::new(AlignConfig::default(), false)))
+        .run(|node, events| {
+            run(
+                node,
+                events,
+                AlignStage::new(AlignConfig::default(), false, false),
+            )
+        })
         .unwrap_err();
     assert!(format!("{err:#}").contains("7 bytes"), "{err:#}");
 }

@@ -18,10 +18,10 @@
 use dora_node_api::{DoraNode, EventStream};
 use std::time::Duration;
 
-use neuspike_event_source::playback::{EventSource, EventSourceConfig};
+use neuspike_event_source::playback::{EventSource, EventSourceConfig, EventSourceStage};
 use neuspike_event_source::ros2::{RosEvents, RosTaken};
 use neuspike_net::{Remote, ZenohArgs};
-use neuspike_runtime::{Arrival, Flow, Link, Pace, Pacer, produce, relay, relay_remote};
+use neuspike_runtime::{Arrival, Link, Pace, Pacer, relay, relay_remote};
 use neuspike_schemas::{EventBatch, Message};
 
 /// Node arguments (the graph's `args:`).
@@ -122,28 +122,10 @@ fn run_network(node: DoraNode, events: EventStream, args: &Args) -> eyre::Result
 }
 
 /// Sends every batch, then the end-of-stream marker, whatever happened.
-fn run(
-    node: DoraNode,
-    events: EventStream,
-    mut source: EventSource,
-    args: &Args,
-) -> eyre::Result<()> {
-    let mut out = Link::new(node, events)?;
-    out.declare::<EventBatch>("events");
+fn run(node: DoraNode, events: EventStream, source: EventSource, args: &Args) -> eyre::Result<()> {
     source.log_start();
-    let pacer = Pacer::start(args.pace);
-    let played = produce(&mut out, |out| {
-        let Some(step) = source.next_step()? else {
-            return Ok(Flow::Stop);
-        };
-        if let Some(due_unix_ns) = pacer.wait_until(step.due_ns) {
-            out.set_origin(due_unix_ns);
-        }
-        out.send("events", &step.batch)?;
-        Ok(Flow::Continue)
-    });
-    source.log_end();
-    played
+    let mut stage = EventSourceStage::new(source, Pacer::start(args.pace));
+    neuspike_runtime::run_stage(node, events, &mut stage)
 }
 
 #[cfg(test)]

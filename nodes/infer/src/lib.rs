@@ -39,6 +39,7 @@ pub mod learned;
 mod online;
 mod reconstructor;
 mod recursive;
+mod stage;
 #[cfg(test)]
 mod testing;
 
@@ -59,6 +60,7 @@ pub use neuspike_represent::EventSlice;
 pub use online::{MethodInputs, Online, OnlineParams, OnlineStats, SpikeInput, Window};
 pub use reconstructor::{EVENTS, InferConfig, REPRESENTATION, Reconstructor, WINDOWS};
 pub use recursive::{RateFusion, RateFusionParams};
+pub use stage::{FRAMES, InferStage};
 
 /// Pixels below which the kernels stay on the calling thread. These maps are memory-bound (tens
 /// of microseconds for a 400x250 frame on one core); in a graph every node shares the cores, and

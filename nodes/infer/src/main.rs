@@ -13,9 +13,8 @@
 //! inputs and planned before the first message is read.
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_infer::{EVENTS, InferConfig, Reconstructor, WINDOWS};
-use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, receive};
-use neuspike_schemas::{AlignedWindow, EventBatch, Frame, Message, Representation};
+use neuspike_infer::{InferConfig, InferStage, Reconstructor};
+use neuspike_runtime::graph_inputs;
 
 /// tract allocates every intermediate tensor afresh on each run; with the system allocator those
 /// megabytes went back to the kernel and came back as page faults on every frame (measured with
@@ -54,40 +53,8 @@ fn start() -> eyre::Result<()> {
 }
 
 /// Reconstructs every window whose inputs all came, in order, and sends its frame.
-fn run(node: DoraNode, events: EventStream, mut stage: Reconstructor) -> eyre::Result<()> {
-    let mut out = Link::new(node, events)?;
-    out.declare::<Frame>("frames");
-    let mut inputs = Inputs::new(stage.input_ids());
-    let infer_err = |e| eyre::eyre!("infer: {e}");
-    receive(&mut out, &mut inputs, |out, msg| {
-        match msg {
-            Received::Message {
-                input: EVENTS,
-                meta,
-                data,
-            } => stage.push_events(EventBatch::from_arrow(meta, data)?),
-            Received::Message {
-                input: WINDOWS,
-                meta,
-                data,
-            } => stage.push_window(AlignedWindow::from_arrow(meta, data)?),
-            Received::Message { input, meta, data } => {
-                stage.push_representation(input, Representation::from_arrow(meta, data)?)
-            }
-            Received::End { .. } => {}
-        }
-        for frame in stage.ready(false).map_err(infer_err)? {
-            out.send("frames", &frame)?;
-        }
-        Ok(Flow::Continue)
-    })?;
-    for frame in stage.ready(true).map_err(infer_err)? {
-        out.send("frames", &frame)?;
-    }
-    // Windows lost upstream at the tail show downstream too.
-    out.at_least("frames", inputs.announced())?;
-    stage.log_end(out.count("frames"), inputs.missing());
-    out.end_all()
+fn run(node: DoraNode, events: EventStream, stage: Reconstructor) -> eyre::Result<()> {
+    neuspike_runtime::run_stage(node, events, &mut InferStage::new(stage))
 }
 
 #[cfg(test)]

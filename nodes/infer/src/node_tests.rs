@@ -5,6 +5,8 @@ use ndarray::{Array3, Axis};
 use neuspike_infer::Method;
 use neuspike_infer::learned::{LearnedInput, LearnedModel, LearnedOutput};
 use neuspike_runtime::testing::{CannedInputs, output_ids};
+#[allow(unused_imports)]
+use neuspike_schemas::{AlignedWindow, EventBatch, Frame, Message, Representation};
 use std::path::PathBuf;
 
 fn rep(kind: &str, value: f32, seq: u64) -> Representation {

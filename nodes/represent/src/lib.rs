@@ -27,6 +27,7 @@
 mod error;
 mod event;
 mod spike;
+mod stage;
 mod stats;
 mod stp;
 mod surface;
@@ -49,6 +50,7 @@ pub use spike::{
     spike_representation_packed_into, spike_representation_reference, tfi_into, tfi_reference,
     tfp_into, tfp_packed_into, tfp_packed_into_with, tfp_reference,
 };
+pub use stage::RepresentStage;
 pub use stats::{
     BLOCK, CELL, WindowStats, central_window_stats, choice_stats, window_stats,
     window_stats_reference,

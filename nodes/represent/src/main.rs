@@ -8,9 +8,9 @@
 //! their last spike there, and the count travels as the `gaps` parameter.
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_represent::{RepresentConfig, Representer};
-use neuspike_runtime::{Flow, Inputs, Link, Received, graph_outputs, receive};
-use neuspike_schemas::{AlignedWindow, Message, Representation, RepresentationKind};
+use neuspike_represent::{RepresentConfig, RepresentStage, Representer};
+use neuspike_runtime::graph_outputs;
+use neuspike_schemas::RepresentationKind;
 
 /// Node arguments (the graph's `args:`).
 #[derive(Clone, Debug, clap::Parser)]
@@ -47,40 +47,12 @@ fn start() -> eyre::Result<()> {
 fn run(
     node: DoraNode,
     events: EventStream,
-    mut representer: Representer,
+    representer: Representer,
     kinds: &[RepresentationKind],
 ) -> eyre::Result<()> {
     tracing::info!(outputs = ?kinds.iter().map(|k| k.name()).collect::<Vec<_>>(), "represent started");
-    let mut out = Link::new(node, events)?;
-    for k in kinds {
-        out.declare::<Representation>(k.name());
-    }
-    let mut inputs = Inputs::new(["windows"]);
-    receive(&mut out, &mut inputs, |out, msg| {
-        if let Received::Message { meta, data, .. } = msg {
-            let w = AlignedWindow::from_arrow(meta, data)?;
-            for &kind in kinds {
-                let r = representer
-                    .represent(kind, &w)
-                    .map_err(|e| eyre::eyre!("represent: window {} ({kind}): {e}", w.seq()))?;
-                // Sequence numbers follow the windows', so a lost window shows downstream too.
-                out.send(kind.name(), &r)?;
-            }
-        }
-        Ok(Flow::Continue)
-    })?;
-    // A window lost at the tail shows downstream too.
-    let announced = inputs.announced();
-    for k in kinds {
-        out.at_least(k.name(), announced)?;
-    }
-    out.end_all()?;
-    tracing::info!(
-        windows = inputs.get("windows").map_or(0, |s| s.seq.received()),
-        lost = inputs.missing(),
-        "represent finished"
-    );
-    Ok(())
+    let mut stage = RepresentStage::new(representer, kinds);
+    neuspike_runtime::run_stage(node, events, &mut stage)
 }
 
 #[cfg(test)]

@@ -3,6 +3,8 @@
 use super::*;
 use ndarray::{Array3, Axis};
 use neuspike_runtime::testing::{CannedInputs, output_ids};
+#[allow(unused_imports)]
+use neuspike_schemas::{AlignedWindow, Message, Representation};
 use neuspike_schemas::{EventBatch, SpikeChunk, pack_planes};
 
 fn window(seq: u64) -> AlignedWindow {

@@ -25,11 +25,13 @@ use std::path::PathBuf;
 pub mod metrics;
 pub mod png_out;
 pub mod report;
+mod stage;
 mod writer;
 
 pub use metrics::MetricsError;
 pub use png_out::BitDepth;
 pub use report::{FrameMetrics, MetricsCsv, Summary};
+pub use stage::SinkStage;
 pub use writer::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
 
 /// What can go wrong while the sink writes or reads its files. Every message names the file; the

@@ -7,10 +7,8 @@
 
 use dora_node_api::{DoraNode, EventStream};
 use eyre::WrapErr;
-use neuspike_runtime::{Flow, Inputs, Link, Received, graph_inputs, receive, unix_now_ns};
-use neuspike_schemas::meta::ORIGIN_UNIX_NS;
-use neuspike_schemas::{Frame, Message, Parameter};
-use neuspike_sink::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
+use neuspike_runtime::graph_inputs;
+use neuspike_sink::{SinkConfig, SinkStage};
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
@@ -44,46 +42,8 @@ fn run(
     cfg: &SinkConfig,
     inputs: &[String],
 ) -> eyre::Result<()> {
-    let has_gt = inputs.iter().any(|i| i == GROUND_TRUTH);
-    let mut sink = Sink::new(cfg, has_gt).wrap_err("sink")?;
-    let mut streams = Inputs::new(inputs);
-    let mut link = Link::new(node, events)?;
-    receive(&mut link, &mut streams, |_, msg| {
-        match msg {
-            Received::Message { input, meta, data } => {
-                let f = Frame::from_arrow(meta, data)
-                    .wrap_err_with(|| format!("sink: bad frame on input `{input}`"))?;
-                if input == GROUND_TRUTH {
-                    sink.on_truth(f)?;
-                } else {
-                    if let Some(Parameter::Integer(origin)) = meta.get(ORIGIN_UNIX_NS) {
-                        let now = unix_now_ns();
-                        sink.on_latency(input, now.saturating_sub(*origin), now);
-                    }
-                    sink.on_frame(input, f)?;
-                }
-            }
-            Received::End {
-                input: GROUND_TRUTH,
-                ..
-            } => sink.truth_ended()?,
-            Received::End { .. } => {}
-        }
-        Ok(Flow::Continue)
-    })?;
-    let tallies = streams.iter().map(|(name, s)| {
-        let tally = InputTally {
-            announced: s.seq.announced(),
-            received: s.seq.received(),
-            missing: s.seq.missing(),
-            ended: s.ended,
-            cut: s.broken,
-        };
-        (name, tally)
-    });
-    let path = sink.finish(tallies)?;
-    tracing::info!("summary written to {}", path.display());
-    Ok(())
+    let mut stage = SinkStage::new(cfg, inputs).wrap_err("sink")?;
+    neuspike_runtime::run_stage(node, events, &mut stage)
 }
 
 #[cfg(test)]

@@ -2,7 +2,7 @@
 
 use super::*;
 use ndarray::Array2;
-use neuspike_schemas::FrameKind;
+use neuspike_schemas::{Frame, FrameKind};
 use neuspike_sink::BitDepth;
 
 fn inputs(ids: &[&str]) -> Vec<String> {

@@ -23,9 +23,9 @@ use std::time::Duration;
 
 use dora_node_api::{DoraNode, EventStream};
 use neuspike_net::{Remote, ZenohArgs};
-use neuspike_runtime::{Flow, Link, Pace, Pacer, Resume, produce, relay_remote};
-use neuspike_schemas::{Frame, Message, SpikeChunk};
-use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig};
+use neuspike_runtime::{Link, Pace, Pacer, Resume, relay_remote};
+use neuspike_schemas::{Message, SpikeChunk};
+use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig, SpikeSourceStage};
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]
@@ -100,13 +100,8 @@ fn run(
     mut source: SpikeSource,
     args: &Args,
 ) -> eyre::Result<()> {
-    let mut out = Link::new(node, events)?;
-    out.declare::<SpikeChunk>("spikes");
-    if source.sends_truth() {
-        out.declare::<Frame>("ground_truth");
-    }
     source.log_start();
-    let resume = Resume::for_node(out.node())?;
+    let resume = Resume::for_node(&node)?;
     let pacer = Pacer::started_at(args.pace, resume.first_start_unix_ns);
     if resume.restarted {
         if args.pace != Pace::Realtime {
@@ -121,21 +116,9 @@ fn run(
             "restarted: resuming on the first start's clock; the planes missed are a gap"
         );
     }
-    produce(&mut out, |out| {
-        let Some(step) = source.next_step()? else {
-            return Ok(Flow::Stop);
-        };
-        if let Some(due_unix_ns) = pacer.wait_until(step.due_ns) {
-            out.set_origin(due_unix_ns);
-        }
-        out.send("spikes", &step.chunk)?;
-        for frame in &step.truth {
-            out.send("ground_truth", frame)?;
-        }
-        Ok(Flow::Continue)
-    })?;
+    neuspike_runtime::run_stage(node, events, &mut SpikeSourceStage::new(source, pacer))?;
     resume.finished();
-    Ok(source.finish()?)
+    Ok(())
 }
 
 #[cfg(test)]

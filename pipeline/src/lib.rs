@@ -1,0 +1,16 @@
+//! neuspike's stages by name, and a graph run in one process.
+//!
+//! - [`make_stage`]: a stage (`spike-source`, `event-source`, `align`, `represent`, `infer`,
+//!   `sink`) made from the arguments its node takes in a graph and the inputs and outputs the
+//!   graph wires, as the node binary makes it.
+//! - [`GraphChain`]: a dora graph's nodes as a [`neuspike_stage::Chain`]: the same stages, the
+//!   same wiring and the same rules for order, loss and the end of a stream, without dora.
+#![deny(missing_docs)]
+
+mod graph;
+mod ports;
+mod registry;
+
+pub use graph::{GraphChain, GraphNode};
+pub use ports::{Side, port_type};
+pub use registry::{STAGES, make_stage, stage_kind};
