@@ -221,7 +221,11 @@ nodes:
             e.contains("node `viewer`") && e.contains("not a neuspike stage"),
             "{e}"
         );
-        let e = GraphChain::from_yaml(&GRAPH.replace("tfp: infer/frames", "tfp: infer/frame"))
+        let dir = tempfile::tempdir().expect("tempdir");
+        let graph = GRAPH
+            .replace("tfp: infer/frames", "tfp: infer/frame")
+            .replace("OUT", &dir.path().display().to_string());
+        let e = GraphChain::from_yaml(&graph)
             .expect("graph")
             .chain()
             .err()
