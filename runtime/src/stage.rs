@@ -5,7 +5,7 @@ use dora_node_api::{DoraNode, EventStream};
 use eyre::eyre;
 use neuspike_schemas::Parameter;
 use neuspike_schemas::meta::ORIGIN_UNIX_NS;
-use neuspike_stage::{Flow, Msg, Outbox, Stage, Tallies, Tally};
+use neuspike_stage::{Msg, Outbox, Stage, Tallies, Tally};
 
 use crate::{Inputs, Link, Received, receive};
 
