@@ -76,6 +76,9 @@ struct Tap<'a> {
     f: TapFn<'a>,
 }
 
+// A message travels by value through the queue (a box per message would cost an allocation
+// on the hot path); the queue holds a handful at a time.
+#[allow(clippy::large_enum_variant)]
 enum Item {
     Message {
         to: usize,

@@ -418,6 +418,54 @@ impl EventFile {
     }
 }
 
+/// The event camera as a source stage: output `events`, one batch per interval, each sent when
+/// its pace says ([`Pacer`]), stamped with the wall time its camera would have delivered it.
+pub struct EventSourceStage {
+    source: EventSource,
+    pacer: Pacer,
+}
+
+impl EventSourceStage {
+    /// The stage of `source`, paced by `pacer`.
+    pub fn new(source: EventSource, pacer: Pacer) -> Self {
+        EventSourceStage { source, pacer }
+    }
+}
+
+impl Stage for EventSourceStage {
+    fn name(&self) -> &str {
+        "event-source"
+    }
+
+    fn inputs(&self) -> Vec<Port> {
+        vec![]
+    }
+
+    fn outputs(&self) -> Vec<Port> {
+        vec![Port::new("events", MsgType::EventBatch)]
+    }
+
+    fn step(&mut self, out: &mut Outbox) -> eyre::Result<Flow> {
+        let Some(step) = self.source.next_step()? else {
+            return Ok(Flow::Stop);
+        };
+        if let Some(due_unix_ns) = self.pacer.wait_until(step.due_ns) {
+            out.set_origin(due_unix_ns);
+        }
+        out.send("events", step.batch);
+        Ok(Flow::Continue)
+    }
+
+    fn on_message(&mut self, _: &str, _: Msg, _: &mut Outbox) -> eyre::Result<Flow> {
+        Ok(Flow::Continue)
+    }
+
+    fn finish(&mut self, _: &Tallies, _: &mut Outbox) -> eyre::Result<()> {
+        self.source.log_end();
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -477,53 +525,5 @@ mod tests {
         };
         let e = EventSource::open(&cfg).err().expect("refused").to_string();
         assert!(e.contains("end-ns") && e.contains("start-ns"), "{e}");
-    }
-}
-
-/// The event camera as a source stage: output `events`, one batch per interval, each sent when
-/// its pace says ([`Pacer`]), stamped with the wall time its camera would have delivered it.
-pub struct EventSourceStage {
-    source: EventSource,
-    pacer: Pacer,
-}
-
-impl EventSourceStage {
-    /// The stage of `source`, paced by `pacer`.
-    pub fn new(source: EventSource, pacer: Pacer) -> Self {
-        EventSourceStage { source, pacer }
-    }
-}
-
-impl Stage for EventSourceStage {
-    fn name(&self) -> &str {
-        "event-source"
-    }
-
-    fn inputs(&self) -> Vec<Port> {
-        vec![]
-    }
-
-    fn outputs(&self) -> Vec<Port> {
-        vec![Port::new("events", MsgType::EventBatch)]
-    }
-
-    fn step(&mut self, out: &mut Outbox) -> eyre::Result<Flow> {
-        let Some(step) = self.source.next_step()? else {
-            return Ok(Flow::Stop);
-        };
-        if let Some(due_unix_ns) = self.pacer.wait_until(step.due_ns) {
-            out.set_origin(due_unix_ns);
-        }
-        out.send("events", step.batch);
-        Ok(Flow::Continue)
-    }
-
-    fn on_message(&mut self, _: &str, _: Msg, _: &mut Outbox) -> eyre::Result<Flow> {
-        Ok(Flow::Continue)
-    }
-
-    fn finish(&mut self, _: &Tallies, _: &mut Outbox) -> eyre::Result<()> {
-        self.source.log_end();
-        Ok(())
     }
 }

@@ -623,6 +623,72 @@ impl SpikeFile {
     }
 }
 
+/// The spike camera as a source stage: output `spikes` and, when the source makes it,
+/// `ground_truth`; each chunk sent when its pace says ([`Pacer`]), stamped with the wall time
+/// its camera would have delivered it.
+pub struct SpikeSourceStage {
+    source: Option<SpikeSource>,
+    truth: bool,
+    pacer: Pacer,
+}
+
+impl SpikeSourceStage {
+    /// The stage of `source`, paced by `pacer`.
+    pub fn new(source: SpikeSource, pacer: Pacer) -> Self {
+        SpikeSourceStage {
+            truth: source.sends_truth(),
+            source: Some(source),
+            pacer,
+        }
+    }
+}
+
+impl Stage for SpikeSourceStage {
+    fn name(&self) -> &str {
+        "spike-source"
+    }
+
+    fn inputs(&self) -> Vec<Port> {
+        vec![]
+    }
+
+    fn outputs(&self) -> Vec<Port> {
+        let mut ports = vec![Port::new("spikes", MsgType::SpikeChunk)];
+        if self.truth {
+            ports.push(Port::new("ground_truth", MsgType::Frame));
+        }
+        ports
+    }
+
+    fn step(&mut self, out: &mut Outbox) -> eyre::Result<Flow> {
+        let Some(source) = self.source.as_mut() else {
+            return Ok(Flow::Stop);
+        };
+        let Some(step) = source.next_step()? else {
+            return Ok(Flow::Stop);
+        };
+        if let Some(due_unix_ns) = self.pacer.wait_until(step.due_ns) {
+            out.set_origin(due_unix_ns);
+        }
+        out.send("spikes", step.chunk);
+        for frame in step.truth {
+            out.send("ground_truth", frame);
+        }
+        Ok(Flow::Continue)
+    }
+
+    fn on_message(&mut self, _: &str, _: Msg, _: &mut Outbox) -> eyre::Result<Flow> {
+        Ok(Flow::Continue)
+    }
+
+    fn finish(&mut self, _: &Tallies, _: &mut Outbox) -> eyre::Result<()> {
+        match self.source.take() {
+            Some(source) => Ok(source.finish()?),
+            None => Ok(()),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -712,71 +778,5 @@ mod tests {
             .expect("past the end")
             .to_string();
         assert!(e.contains("spike-source"), "{e}");
-    }
-}
-
-/// The spike camera as a source stage: output `spikes` and, when the source makes it,
-/// `ground_truth`; each chunk sent when its pace says ([`Pacer`]), stamped with the wall time
-/// its camera would have delivered it.
-pub struct SpikeSourceStage {
-    source: Option<SpikeSource>,
-    truth: bool,
-    pacer: Pacer,
-}
-
-impl SpikeSourceStage {
-    /// The stage of `source`, paced by `pacer`.
-    pub fn new(source: SpikeSource, pacer: Pacer) -> Self {
-        SpikeSourceStage {
-            truth: source.sends_truth(),
-            source: Some(source),
-            pacer,
-        }
-    }
-}
-
-impl Stage for SpikeSourceStage {
-    fn name(&self) -> &str {
-        "spike-source"
-    }
-
-    fn inputs(&self) -> Vec<Port> {
-        vec![]
-    }
-
-    fn outputs(&self) -> Vec<Port> {
-        let mut ports = vec![Port::new("spikes", MsgType::SpikeChunk)];
-        if self.truth {
-            ports.push(Port::new("ground_truth", MsgType::Frame));
-        }
-        ports
-    }
-
-    fn step(&mut self, out: &mut Outbox) -> eyre::Result<Flow> {
-        let Some(source) = self.source.as_mut() else {
-            return Ok(Flow::Stop);
-        };
-        let Some(step) = source.next_step()? else {
-            return Ok(Flow::Stop);
-        };
-        if let Some(due_unix_ns) = self.pacer.wait_until(step.due_ns) {
-            out.set_origin(due_unix_ns);
-        }
-        out.send("spikes", step.chunk);
-        for frame in step.truth {
-            out.send("ground_truth", frame);
-        }
-        Ok(Flow::Continue)
-    }
-
-    fn on_message(&mut self, _: &str, _: Msg, _: &mut Outbox) -> eyre::Result<Flow> {
-        Ok(Flow::Continue)
-    }
-
-    fn finish(&mut self, _: &Tallies, _: &mut Outbox) -> eyre::Result<()> {
-        match self.source.take() {
-            Some(source) => Ok(source.finish()?),
-            None => Ok(()),
-        }
     }
 }

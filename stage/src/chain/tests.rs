@@ -283,7 +283,7 @@ fn a_wrong_edge_is_refused_naming_both_ends() {
         "chain: no stage `camera`"
     );
     assert_eq!(
-        err(c.add("sink", Doubler::new()).map(|c| c)),
+        err(c.add("sink", Doubler::new())),
         "chain: stage id `sink` is used twice"
     );
     c.connect("source/frames", "sink/a").expect("wire");
