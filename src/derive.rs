@@ -4,7 +4,7 @@
 //! fault one line naming both ends of the edge.
 
 use eyre::{bail, eyre};
-use neuspike_pipeline::{Side, port_type, stage_kind};
+use neuspike_pipeline::{Side, data_inputs, port_type, stage_kind};
 use neuspike_stage::MsgType;
 use serde_yaml::{Mapping, Value};
 
@@ -91,26 +91,15 @@ pub fn edges(graph: &Value) -> eyre::Result<Vec<Edge>> {
     let mut out = Vec::new();
     for n in list(graph) {
         let id = text(n, "id").unwrap_or_default();
-        let Some(map) = n.get("inputs").and_then(Value::as_mapping) else {
-            continue;
-        };
-        for (k, spec) in map {
-            let input = k.as_str().unwrap_or_default();
-            let Some(source) = source_of(spec) else {
-                bail!("input `{id}/{input}` names no source");
-            };
-            let Some((from, output)) = source.split_once('/') else {
-                bail!("input `{id}/{input}`: source `{source}` is not `node/output`");
-            };
-            if from == "dora" || output == CREDITS {
-                continue;
+        for (input, source) in data_inputs(id, n)? {
+            if let Some((from, output)) = source.split_once('/') {
+                out.push(Edge {
+                    from: from.to_string(),
+                    output: output.to_string(),
+                    to: id.to_string(),
+                    input,
+                });
             }
-            out.push(Edge {
-                from: from.to_string(),
-                output: output.to_string(),
-                to: id.to_string(),
-                input: input.to_string(),
-            });
         }
     }
     Ok(out)

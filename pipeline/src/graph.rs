@@ -39,6 +39,36 @@ fn text<'v>(v: &'v Value, key: &str) -> Option<&'v str> {
     v.get(key).and_then(Value::as_str)
 }
 
+/// The data inputs of node `id` of a dora graph: `(input, "node/output")` in the graph's order,
+/// the credit edges and dora's timers left out.
+///
+/// # Errors
+/// An input without a source, or whose source is not `node/output`.
+pub fn data_inputs(id: &str, node: &Value) -> eyre::Result<Vec<(String, String)>> {
+    let mut inputs = Vec::new();
+    let Some(map) = node.get("inputs").and_then(Value::as_mapping) else {
+        return Ok(inputs);
+    };
+    for (k, spec) in map {
+        let input = k.as_str().unwrap_or_default();
+        let source = match spec {
+            Value::String(s) => Some(s.as_str()),
+            other => text(other, "source"),
+        };
+        let Some(source) = source else {
+            bail!("input `{id}/{input}` names no source");
+        };
+        let Some((from, output)) = source.split_once('/') else {
+            bail!("input `{id}/{input}`: source `{source}` is not `node/output`");
+        };
+        if output == CREDITS || from == "dora" {
+            continue;
+        }
+        inputs.push((input.to_string(), source.to_string()));
+    }
+    Ok(inputs)
+}
+
 impl GraphChain {
     /// Reads the graph file at `path`.
     ///
@@ -78,25 +108,7 @@ impl GraphChain {
                     .ok_or_else(|| eyre!("node `{id}`: `args: {s}` has an unclosed quote"))?,
                 Some(other) => bail!("node `{id}`: `args` is {other:?}, expected a string"),
             };
-            let mut inputs = Vec::new();
-            if let Some(map) = n.get("inputs").and_then(Value::as_mapping) {
-                for (k, src) in map {
-                    let input = k.as_str().unwrap_or_default().to_string();
-                    let source = match src {
-                        Value::String(s) => s.as_str(),
-                        other => text(other, "source").unwrap_or_default(),
-                    };
-                    let Some((node, output)) = source.split_once('/') else {
-                        bail!(
-                            "node `{id}`: input `{input}`: source `{source}` is not `node/output`"
-                        );
-                    };
-                    if output == CREDITS || node == "dora" {
-                        continue;
-                    }
-                    inputs.push((input, source.to_string()));
-                }
-            }
+            let inputs = data_inputs(id, n)?;
             let outputs = n
                 .get("outputs")
                 .and_then(Value::as_sequence)

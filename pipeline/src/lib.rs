@@ -11,6 +11,6 @@ mod graph;
 mod ports;
 mod registry;
 
-pub use graph::{GraphChain, GraphNode};
+pub use graph::{GraphChain, GraphNode, data_inputs};
 pub use ports::{Side, port_type};
 pub use registry::{STAGES, make_stage, stage_kind};
