@@ -35,9 +35,14 @@ pub struct LiveBenchOptions {
     /// The sink writes a PNG of one frame in N (every frame is received and counted).
     #[arg(long, default_value_t = 10)]
     pub write_every: u64,
-    /// Runs, one after the other.
+    /// Runs of each layout, one after the other.
     #[arg(long, default_value_t = 1)]
     pub runs: usize,
+    /// How the stages share processes, each layout run in turn (comma-separated): `nodes`, one
+    /// process a stage; `core`, align, represent and infer in one; `one`, all five in one (the
+    /// camera on a thread of its own). The first is the baseline of the `vs` column.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [Layout::Nodes, Layout::One])]
+    pub processes: Vec<Layout>,
     /// Folder of the graph and its frames.
     #[arg(long, default_value = "out/bench-live")]
     pub out: PathBuf,
@@ -46,6 +51,37 @@ pub struct LiveBenchOptions {
     /// does not grow (see `scripts/soak.sh`).
     #[arg(long)]
     pub soak: bool,
+}
+
+/// How the stages of the live graph share processes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Layout {
+    /// One process a stage (five dora nodes).
+    Nodes,
+    /// Align, represent and infer in one process (three dora nodes).
+    Core,
+    /// Every stage in one process, the camera on a thread of its own (one dora node).
+    One,
+}
+
+impl Layout {
+    /// Its name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Layout::Nodes => "nodes",
+            Layout::Core => "core",
+            Layout::One => "one",
+        }
+    }
+
+    /// The graph's `processes:` for it (none for `nodes`).
+    fn processes(self) -> Option<&'static str> {
+        match self {
+            Layout::Nodes => None,
+            Layout::Core => Some("{core: [align, represent, infer-tfp]}"),
+            Layout::One => Some("{pipeline: [spike-source, align, represent, infer-tfp, sink]}"),
+        }
+    }
 }
 
 /// One run's figures.
@@ -78,8 +114,9 @@ impl LiveRun {
     }
 }
 
-/// Checks the options and writes the graph with them into `opts.out`; returns its path.
-pub fn prepare(opts: &LiveBenchOptions) -> eyre::Result<PathBuf> {
+/// Checks the options and writes the graph with them, its stages in processes as `layout`
+/// says, into `opts.out/<layout>/`; returns its path.
+pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf> {
     let bad = |name: &str, v: String, why: &str| -> eyre::Result<PathBuf> {
         bail!("bench-live: --{name} = {v} is invalid: {why}")
     };
@@ -102,15 +139,20 @@ pub fn prepare(opts: &LiveBenchOptions) -> eyre::Result<PathBuf> {
     }
     let stride = opts.rate_hz / opts.fps;
     let planes = (opts.seconds * opts.rate_hz as f64).round() as u64;
-    std::fs::create_dir_all(&opts.out)
-        .wrap_err_with(|| format!("cannot create {}", opts.out.display()))?;
-    let out = opts.out.canonicalize()?;
+    let out = opts.out.join(layout.name());
+    std::fs::create_dir_all(&out).wrap_err_with(|| format!("cannot create {}", out.display()))?;
+    let out = out.canonicalize()?;
     let frames = out.join("frames");
     if frames.exists() {
         std::fs::remove_dir_all(&frames)
             .wrap_err_with(|| format!("cannot clear {}", frames.display()))?;
     }
-    graph::write_built_in(LIVE_GRAPH, &out, "neuspike bench-live", |id, _| match id {
+    let mut g: serde_yaml::Value = serde_yaml::from_str(LIVE_GRAPH)?;
+    if let (Some(p), Some(m)) = (layout.processes(), g.as_mapping_mut()) {
+        m.insert("processes".into(), serde_yaml::from_str(p)?);
+    }
+    let text = serde_yaml::to_string(&g)?;
+    graph::write_built_in(&text, &out, "neuspike bench-live", |id, _| match id {
         "spike-source" => Some(format!(
             "--scene {} --rate-hz {} --chunk-planes {} --max-planes {planes} --seed 1 --pace realtime",
             opts.scene,
@@ -152,52 +194,94 @@ pub fn figures(frames: &Path, camera_s: f64, wall_s: f64) -> eyre::Result<LiveRu
     })
 }
 
-/// Runs the benchmark and prints one Markdown row a run.
-pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<LiveRun>> {
-    let path = prepare(opts)?;
-    let frames = opts.out.canonicalize()?.join("frames");
+/// Runs the benchmark and prints one Markdown row a run: each layout in turn, `--runs` times,
+/// its wall time also as a ratio to the first layout's in the same round.
+pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
+    if opts.processes.is_empty() {
+        bail!("bench-live: --processes names no layout");
+    }
+    let mut graphs = Vec::new();
+    for &layout in &opts.processes {
+        let path = prepare(opts, layout)?;
+        let frames = path.parent().unwrap_or(Path::new(".")).join("frames");
+        graphs.push((layout, path, frames));
+    }
     println!(
-        "| camera | frames/s | camera s | wall s | real time | frames | lost | latency p50 ms | latency p99 ms |\n\
-         |---|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "| processes | camera | frames/s | camera s | wall s | vs {} | real time | frames | lost | latency p50 ms | latency p99 ms |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        opts.processes[0].name()
     );
     let mut runs = Vec::new();
     for _ in 0..opts.runs {
-        let done = Arc::new(AtomicBool::new(false));
-        let rss_csv = opts.out.canonicalize()?.join("rss.csv");
-        let sampler = opts
-            .soak
-            .then(|| soak::spawn_sampler(rss_csv.clone(), done.clone()));
-        let report = graph::run(&path, &[], false, None, None);
-        done.store(true, Ordering::Relaxed);
-        let samples = match sampler.map(|s| s.join()) {
-            Some(Ok(samples)) => samples?,
-            Some(Err(_)) => bail!("bench-live: the memory sampler panicked"),
-            None => Vec::new(),
-        };
-        let report = report?;
-        let wall_s = report.elapsed.as_secs_f64();
-        report.into_result()?;
-        let r = figures(&frames, opts.seconds, wall_s)?;
-        let (p50, p99) = r.latency_ms.map_or(("-".into(), "-".into()), |(a, b)| {
-            (format!("{a:.1}"), format!("{b:.1}"))
-        });
-        println!(
-            "| {} kHz | {} | {:.1} | {:.2} | {:.3}x | {}/{} | {} | {p50} | {p99} |",
-            opts.rate_hz / 1000,
-            opts.fps,
-            r.camera_s,
-            r.wall_s,
-            r.real_time(),
-            r.received,
-            r.expected,
-            r.missing
-        );
-        if opts.soak {
-            soak::report(&samples, &r.minutes, r.missing, &rss_csv)?;
+        let mut baseline = None;
+        for (layout, path, frames) in &graphs {
+            let r = run_one(opts, path, frames)?;
+            let base = *baseline.get_or_insert(r.wall_s);
+            let (p50, p99) = r.latency_ms.map_or(("-".into(), "-".into()), |(a, b)| {
+                (format!("{a:.1}"), format!("{b:.1}"))
+            });
+            // A baseline of zero seconds cannot be: the ratio is then left out.
+            let vs = if base > 0.0 {
+                format!("{:.2}x", r.wall_s / base)
+            } else {
+                "-".into()
+            };
+            println!(
+                "| {} | {} kHz | {} | {:.1} | {:.2} | {vs} | {:.3}x | {}/{} | {} | {p50} | {p99} |",
+                layout.name(),
+                opts.rate_hz / 1000,
+                opts.fps,
+                r.camera_s,
+                r.wall_s,
+                r.real_time(),
+                r.received,
+                r.expected,
+                r.missing
+            );
+            if opts.soak {
+                let rss_csv = path.parent().unwrap_or(Path::new(".")).join("rss.csv");
+                soak::report(&r.samples, &r.run.minutes, r.missing, &rss_csv)?;
+            }
+            runs.push((*layout, r.run));
         }
-        runs.push(r);
     }
     Ok(runs)
+}
+
+/// A run and the memory samples taken during it.
+struct Sampled {
+    run: LiveRun,
+    samples: Vec<soak::RssSample>,
+}
+
+impl std::ops::Deref for Sampled {
+    type Target = LiveRun;
+    fn deref(&self) -> &LiveRun {
+        &self.run
+    }
+}
+
+/// Runs the graph at `path` once; its figures from the sink's summary in `frames`.
+fn run_one(opts: &LiveBenchOptions, path: &Path, frames: &Path) -> eyre::Result<Sampled> {
+    let done = Arc::new(AtomicBool::new(false));
+    let rss_csv = path.parent().unwrap_or(Path::new(".")).join("rss.csv");
+    let sampler = opts
+        .soak
+        .then(|| soak::spawn_sampler(rss_csv.clone(), done.clone()));
+    let report = graph::run(path, &[], false, None, None);
+    done.store(true, Ordering::Relaxed);
+    let samples = match sampler.map(|s| s.join()) {
+        Some(Ok(samples)) => samples?,
+        Some(Err(_)) => bail!("bench-live: the memory sampler panicked"),
+        None => Vec::new(),
+    };
+    let report = report?;
+    let wall_s = report.elapsed.as_secs_f64();
+    report.into_result()?;
+    Ok(Sampled {
+        run: figures(frames, opts.seconds, wall_s)?,
+        samples,
+    })
 }
 
 #[cfg(test)]
@@ -213,6 +297,7 @@ mod tests {
             scene: "bright-static".into(),
             write_every: 10,
             runs: 1,
+            processes: vec![Layout::Nodes, Layout::One],
             out,
             soak: false,
         }
@@ -253,11 +338,20 @@ mod tests {
                 "--seconds",
             ),
         ] {
-            let e = prepare(&bad).expect_err(name).to_string();
+            let e = prepare(&bad, Layout::Nodes).expect_err(name).to_string();
             assert!(e.contains(name), "{e}");
         }
-        if let Ok(path) = prepare(&o) {
+        if let Ok(path) = prepare(&o, Layout::Nodes) {
             let text = std::fs::read_to_string(path).expect("graph");
+            assert!(text.contains("--rate-hz 40000 --chunk-planes 40 --max-planes 20000"));
+            assert!(text.contains("--stride-planes 200") && text.contains("--write-every 10"));
+        }
+        if let Ok(path) = prepare(&o, Layout::One) {
+            // One node, every stage in it, with the same arguments.
+            let text = std::fs::read_to_string(path).expect("graph");
+            let g: serde_yaml::Value = serde_yaml::from_str(&text).expect("yaml");
+            let nodes = g["nodes"].as_sequence().expect("nodes");
+            assert_eq!(nodes.len(), 1, "{text}");
             assert!(text.contains("--rate-hz 40000 --chunk-planes 40 --max-planes 20000"));
             assert!(text.contains("--stride-planes 200") && text.contains("--write-every 10"));
         }

@@ -1,12 +1,15 @@
 //! A graph as a user writes it (nodes, `path`, `args`, data edges) made into the graph dora runs:
 //! the message types of every port, neuspike's credit edges (or dora's backpressure where a node
-//! does not speak credits), the `build:` and `env:` of neuspike's nodes; checked first, every
-//! fault one line naming both ends of the edge.
+//! does not speak credits), the `build:` and `env:` of neuspike's nodes, and the nodes its
+//! `processes:` groups made one process each ([`fuse`]); checked first, every fault one line
+//! naming both ends of the edge.
 
 use eyre::{bail, eyre};
 use neuspike_pipeline::{Side, data_inputs, port_type, stage_kind};
 use neuspike_stage::MsgType;
 use serde_yaml::{Mapping, Value};
+
+pub mod fuse;
 
 /// The output on which a consumer returns credits.
 const CREDITS: &str = "credits";
@@ -122,6 +125,8 @@ fn declared<'v>(node: &'v Value, key: &str, port: &str) -> Option<&'v str> {
 
 /// Checks `graph` and fills in what the runtime needs beyond nodes, arguments and data edges:
 ///
+/// - each of its `processes:` becomes one `neuspike-fused` node holding those nodes' stages
+///   ([`fuse::fuse`]);
 /// - every data output a consumer reads is declared; every port of a neuspike stage gets its
 ///   message type, other nodes' ports the type they declare or (inputs) their producer's;
 /// - an edge between two nodes that speak credits (neuspike's nodes, and nodes that declare an
@@ -138,6 +143,15 @@ fn declared<'v>(node: &'v Value, key: &str, port: &str) -> Option<&'v str> {
 /// without an id or a path, an input whose node or output does not exist, an edge whose two
 /// ends carry different types.
 pub fn derive(graph: &mut Value, window: u64, build: Option<&str>) -> eyre::Result<()> {
+    if graph.get(fuse::PROCESSES).is_some() {
+        // The graph as written is checked first, so that a fault names the nodes the user wrote.
+        let mut written = graph.clone();
+        if let Some(m) = written.as_mapping_mut() {
+            m.remove(fuse::PROCESSES);
+        }
+        derive(&mut written, window, build)?;
+        fuse::fuse(graph)?;
+    }
     let mut nodes: Vec<Node> = Vec::new();
     for (i, n) in list(graph).enumerate() {
         let id = text(n, "id").ok_or_else(|| eyre!("node {} has no `id`", i + 1))?;
@@ -371,6 +385,14 @@ pub fn draw(graph: &Value) -> eyre::Result<String> {
         let path = text(n, "path").unwrap_or_default();
         let what = match runs(path) {
             Runs::Stage(kind) => format!("stage {kind}"),
+            _ if path.ends_with(fuse::FUSED_NODE) => {
+                let stages = fused_members(n)
+                    .iter()
+                    .map(|(id, kind)| format!("{id} ({kind})"))
+                    .collect::<Vec<_>>()
+                    .join(", ");
+                format!("one process: {stages}")
+            }
             Runs::Runtime | Runs::Foreign => {
                 let file = path.rsplit(['/', '\\']).next().unwrap_or(path);
                 format!("node {file}")
@@ -400,6 +422,28 @@ pub fn draw(graph: &Value) -> eyre::Result<String> {
         );
     }
     Ok(s)
+}
+
+/// The stages a fused node holds: each node's id and kind, from its `env:`.
+pub fn fused_members(node: &Value) -> Vec<(String, String)> {
+    fused_nodes(node)
+        .iter()
+        .filter_map(|n| {
+            let id = text(n, "id")?;
+            let kind = stage_kind(text(n, "path")?)?;
+            Some((id.to_string(), kind.to_string()))
+        })
+        .collect()
+}
+
+/// The nodes a fused node holds, as graph nodes (id, path, args, inputs), from its `env:`.
+pub fn fused_nodes(node: &Value) -> Vec<Value> {
+    node.get("env")
+        .and_then(|e| e.get(neuspike_pipeline::FUSED_STAGES))
+        .and_then(Value::as_str)
+        .and_then(|s| serde_yaml::from_str::<Value>(s).ok())
+        .map(|spec| list(&spec).cloned().collect())
+        .unwrap_or_default()
 }
 
 #[cfg(test)]

@@ -279,19 +279,24 @@ pub fn write_built_in(
 ) -> eyre::Result<PathBuf> {
     let mut g: Value = serde_yaml::from_str(text)
         .wrap_err_with(|| format!("{by}: the built-in graph is not YAML"))?;
-    crate::derive::derive(&mut g, CREDIT_WINDOW, None)
-        .wrap_err_with(|| format!("{by}: the built-in graph"))?;
     let list = g.get_mut("nodes").and_then(Value::as_sequence_mut);
     for node in list.into_iter().flatten() {
         let Some(map) = node.as_mapping_mut() else {
             continue;
         };
-        // Built beforehand when the program runs from its sources; never from `out`.
-        map.remove("build");
         let id = map.get("id").and_then(Value::as_str).unwrap_or("");
         let old = map.get("args").and_then(Value::as_str).unwrap_or("");
         if let Some(new) = args(id, old) {
             map.insert("args".into(), new.into());
+        }
+    }
+    crate::derive::derive(&mut g, CREDIT_WINDOW, None)
+        .wrap_err_with(|| format!("{by}: the built-in graph"))?;
+    // Built beforehand when the program runs from its sources; never from `out`.
+    let list = g.get_mut("nodes").and_then(Value::as_sequence_mut);
+    for node in list.into_iter().flatten() {
+        if let Some(map) = node.as_mapping_mut() {
+            map.remove("build");
         }
     }
     // The graph's relative paths mean nothing in `out`: every node runs the binary beside this
@@ -380,7 +385,10 @@ fn apply_override(graph: &mut Value, id: &str, extra: &str) -> eyre::Result<()> 
 /// The `--out` folder of every sink node of a graph, resolved against the graph's folder.
 pub fn sink_out_dirs(graph_path: &Path, graph: &Value) -> Vec<PathBuf> {
     let dir = graph_path.parent().unwrap_or(Path::new("."));
+    // A sink may run inside a fused node.
+    let inner: Vec<Value> = nodes(graph).flat_map(crate::derive::fused_nodes).collect();
     nodes(graph)
+        .chain(inner.iter())
         .filter(|n| {
             n.get("path")
                 .and_then(Value::as_str)

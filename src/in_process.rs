@@ -68,20 +68,7 @@ pub fn enter_graph_folder(graph_path: &Path) -> eyre::Result<std::path::PathBuf>
 
 /// Prints the time each stage took and what its inputs lost.
 pub fn print_stages(chain: &ChainReport) {
-    println!("| stage | busy s | share | received | sent | missing |");
-    println!("|---|---|---|---|---|---|");
-    let wall = chain.wall.as_secs_f64().max(1e-9);
-    for s in &chain.stages {
-        println!(
-            "| {} | {:.3} | {:.0}% | {} | {} | {} |",
-            s.id,
-            s.busy.as_secs_f64(),
-            100.0 * s.busy.as_secs_f64() / wall,
-            s.received,
-            s.sent,
-            s.inputs.missing()
-        );
-    }
+    print!("{}", chain.table());
 }
 
 /// An error when the run lost or cut data: what, and where.

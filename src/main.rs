@@ -342,7 +342,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 graph::build_nodes()?;
             }
             let runs = neuspike::bench_live::run(&opts)?;
-            let lost: u64 = runs.iter().map(|r| r.missing).sum();
+            let lost: u64 = runs.iter().map(|(_, r)| r.missing).sum();
             if lost > 0 {
                 eyre::bail!("bench-live: {lost} frames lost");
             }

@@ -170,6 +170,59 @@ fn the_demo_graph_in_process_writes_the_frames_dora_writes() {
     }
 }
 
+/// The demo graph with its stages fused into processes (`processes:`): align, represent and both
+/// infers in one; then every stage, both cameras and the sink included, in one (the cameras and
+/// the sink on threads of their own). Both write the frames the in-process chain writes, byte
+/// for byte, and lose nothing.
+#[test]
+fn the_demo_graph_fused_into_processes_writes_the_same_frames() {
+    let reference = tempfile::tempdir().expect("tempdir");
+    let (_, chain) = {
+        let _one = one_graph();
+        let sink = format!("--out {}", reference.path().display());
+        neuspike::in_process::run(&graph("demo.yml"), &[("sink".to_string(), sink)])
+            .expect("in process")
+    };
+    neuspike::in_process::check(&chain).expect("nothing lost in process");
+    let want = pngs(reference.path());
+    assert!(want.len() >= 80, "{} frames", want.len());
+    let demo = std::fs::read_to_string(graph("demo.yml")).expect("demo.yml");
+    for processes in [
+        "{core: [align, represent, infer-tfp, infer-tfi]}",
+        "{all: [spike-source, event-source, align, represent, infer-tfp, infer-tfi, sink]}",
+    ] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("fused.yml");
+        std::fs::write(&path, format!("{demo}\nprocesses: {processes}\n")).expect("write");
+        let out = dir.path().join("out");
+        let report = {
+            let _one = one_graph();
+            let sink = vec![("sink".to_string(), format!("--out {}", out.display()))];
+            neuspike::graph::run(&path, &sink, true, Some(Duration::from_secs(300)), None)
+                .expect("graph ran")
+        };
+        assert!(
+            report.failures.is_empty(),
+            "{processes}: {:?}",
+            report.failures
+        );
+        assert!(
+            report.losses().is_empty(),
+            "{processes}: {:?}",
+            report.losses()
+        );
+        let got = pngs(&out);
+        assert_eq!(
+            got.keys().collect::<Vec<_>>(),
+            want.keys().collect::<Vec<_>>(),
+            "{processes}"
+        );
+        for (name, bytes) in &want {
+            assert!(got[name] == *bytes, "{processes}: {name} differs");
+        }
+    }
+}
+
 /// The demo graph written out whole by `neuspike graph` (credit edges, message types) runs under
 /// the stock dora CLI (`dora run`) with nothing lost.
 #[test]

@@ -3,10 +3,19 @@
 use std::path::Path;
 
 use eyre::{WrapErr, bail, eyre};
-use neuspike_stage::Chain;
+use neuspike_stage::{Chain, Fused};
 use serde_yaml::Value;
 
 use crate::registry::{make_stage, stage_kind};
+
+/// The env variable that hands a fused node (`neuspike-fused`) its stages: a graph of them
+/// ([`fused_stage`]).
+pub const FUSED_STAGES: &str = "NEUSPIKE_STAGES";
+
+/// The port of a fused node that stands for `node/port` inside it: `node.port`.
+pub fn fused_port(address: &str) -> String {
+    address.replacen('/', ".", 1)
+}
 
 /// The output a consumer returns credits on: its edges are the dora driver's flow control, not
 /// data.
@@ -143,13 +152,34 @@ impl GraphChain {
         Ok(())
     }
 
-    /// The chain: every node's stage made from its arguments and wiring, every data edge
-    /// connected. Paths in the arguments are taken from the current folder (a graph's nodes run
-    /// in the graph's folder: run the chain there).
+    /// The nodes as one stage named `name` (a fused node, [`FUSED_STAGES`]): an input whose
+    /// source is not one of the nodes reads the fused stage's input named for that source
+    /// ([`fused_port`]: `spike-source.spikes`), and each output in `outlets` (`node/output`) is
+    /// sent out under its own such name.
     ///
     /// # Errors
-    /// A stage refused its settings, or an edge its ports (both ends named).
-    pub fn chain(&self) -> eyre::Result<Chain<'static>> {
+    /// A stage refused its settings, an edge or an outlet its ports, or the stages do not make
+    /// one stage (see [`Chain::into_stage`]).
+    pub fn fused(&self, name: &str, outlets: &[String]) -> eyre::Result<Fused> {
+        let mut chain = self.stages()?;
+        for n in &self.nodes {
+            for (input, source) in &n.inputs {
+                let to = format!("{}/{input}", n.id);
+                let from = source.split_once('/').map_or("", |(f, _)| f);
+                if self.nodes.iter().any(|m| m.id == from) {
+                    chain.connect(source, &to)?;
+                } else {
+                    chain.inlet(&fused_port(source), &to)?;
+                }
+            }
+        }
+        for o in outlets {
+            chain.outlet(&fused_port(o), o)?;
+        }
+        chain.into_stage(name)
+    }
+
+    fn stages(&self) -> eyre::Result<Chain<'static>> {
         let mut chain = Chain::new();
         for n in &self.nodes {
             let inputs: Vec<String> = n.inputs.iter().map(|(i, _)| i.clone()).collect();
@@ -157,6 +187,17 @@ impl GraphChain {
                 .wrap_err_with(|| format!("node `{}`", n.id))?;
             chain.add(&n.id, stage)?;
         }
+        Ok(chain)
+    }
+
+    /// The chain: every node's stage made from its arguments and wiring, every data edge
+    /// connected. Paths in the arguments are taken from the current folder (a graph's nodes run
+    /// in the graph's folder: run the chain there).
+    ///
+    /// # Errors
+    /// A stage refused its settings, or an edge its ports (both ends named).
+    pub fn chain(&self) -> eyre::Result<Chain<'static>> {
+        let mut chain = self.stages()?;
         for n in &self.nodes {
             for (input, source) in &n.inputs {
                 chain.connect(source, &format!("{}/{input}", n.id))?;
@@ -164,6 +205,26 @@ impl GraphChain {
         }
         Ok(chain)
     }
+}
+
+/// The stage a fused node runs, named `name`, from its [`FUSED_STAGES`] graph: its `nodes` (as
+/// [`GraphChain::from_yaml`] reads them) and `outlets`, the outputs (`node/output`) it sends
+/// out.
+///
+/// # Errors
+/// Not such a graph, or its stages do not make one stage ([`GraphChain::fused`]).
+pub fn fused_stage(name: &str, yaml: &str) -> eyre::Result<Fused> {
+    let g = GraphChain::from_yaml(yaml)?;
+    let v: Value = serde_yaml::from_str(yaml).map_err(|e| eyre!("not YAML: {e}"))?;
+    let outlets: Vec<String> = v
+        .get("outlets")
+        .and_then(Value::as_sequence)
+        .into_iter()
+        .flatten()
+        .filter_map(Value::as_str)
+        .map(String::from)
+        .collect();
+    g.fused(name, &outlets)
 }
 
 #[cfg(test)]

@@ -5,12 +5,14 @@
 //!   graph wires, as the node binary makes it.
 //! - [`GraphChain`]: a dora graph's nodes as a [`neuspike_stage::Chain`]: the same stages, the
 //!   same wiring and the same rules for order, loss and the end of a stream, without dora.
+//! - [`fused_stage`]: some of a graph's nodes as one stage ([`neuspike_stage::Fused`]), which
+//!   the `neuspike-fused` node runs: several stages in one process.
 #![deny(missing_docs)]
 
 mod graph;
 mod ports;
 mod registry;
 
-pub use graph::{GraphChain, GraphNode, data_inputs};
+pub use graph::{FUSED_STAGES, GraphChain, GraphNode, data_inputs, fused_port, fused_stage};
 pub use ports::{Side, port_type};
 pub use registry::{STAGES, make_stage, stage_kind};

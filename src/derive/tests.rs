@@ -147,3 +147,118 @@ fn the_shipped_graphs_derive_and_their_edges_are_all_credited_or_backpressured()
 fn text_of<'v>(v: &'v Value, key: &str) -> Option<&'v str> {
     text(v, key)
 }
+
+#[test]
+fn a_process_makes_its_nodes_one_fused_node_wired_like_any_other() {
+    let g = derived(&format!(
+        "{HAND_WRITTEN}processes:\n  core: [align, represent, infer]\n"
+    ))
+    .expect("derived");
+    assert!(g.get(fuse::PROCESSES).is_none());
+    let ids: Vec<&str> = list(&g).filter_map(|n| text(n, "id")).collect();
+    assert_eq!(ids, ["camera", "core", "sink", "viewer"]);
+    let core = node(&g, "core");
+    assert_eq!(text(core, "path"), Some(fuse::FUSED_NODE));
+    assert_eq!(
+        source_of(&core["inputs"]["camera.spikes"]),
+        Some("camera/spikes")
+    );
+    assert_eq!(
+        declared(core, "input_types", "camera.spikes"),
+        Some("neuspike/messages/v1/SpikeChunk")
+    );
+    assert_eq!(outputs_of(core), ["infer.frames", "credits"]);
+    assert_eq!(
+        declared(core, "output_types", "infer.frames"),
+        Some("neuspike/messages/v1/Frame")
+    );
+    assert_eq!(text(core, "build"), Some("cargo build"));
+    // Its readers read it; credits flow to and from it as for any neuspike node.
+    let sink = node(&g, "sink");
+    assert_eq!(source_of(&sink["inputs"]["tfp"]), Some("core/infer.frames"));
+    assert_eq!(
+        source_of(&node(&g, "camera")["inputs"]["credits-core"]),
+        Some("core/credits")
+    );
+    assert_eq!(
+        source_of(&core["inputs"]["credits-sink"]),
+        Some("sink/credits")
+    );
+    let viewer = node(&g, "viewer");
+    assert_eq!(
+        viewer["inputs"]["frames"]["queue_policy"],
+        Value::from("backpressure")
+    );
+    // The stages it holds, with their arguments and the wiring between them.
+    assert_eq!(
+        fused_members(core),
+        [
+            ("align".to_string(), "align".to_string()),
+            ("represent".to_string(), "represent".to_string()),
+            ("infer".to_string(), "infer".to_string())
+        ]
+    );
+    let stages = fused_nodes(core);
+    assert_eq!(
+        source_of(&stages[1]["inputs"]["windows"]),
+        Some("align/windows")
+    );
+    assert_eq!(text(&stages[2], "args"), Some("--method tfp"));
+    let spec: Value = serde_yaml::from_str(
+        core["env"][neuspike_pipeline::FUSED_STAGES]
+            .as_str()
+            .expect("spec"),
+    )
+    .expect("yaml");
+    assert_eq!(spec["outlets"], Value::from(vec!["infer/frames"]));
+    // Derived twice, the same graph; drawn as one process.
+    let mut again = g.clone();
+    derive(&mut again, 8, Some("cargo build")).expect("again");
+    assert_eq!(again, g);
+    let picture = draw(&g).expect("draw");
+    assert!(
+        picture.contains("one process: align (align), represent (represent), infer (infer)"),
+        "{picture}"
+    );
+}
+
+#[test]
+fn a_process_that_cannot_be_is_one_line_naming_it() {
+    let with = |p: &str| format!("{HAND_WRITTEN}processes:\n{p}\n");
+    let cases = [
+        (
+            with("  core: [align, aligner]"),
+            "processes: `core` holds node `aligner`, which the graph does not have",
+        ),
+        (
+            with("  a: [align]\n  b: [represent, align]"),
+            "processes: node `align` is in `a` and in `b`",
+        ),
+        (
+            with("  sink: [align]"),
+            "processes: `sink` is also the id of a node: name the process otherwise",
+        ),
+        (
+            with("  core: [infer, viewer]"),
+            "processes: `core` holds `viewer`, which runs viewer.py, not a neuspike stage: only stages share a process",
+        ),
+        (
+            with("  core: [camera, represent]"),
+            "processes: `core` holds the source `camera` and reads `align/windows` from outside it: a process with a source takes no input from outside",
+        ),
+        (
+            with("  core: align"),
+            "processes: `core` is not a list of node ids",
+        ),
+        // A fault of the graph itself names the nodes as written.
+        (
+            with("  core: [align, represent]")
+                .replace("windows: align/windows", "windows: align/window"),
+            "input `represent/windows` reads `align/window`, but align has no output `window`",
+        ),
+    ];
+    for (graph, expected) in cases {
+        let e = derived(&graph).expect_err(expected).to_string();
+        assert_eq!(e, expected);
+    }
+}

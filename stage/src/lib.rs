@@ -11,7 +11,8 @@
 //! - the dora node (`neuspike_runtime::run_stage`): one stage per process, its messages Arrow on
 //!   dora's links, flow controlled by credits;
 //! - the [`Chain`]: stages in one process, messages handed over as Rust values (moved, cloned only
-//!   where two consumers read one output), no dora and no zenoh.
+//!   where two consumers read one output), no dora and no zenoh; made one stage ([`Fused`]), a
+//!   chain runs inside a dora node too: several stages in one process.
 //!
 //! The rules, shared by both:
 //!
@@ -23,10 +24,12 @@
 #![deny(missing_docs)]
 
 pub mod chain;
+mod fused;
 mod message;
 mod pace;
 
 pub use chain::{Chain, ChainReport, StageReport};
+pub use fused::Fused;
 pub use message::{Msg, MsgType, WrongType};
 pub use pace::{Pace, Pacer, unix_now_ns};
 

@@ -297,3 +297,176 @@ fn a_wrong_edge_is_refused_naming_both_ends() {
         "{e}"
     );
 }
+
+/// Drives `stage` as a driver would: steps a source until it stops, else hands it `feed` and
+/// then each input's end; returns what it sent (output, seq) and the counts it announced.
+fn drive(
+    stage: &mut dyn Stage,
+    feed: Vec<(&str, Msg)>,
+) -> (Vec<(String, u64)>, Vec<(String, u64)>, bool) {
+    let mut out = Outbox::new();
+    let mut sent = Vec::new();
+    let take = |out: &mut Outbox, sent: &mut Vec<(String, u64)>| {
+        for s in out.take_sent() {
+            sent.push((s.output, s.msg.seq()));
+        }
+    };
+    if stage.inputs().is_empty() {
+        while stage.step(&mut out).expect("step") == Flow::Continue {
+            take(&mut out, &mut sent);
+        }
+        take(&mut out, &mut sent);
+    } else {
+        let n = feed.len() as u64;
+        for (input, msg) in feed {
+            stage.on_message(input, msg, &mut out).expect("message");
+            take(&mut out, &mut sent);
+        }
+        for p in stage.inputs() {
+            stage.on_end(&p.id, n, &mut out).expect("end");
+            take(&mut out, &mut sent);
+        }
+    }
+    stage.finish(&Tallies::default(), &mut out).expect("finish");
+    take(&mut out, &mut sent);
+    let counts = out.take_at_least().collect();
+    (sent, counts, out.take_cut())
+}
+
+#[test]
+fn a_fused_chain_is_one_stage_whose_ports_are_its_inlets_and_outlets() {
+    let mut c = Chain::new();
+    c.add("double", Doubler::new()).expect("add");
+    c.add("again", Doubler::new()).expect("add");
+    c.connect("double/out", "again/in").expect("wire");
+    c.inlet("frames", "double/in").expect("inlet");
+    c.outlet("doubled", "double/out").expect("outlet");
+    c.outlet("quadrupled", "again/out").expect("outlet");
+    let mut f = c.into_stage("core").expect("stage");
+    assert_eq!(f.inputs(), [Port::new("frames", MsgType::Frame)]);
+    assert_eq!(
+        f.outputs(),
+        [
+            Port::new("doubled", MsgType::Frame),
+            Port::new("quadrupled", MsgType::Frame)
+        ]
+    );
+    let feed = (0..3)
+        .map(|i| ("frames", Msg::from(frame(i, 1.0))))
+        .collect();
+    let (sent, counts, cut) = drive(&mut f, feed);
+    let of = |o: &str| -> Vec<u64> {
+        sent.iter()
+            .filter(|(n, _)| n == o)
+            .map(|(_, s)| *s)
+            .collect()
+    };
+    assert_eq!(of("doubled"), [0, 1, 2]);
+    assert_eq!(of("quadrupled"), [0, 1, 2]);
+    assert!(counts.contains(&("doubled".to_string(), 3)), "{counts:?}");
+    assert!(
+        counts.contains(&("quadrupled".to_string(), 3)),
+        "{counts:?}"
+    );
+    assert!(!cut);
+    let report = f.report().expect("report");
+    assert_eq!(
+        report.stage("again").map(|s| (s.received, s.sent)),
+        Some((3, 3))
+    );
+    assert_eq!(report.missing(), 0);
+}
+
+#[test]
+fn a_fused_chain_with_a_source_runs_it_on_a_thread_and_loses_nothing() {
+    let seen: &'static Mutex<Vec<String>> = Box::leak(Box::new(Mutex::new(Vec::new())));
+    let mut c = Chain::new();
+    let seqs: Vec<u64> = (0..500).collect();
+    c.add("source", Source::new(&seqs)).expect("add");
+    c.add("double", Doubler::new()).expect("add");
+    c.add("sink", Sink { seen }).expect("add");
+    c.connect("source/frames", "double/in").expect("wire");
+    c.connect("double/out", "sink/a").expect("wire");
+    c.connect("source/frames", "sink/b").expect("wire");
+    c.outlet("doubled", "double/out").expect("outlet");
+    let mut f = c.into_stage("all").expect("stage");
+    assert!(f.inputs().is_empty());
+    let (sent, counts, cut) = drive(&mut f, Vec::new());
+    let seqs_out: Vec<u64> = sent.iter().map(|(_, s)| *s).collect();
+    assert_eq!(seqs_out, seqs);
+    assert_eq!(counts, [("doubled".to_string(), 500)]);
+    assert!(!cut);
+    let seen = seen.lock().expect("lock");
+    assert!(
+        seen.contains(&"a: 500 received, 0 missing, cut false".to_string()),
+        "{:?}",
+        &seen[seen.len().saturating_sub(3)..]
+    );
+    let report = f.report().expect("report");
+    assert_eq!(report.stage("source").map(|s| s.sent), Some(500));
+}
+
+#[test]
+fn a_failing_source_on_a_thread_cuts_the_fused_stage_after_sending_what_it_made() {
+    let mut c = Chain::new();
+    let mut s = Source::new(&[0, 1, 2, 3]);
+    s.fail_at = Some(2);
+    c.add("source", s).expect("add");
+    c.add("double", Doubler::new()).expect("add");
+    c.connect("source/frames", "double/in").expect("wire");
+    c.outlet("doubled", "double/out").expect("outlet");
+    let mut f = c.into_stage("all").expect("stage");
+    let mut out = Outbox::new();
+    while f.step(&mut out).expect("step") == Flow::Continue {}
+    let e = format!(
+        "{:#}",
+        f.finish(&Tallies::default(), &mut out).expect_err("failed")
+    );
+    assert!(
+        e.contains("fused stage `all`") && e.contains("camera broke"),
+        "{e}"
+    );
+    let seqs: Vec<u64> = out.take_sent().map(|s| s.msg.seq()).collect();
+    assert_eq!(seqs, [0, 1]);
+    assert!(out.take_cut());
+}
+
+#[test]
+fn a_fused_chain_is_refused_when_its_ports_do_not_fit() {
+    let mut c = Chain::new();
+    c.add("source", Source::new(&[0])).expect("add");
+    c.add("double", Doubler::new()).expect("add");
+    c.add("again", Doubler::new()).expect("add");
+    c.connect("source/frames", "double/in").expect("wire");
+    let e = c
+        .inlet("more", "double/in")
+        .err()
+        .expect("fed twice")
+        .to_string();
+    assert_eq!(
+        e,
+        "chain: `double/in` is fed twice: by `source/frames` and by inlet `more`"
+    );
+    c.inlet("frames", "again/in").expect("inlet");
+    let e = c
+        .into_stage("x")
+        .err()
+        .expect("source and inlet")
+        .to_string();
+    assert!(
+        e.contains("takes no input from outside (it has `frames`)"),
+        "{e}"
+    );
+    let mut c = Chain::new();
+    c.add("double", Doubler::new()).expect("add");
+    let e = c.run().err();
+    assert!(e.is_some());
+    let mut c = Chain::new();
+    c.add("double", Doubler::new()).expect("add");
+    c.inlet("frames", "double/in").expect("inlet");
+    let e = c.run().expect_err("inlet").to_string();
+    assert!(
+        e.contains("inlet `frames` takes messages from outside"),
+        "{e}"
+    );
+}
