@@ -148,8 +148,11 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
             .wrap_err_with(|| format!("cannot clear {}", frames.display()))?;
     }
     let mut g: serde_yaml::Value = serde_yaml::from_str(LIVE_GRAPH)?;
-    if let (Some(p), Some(m)) = (layout.processes(), g.as_mapping_mut()) {
-        m.insert("processes".into(), serde_yaml::from_str(p)?);
+    if let Some(m) = g.as_mapping_mut() {
+        m.remove("processes");
+        if let Some(p) = layout.processes() {
+            m.insert("processes".into(), serde_yaml::from_str(p)?);
+        }
     }
     let text = serde_yaml::to_string(&g)?;
     graph::write_built_in(&text, &out, "neuspike bench-live", |id, _| match id {

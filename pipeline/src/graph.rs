@@ -32,7 +32,7 @@ pub struct GraphNode {
     pub args: Vec<String>,
     /// Its data inputs: `(input id, "node/output")`.
     pub inputs: Vec<(String, String)>,
-    /// Its data outputs.
+    /// Its data outputs: those it declares and those other nodes read.
     pub outputs: Vec<String>,
 }
 
@@ -134,6 +134,20 @@ impl GraphChain {
                 inputs,
                 outputs,
             });
+        }
+        // An output another node reads is the node's, declared or not.
+        let read: Vec<(String, String)> = nodes
+            .iter()
+            .flat_map(|n| n.inputs.iter())
+            .filter_map(|(_, source)| source.split_once('/'))
+            .map(|(from, output)| (from.to_string(), output.to_string()))
+            .collect();
+        for (from, output) in read {
+            if let Some(n) = nodes.iter_mut().find(|n| n.id == from)
+                && !n.outputs.contains(&output)
+            {
+                n.outputs.push(output);
+            }
         }
         Ok(GraphChain { nodes })
     }

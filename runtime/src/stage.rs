@@ -63,9 +63,15 @@ pub fn run_stage<S: Stage + ?Sized>(
             .map(|(id, s)| (id.to_string(), Tally::from_seq(&s.seq, s.ended, s.broken)))
             .collect(),
     );
-    stage.finish(&tallies, &mut out)?;
-    flush(&mut link, &mut out)?;
-    link.end_all()
+    // What the stage sent before a failed finish still goes out, and every output ends (cut
+    // short after a failure), so that the nodes after it keep what they took whole.
+    let finished = stage.finish(&tallies, &mut out);
+    if finished.is_err() {
+        out.mark_cut();
+    }
+    let flushed = flush(&mut link, &mut out);
+    let ended = link.end_all();
+    finished.and(flushed).and(ended)
 }
 
 /// A source's loop: steps until it stops, a stop is asked for or nobody is left to take what it
