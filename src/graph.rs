@@ -91,8 +91,19 @@ pub fn node_binary(name: &str) -> eyre::Result<PathBuf> {
     )
 }
 
+/// This program and the stage it runs as node binary `name` (`neuspike-align`: `align`), when
+/// this program is `neuspike` (not a test harness) and serves that stage (`neuspike node`).
+fn serving(name: &str) -> Option<(PathBuf, &str)> {
+    let kind = name.strip_prefix("neuspike-")?;
+    let exe = std::env::current_exe().ok()?;
+    let stem = exe.file_stem()?.to_str()?;
+    (stem == "neuspike" && crate::node::serves(kind)).then_some((exe, kind))
+}
+
 /// Points every node whose `path:` names a neuspike node binary (`neuspike-*`) at that binary
-/// beside this program, or else at the graph's own path when it exists.
+/// beside this program, or else at the graph's own path when it exists, or else at this program
+/// itself as that stage's node (`neuspike node KIND`, an installed `neuspike` without the node
+/// binaries).
 pub fn resolve_node_binaries(graph: &mut Value, graph_dir: &Path) -> eyre::Result<()> {
     let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);
     for node in list.into_iter().flatten() {
@@ -111,8 +122,20 @@ pub fn resolve_node_binaries(graph: &mut Value, graph_dir: &Path) -> eyre::Resul
         }
         let bin = match node_binary(&name) {
             Ok(bin) => bin,
-            Err(e) if !graph_dir.join(&path).is_file() => return Err(e),
-            Err(_) => continue,
+            Err(_) if graph_dir.join(&path).is_file() => continue,
+            Err(e) => {
+                // This program serves as the stage's node itself (an installed `neuspike`).
+                let Some((exe, kind)) = serving(&name) else {
+                    return Err(e);
+                };
+                let args = node.get("args").and_then(Value::as_str).unwrap_or("");
+                let args = format!("node {kind} {args}");
+                if let Some(map) = node.as_mapping_mut() {
+                    map.insert("path".into(), exe.display().to_string().into());
+                    map.insert("args".into(), args.trim_end().into());
+                }
+                continue;
+            }
         };
         if let Some(map) = node.as_mapping_mut() {
             map.insert(Value::from("path"), Value::from(bin.display().to_string()));

@@ -60,6 +60,16 @@ enum Command {
     /// Check a graph and draw it; with `--out`, write the whole dora graph it runs as (message
     /// types, credit edges, `build:`, node binaries), with the message types beside it, for the
     /// stock dora CLI (`dora run`, `dora validate --strict-types`).
+    /// This program as a stage's node in a dora graph (`neuspike run` points a graph's
+    /// `neuspike-<kind>` nodes here when their binaries are not installed beside it).
+    #[command(hide = true)]
+    Node {
+        /// The stage: spike-source, event-source, align, represent, infer, sink, or fused.
+        kind: String,
+        /// The node's arguments (the graph's `args:`).
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
     Graph {
         /// The graph file, as a user writes it (nodes, `path`, `args`, data edges).
         graph: PathBuf,
@@ -276,14 +286,20 @@ static ALLOCATOR: neuspike::memory::Counting<mimalloc::MiMalloc> =
 const DEFAULT_LOG_FILTER: &str = "warn,neuspike=info,zenoh=error";
 
 fn main() -> std::process::ExitCode {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .init();
+    let cli = Cli::parse();
+    if matches!(cli.command, Command::Node { .. }) {
+        // As a node, it logs as the node binaries do.
+        neuspike_runtime::init_logging();
+    } else {
+        let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(DEFAULT_LOG_FILTER));
+        tracing_subscriber::fmt()
+            .with_env_filter(filter)
+            .with_writer(std::io::stderr)
+            .init();
+    }
     // A failure is one line: what went wrong and its causes, no source locations or backtrace.
-    match run(Cli::parse()) {
+    match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
@@ -552,6 +568,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
             println!("{}", record::describe(&file, &spikes, &events)?);
             Ok(())
         }
+        Command::Node { kind, args } => neuspike::node::run(&kind, &args),
         Command::Graph { graph, set, out } => {
             let overrides = set
                 .iter()

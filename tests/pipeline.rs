@@ -699,3 +699,53 @@ fn the_auto_graph_chooses_per_window_and_keeps_a_budget() {
     let md = std::fs::read_to_string(regions.path().join("summary.md")).expect("summary");
     assert!(md.contains("`auto`: the methods chosen"), "{md}");
 }
+
+/// `neuspike` alone, as `cargo install` leaves it (no node binary beside it, no source checkout,
+/// run from another folder), runs the demo serving as each of its nodes (`neuspike node KIND`):
+/// the frames are those of the in-process chain, byte for byte, and nothing is lost.
+#[test]
+fn the_program_alone_runs_the_demo_serving_as_every_node() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let bin = dir.path().join("bin");
+    std::fs::create_dir_all(&bin).expect("mkdir");
+    let program = bin.join("neuspike");
+    std::fs::copy(env!("CARGO_BIN_EXE_neuspike"), &program).expect("copy the program");
+    let work = dir.path().join("work");
+    std::fs::create_dir_all(&work).expect("mkdir");
+    let reference = tempfile::tempdir().expect("tempdir");
+    let run = {
+        let _one = one_graph();
+        let sink = format!("--out {}", reference.path().display());
+        neuspike::in_process::run(&graph("demo.yml"), &[("sink".to_string(), sink)])
+            .expect("in process");
+        std::process::Command::new(&program)
+            .arg("demo")
+            .current_dir(&work)
+            .env_remove("CARGO_MANIFEST_DIR")
+            .env_remove("CARGO_TARGET_DIR")
+            .output()
+            .expect("neuspike demo")
+    };
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let out = work.join("out/demo");
+    let written = std::fs::read_to_string(out.join("graph.yml")).expect("graph.yml");
+    assert!(
+        written.contains(&format!("path: {}", program.display()))
+            && written.contains("args: node fused")
+            && written.contains("args: node sink"),
+        "{written}"
+    );
+    let (want, got) = (pngs(reference.path()), pngs(&out));
+    assert!(want.len() >= 80, "{} frames", want.len());
+    assert_eq!(
+        got.keys().collect::<Vec<_>>(),
+        want.keys().collect::<Vec<_>>()
+    );
+    for (name, bytes) in &want {
+        assert!(got[name] == *bytes, "{name} differs");
+    }
+}

@@ -1,29 +1,6 @@
-//! dora node: several stages in one process. `neuspike run` makes it from a graph's
-//! `processes:` (each entry a name and the nodes it holds) and hands it its stages as a graph in
-//! the env variable `NEUSPIKE_STAGES` (`neuspike_pipeline::fused_stage`); its inputs and outputs
-//! are its stages' links to nodes outside it, named `node.port`. At its end it prints the time
-//! each of its stages took.
-
-use eyre::{WrapErr, eyre};
-use neuspike_pipeline::{FUSED_STAGES, fused_stage};
+//! dora node: several stages in one process (see the library, `neuspike_fused::run`).
 
 fn main() -> std::process::ExitCode {
-    neuspike_runtime::exit_code(start())
-}
-
-/// Reads the stages, opens the node, then runs them.
-fn start() -> eyre::Result<()> {
     neuspike_runtime::init_logging();
-    let spec = std::env::var(FUSED_STAGES).map_err(|_| {
-        eyre!("neuspike-fused: {FUSED_STAGES} is not set: this node is made by `neuspike run` from a graph's `processes:`")
-    })?;
-    let (node, events) = neuspike_runtime::init_node()?;
-    let name = node.id().to_string();
-    let mut stage = fused_stage(&name, &spec)
-        .wrap_err_with(|| format!("neuspike-fused `{name}`: {FUSED_STAGES}"))?;
-    let result = neuspike_runtime::run_stage(node, events, &mut stage);
-    if let Some(report) = stage.report() {
-        println!("process `{name}`, stage by stage:\n{}", report.table());
-    }
-    result
+    neuspike_runtime::exit_code(neuspike_fused::run())
 }

@@ -470,3 +470,55 @@ fn a_fused_chain_is_refused_when_its_ports_do_not_fit() {
         "{e}"
     );
 }
+
+/// Takes frames on its own thread (it has no outputs); fails on the frame numbered `fail_at`.
+struct FailingSink {
+    fail_at: u64,
+    seen: &'static Mutex<Vec<u64>>,
+}
+
+impl Stage for FailingSink {
+    fn name(&self) -> &str {
+        "failing-sink"
+    }
+    fn inputs(&self) -> Vec<Port> {
+        vec![Port::new("a", MsgType::Frame)]
+    }
+    fn outputs(&self) -> Vec<Port> {
+        vec![]
+    }
+    fn on_message(&mut self, _: &str, msg: Msg, _: &mut Outbox) -> eyre::Result<Flow> {
+        let f = Frame::try_from(msg)?;
+        if f.seq == self.fail_at {
+            eyre::bail!("the disk is full");
+        }
+        self.seen.lock().expect("lock").push(f.seq);
+        Ok(Flow::Continue)
+    }
+}
+
+#[test]
+fn a_sink_on_a_thread_that_fails_fails_the_fused_stage_naming_it_and_takes_nothing_after() {
+    let seen: &'static Mutex<Vec<u64>> = Box::leak(Box::new(Mutex::new(Vec::new())));
+    let mut c = Chain::new();
+    let seqs: Vec<u64> = (0..200).collect();
+    c.add("source", Source::new(&seqs)).expect("add");
+    c.add("sink", FailingSink { fail_at: 50, seen })
+        .expect("add");
+    c.connect("source/frames", "sink/a").expect("wire");
+    let mut f = c.into_stage("all").expect("stage");
+    let mut out = Outbox::new();
+    while f.step(&mut out).expect("step") == Flow::Continue {}
+    let e = format!(
+        "{:#}",
+        f.finish(&Tallies::default(), &mut out).expect_err("failed")
+    );
+    assert!(
+        e.contains("fused stage `all`") && e.contains("stage `sink`") && e.contains("disk is full"),
+        "{e}"
+    );
+    // Every frame before the failure, none after.
+    assert_eq!(*seen.lock().expect("lock"), (0..50).collect::<Vec<_>>());
+    let report = f.report().expect("report");
+    assert!(report.stage("sink").is_some_and(|s| s.cut));
+}
