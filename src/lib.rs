@@ -16,6 +16,7 @@ pub mod frames_to_events;
 pub mod graph;
 pub mod in_process;
 pub mod memory;
+pub mod models;
 pub mod node;
 pub mod publish_file;
 pub mod reconstruct;

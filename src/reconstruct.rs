@@ -28,7 +28,7 @@ impl Learned {
     /// # Errors
     /// The file is missing, unreadable or not a NeuSpike-Net.
     pub fn load(path: &Path) -> eyre::Result<Learned> {
-        let model = std::fs::canonicalize(path)
+        let model = std::fs::canonicalize(crate::models::or_shipped(path))
             .wrap_err_with(|| format!("--model {}: cannot open", path.display()))?;
         let net = LearnedModel::load(&model).map_err(|e| eyre::eyre!("--model: {e}"))?;
         let inputs = net
@@ -66,7 +66,7 @@ impl AutoPlan {
     /// The policy does not load (the error names the file and field).
     pub fn new(policy: &Path, window_planes: Option<u32>) -> eyre::Result<AutoPlan> {
         use neuspike_policy::{MethodName, Policy};
-        let policy = std::fs::canonicalize(policy)
+        let policy = std::fs::canonicalize(crate::models::or_shipped(policy))
             .wrap_err_with(|| format!("--policy {}: cannot open", policy.display()))?;
         let p = Policy::read(&policy)?;
         let stats = neuspike_infer::auto::STATS_PLANES as u32;

@@ -702,7 +702,9 @@ fn the_auto_graph_chooses_per_window_and_keeps_a_budget() {
 
 /// `neuspike` alone, as `cargo install` leaves it (no node binary beside it, no source checkout,
 /// run from another folder), runs the demo serving as each of its nodes (`neuspike node KIND`):
-/// the frames are those of the in-process chain, byte for byte, and nothing is lost.
+/// the frames are those of the in-process chain, byte for byte, and nothing is lost; and it
+/// reconstructs a recording with `--method auto` and with a learned model, found by their
+/// default paths in its built-in copies.
 #[test]
 fn the_program_alone_runs_the_demo_serving_as_every_node() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -748,4 +750,51 @@ fn the_program_alone_runs_the_demo_serving_as_every_node() {
     for (name, bytes) in &want {
         assert!(got[name] == *bytes, "{name} differs");
     }
+    // `--method auto` and a learned model by their default paths, which are not in this folder:
+    // the built-in copies, written into the cache folder.
+    let cache = dir.path().join("cache");
+    let neuspike = |args: &[&str]| {
+        let _one = one_graph();
+        let run = std::process::Command::new(&program)
+            .args(args)
+            .current_dir(&work)
+            .env_remove("CARGO_MANIFEST_DIR")
+            .env_remove("CARGO_TARGET_DIR")
+            .env("XDG_CACHE_HOME", &cache)
+            .output()
+            .expect("neuspike");
+        assert!(
+            run.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+    };
+    neuspike(&["simulate", "bright-slow", "--out", "rec", "--planes", "600"]);
+    for (method, model) in [
+        ("auto", None),
+        ("learned", Some("models/neuspike-spike-8.onnx")),
+    ] {
+        let out = format!("out/{method}");
+        let mut args = vec![
+            "reconstruct",
+            "--spikes",
+            "rec/spikes.dat",
+            "--method",
+            method,
+        ];
+        args.extend(model.iter().flat_map(|m| ["--model", *m]));
+        args.extend(["--out", &out]);
+        neuspike(&args);
+        let summary: neuspike_sink::report::SummaryFile = serde_yaml::from_str(
+            &std::fs::read_to_string(work.join(&out).join("summary.yml")).expect("summary.yml"),
+        )
+        .expect("summary");
+        let (input, c) = summary.inputs.iter().next().expect("an input");
+        let c = &c.counts;
+        assert!(
+            c.received >= 20 && c.missing == 0 && c.ended,
+            "{method}: {input}: {c:?}"
+        );
+    }
+    assert!(std::fs::read_dir(cache.join("neuspike")).is_ok_and(|mut d| d.next().is_some()));
 }

@@ -174,6 +174,10 @@ fn measure(
 /// Bad options, a CSV from another version, a network that does not load, a method that fails,
 /// or an output that cannot be written. Rows measured before the failure stay in the CSV.
 pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
+    let opts = &BenchOptions {
+        models: crate::models::or_shipped(&opts.models),
+        ..opts.clone()
+    };
     let started = Instant::now();
     std::fs::create_dir_all(&opts.out)
         .wrap_err_with(|| format!("cannot create {}", opts.out.display()))?;
