@@ -520,10 +520,7 @@ impl<'a> Chain<'a> {
         if self.threads.as_ref().is_some_and(|t| t.live > 0) {
             let wait = !live;
             live = true;
-            loop {
-                let Some(th) = self.threads.as_mut() else {
-                    break;
-                };
+            while let Some(th) = self.threads.as_mut() {
                 let next = if wait {
                     th.rx.recv().map_err(|_| TryRecvError::Disconnected)
                 } else {

@@ -300,10 +300,10 @@ fn a_wrong_edge_is_refused_naming_both_ends() {
 
 /// Drives `stage` as a driver would: steps a source until it stops, else hands it `feed` and
 /// then each input's end; returns what it sent (output, seq) and the counts it announced.
-fn drive(
-    stage: &mut dyn Stage,
-    feed: Vec<(&str, Msg)>,
-) -> (Vec<(String, u64)>, Vec<(String, u64)>, bool) {
+/// What a driven stage sent (output, seq), the counts it announced, and whether it was cut.
+type Driven = (Vec<(String, u64)>, Vec<(String, u64)>, bool);
+
+fn drive(stage: &mut dyn Stage, feed: Vec<(&str, Msg)>) -> Driven {
     let mut out = Outbox::new();
     let mut sent = Vec::new();
     let take = |out: &mut Outbox, sent: &mut Vec<(String, u64)>| {

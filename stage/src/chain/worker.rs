@@ -11,7 +11,9 @@ use crate::{Flow, Msg, Outbox, Stage, Tallies};
 /// Calls a worker may hold before the chain waits for it.
 const QUEUED: usize = 32;
 
-/// A call of the stage.
+/// A call of the stage. It travels by value (a box per message would cost an allocation on the
+/// hot path); the channel holds a few dozen.
+#[allow(clippy::large_enum_variant)]
 enum Call {
     Message {
         input: String,
@@ -106,8 +108,11 @@ impl Worker {
     }
 
     fn call(&mut self, call: Call) -> eyre::Result<Flow> {
-        let sent = self.calls.as_ref().map(|c| c.send(call));
-        if !matches!(sent, Some(Ok(()))) {
+        let sent = match &self.calls {
+            Some(c) => c.send(call).is_ok(),
+            None => false,
+        };
+        if !sent {
             return Err(eyre!("its thread ended"));
         }
         self.poll();
@@ -129,11 +134,10 @@ impl Worker {
 
     fn take(&mut self, r: Reply) {
         self.busy += r.busy;
-        let keep = match (&self.pending, &r.flow) {
-            (None, Ok(Flow::Stop) | Err(_)) => true,
-            (Some(Ok(_)), Err(_)) => true,
-            _ => false,
-        };
+        let keep = matches!(
+            (&self.pending, &r.flow),
+            (None, Ok(Flow::Stop) | Err(_)) | (Some(Ok(_)), Err(_))
+        );
         if keep {
             self.pending = Some(r.flow);
         }
@@ -142,8 +146,11 @@ impl Worker {
     /// Finishes the stage with `tallies` and waits until it has: its result, or the first error
     /// of a call not yet reported.
     pub(super) fn finish(&mut self, tallies: Tallies) -> eyre::Result<()> {
-        let sent = self.calls.take().map(|c| c.send(Call::Finish(tallies)));
-        if !matches!(sent, Some(Ok(()))) {
+        let sent = match self.calls.take() {
+            Some(c) => c.send(Call::Finish(tallies)).is_ok(),
+            None => false,
+        };
+        if !sent {
             return Err(eyre!("its thread ended before its finish"));
         }
         loop {
