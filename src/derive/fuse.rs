@@ -58,8 +58,8 @@ pub fn processes(graph: &Value) -> eyre::Result<Vec<(String, Vec<String>)>> {
 /// # Errors
 /// One line naming the process and the node: a node it names that the graph does not have, a
 /// node in two processes, a name that is also a node's id, a node that is not a neuspike stage,
-/// a source with an input from outside the process, members deployed on different machines or
-/// with different restart policies or env values.
+/// a source with an input from outside the process or a restart policy, members deployed on
+/// different machines or with different restart policies or env values.
 pub fn fuse(graph: &mut Value) -> eyre::Result<()> {
     let groups = processes(graph)?;
     if let Some(m) = graph.as_mapping_mut() {
@@ -187,6 +187,15 @@ fn fuse_one(graph: &mut Value, name: &str, members: &[String], edges: &[Edge]) -
     }
     let deploy = shared(&nodes, "deploy", name)?;
     let restart = shared(&nodes, "restart_policy", name)?;
+    // A source node restarted by dora resumes on its first start's clock; inside a process it
+    // would start its stream over.
+    if let (Some(src), Some(policy)) = (source, &restart)
+        && policy.as_str() != Some("never")
+    {
+        bail!(
+            "{PROCESSES}: `{name}` holds the source `{src}` and restarts (`restart_policy`): a source restarts only as a node of its own"
+        );
+    }
     // The outputs read outside the process.
     let mut outlets: Vec<String> = Vec::new();
     let mut output_types = Mapping::new();

@@ -250,6 +250,25 @@ fn a_process_that_cannot_be_is_one_line_naming_it() {
             with("  core: align"),
             "processes: `core` is not a list of node ids",
         ),
+        (
+            with("  p: [camera, align]").replace(
+                "    args: --scene bright-slow\n",
+                "    args: --scene bright-slow\n    restart_policy: on-failure\n",
+            ),
+            "processes: `p` holds `camera`, which sets `restart_policy`, and `align`, which does not: one process has one",
+        ),
+        (
+            with("  p: [camera, align]")
+                .replace(
+                    "    args: --scene bright-slow\n",
+                    "    args: --scene bright-slow\n    restart_policy: on-failure\n",
+                )
+                .replace(
+                    "    path: neuspike-align\n",
+                    "    path: neuspike-align\n    restart_policy: on-failure\n",
+                ),
+            "processes: `p` holds the source `camera` and restarts (`restart_policy`): a source restarts only as a node of its own",
+        ),
         // A fault of the graph itself names the nodes as written.
         (
             with("  core: [align, represent]")
