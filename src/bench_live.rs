@@ -218,7 +218,7 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
     for _ in 0..opts.runs {
         let mut baseline = None;
         for (layout, path, frames) in &graphs {
-            let r = run_one(opts, path, frames)?;
+            let (r, samples) = run_one(opts, path, frames)?;
             let base = *baseline.get_or_insert(r.wall_s);
             let (p50, p99) = r.latency_ms.map_or(("-".into(), "-".into()), |(a, b)| {
                 (format!("{a:.1}"), format!("{b:.1}"))
@@ -243,29 +243,21 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
             );
             if opts.soak {
                 let rss_csv = path.parent().unwrap_or(Path::new(".")).join("rss.csv");
-                soak::report(&r.samples, &r.run.minutes, r.missing, &rss_csv)?;
+                soak::report(&samples, &r.minutes, r.missing, &rss_csv)?;
             }
-            runs.push((*layout, r.run));
+            runs.push((*layout, r));
         }
     }
     Ok(runs)
 }
 
-/// A run and the memory samples taken during it.
-struct Sampled {
-    run: LiveRun,
-    samples: Vec<soak::RssSample>,
-}
-
-impl std::ops::Deref for Sampled {
-    type Target = LiveRun;
-    fn deref(&self) -> &LiveRun {
-        &self.run
-    }
-}
-
-/// Runs the graph at `path` once; its figures from the sink's summary in `frames`.
-fn run_one(opts: &LiveBenchOptions, path: &Path, frames: &Path) -> eyre::Result<Sampled> {
+/// Runs the graph at `path` once: its figures from the sink's summary in `frames`, and the
+/// memory samples taken during it (with `--soak`).
+fn run_one(
+    opts: &LiveBenchOptions,
+    path: &Path,
+    frames: &Path,
+) -> eyre::Result<(LiveRun, Vec<soak::RssSample>)> {
     let done = Arc::new(AtomicBool::new(false));
     let rss_csv = path.parent().unwrap_or(Path::new(".")).join("rss.csv");
     let sampler = opts
@@ -281,10 +273,7 @@ fn run_one(opts: &LiveBenchOptions, path: &Path, frames: &Path) -> eyre::Result<
     let report = report?;
     let wall_s = report.elapsed.as_secs_f64();
     report.into_result()?;
-    Ok(Sampled {
-        run: figures(frames, opts.seconds, wall_s)?,
-        samples,
-    })
+    Ok((figures(frames, opts.seconds, wall_s)?, samples))
 }
 
 #[cfg(test)]
