@@ -5,10 +5,13 @@
 //! `window_planes` spike planes around its reference plane `c = window_planes / 2`, exactly as
 //! the graph's align and represent nodes see it:
 //! - the **spike representation** (`channels`: 1 ISI + `channels - 1` raw planes) from the
-//!   window's packed planes, by the represent node's own `neuspike_represent::Representer`;
+//!   window's packed planes;
 //! - the **event integration** (`channels` instants evenly spaced over the window's events
-//!   `[t_first - T, t_last)`, Eq. 8 with `tau_ns`), by the same `Representer` on the events of a
-//!   DVS of the same size and clock (pixel-registered);
+//!   `[t_first - T, t_last)`, Eq. 8 with `tau_ns`), from the events of a DVS of the same size
+//!   and clock (pixel-registered);
+//!
+//!   both made by the graph's own align and represent stages, run in a chain on the two
+//!   cameras' streams;
 //! - the **ground truth**: scene luminance at `t_ref`, in `[0, 1]`, light scale not applied;
 //! - the classical baselines the card compares with: TFP over the whole window and TFI, both
 //!   calibrated to luminance with the sample's `lum_per_rate = phi / light_scale`.
@@ -37,16 +40,19 @@ use std::path::{Path, PathBuf};
 use eyre::{WrapErr, bail, eyre};
 use ndarray::{Array2, Array3, Axis};
 use ndarray_npy::write_npy;
+use neuspike_align::{AlignConfig, AlignStage};
 use neuspike_event_source::{DvsConfig, EventCamera};
 use neuspike_infer::{luminance_from_isi_into, luminance_from_rate_into};
-use neuspike_represent::{RepresentConfig, Representer};
+use neuspike_represent::{RepresentConfig, RepresentStage, Representer};
 use neuspike_scene::Scene;
-use neuspike_schemas::{AlignedWindow, RepresentationKind};
+use neuspike_schemas::{AlignedWindow, EventBatch, Representation, RepresentationKind, SpikeChunk};
 use neuspike_spike_source::noise::{Noise, NoiseArgs};
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
+use neuspike_stage::{Chain, Msg, MsgType, Replay};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use std::sync::Mutex;
 
 /// The light scales of the grid (the spike camera's `phi` is 1: a pixel of luminance `L` fires
 /// `L * light` times a tick on average).
@@ -530,33 +536,53 @@ pub fn sample(
     };
     let mut dvs = EventCamera::new(scene.clone(), dvs_cfg, t_start_ns)?;
     let batch = dvs.advance_to(t_end_ns, 0);
+    let lum_per_rate = camera.lum_per_rate();
 
-    // The represent node's own computation of each representation, on the same window.
+    // The graph's own align and represent stages, in a chain, on the two cameras' streams.
     let k = opts.channels;
-    let mut represent = Representer::new(RepresentConfig {
-        repr_channels: k as u32,
-        ei_channels: k as u32,
-        tau_ns: opts.tau_ns,
-        ..RepresentConfig::default()
-    })?;
-    let window = AlignedWindow {
-        t_ref_ns,
-        ref_plane: c as u64,
-        spikes: chunk,
-        events: batch,
+    let mut kinds = vec![
+        RepresentationKind::SpikeRepr,
+        RepresentationKind::EventIntegration,
+        RepresentationKind::Tfp,
+        RepresentationKind::Isi,
+    ];
+    for &kind in &opts.also {
+        if !kinds.contains(&kind) {
+            kinds.push(kind);
+        }
+    }
+    let got = window_through_the_stages(
+        chunk,
+        batch,
+        Representer::new(RepresentConfig {
+            repr_channels: k as u32,
+            ei_channels: k as u32,
+            tau_ns: opts.tau_ns,
+            ..RepresentConfig::default()
+        })?,
+        &kinds,
+    )?;
+    if got.window.ref_plane != c as u64 || got.window.t_ref_ns != t_ref_ns {
+        bail!(
+            "dataset sample {index}: align cut the window at plane {}, not {c}",
+            got.window.ref_plane
+        );
+    }
+    let take = |kind: RepresentationKind| -> eyre::Result<Array3<f32>> {
+        kinds
+            .iter()
+            .position(|&k| k == kind)
+            .and_then(|i| got.representations.get(i).cloned())
+            .ok_or_else(|| eyre!("dataset sample {index}: represent made no {kind}"))
     };
-    let spike = represent
-        .represent(RepresentationKind::SpikeRepr, &window)?
-        .data;
-    let events = represent
-        .represent(RepresentationKind::EventIntegration, &window)?
-        .data;
-    let rate = represent.represent(RepresentationKind::Tfp, &window)?.data;
-    let isi = represent.represent(RepresentationKind::Isi, &window)?.data;
+    let spike = take(RepresentationKind::SpikeRepr)?;
+    let events = take(RepresentationKind::EventIntegration)?;
+    let rate = take(RepresentationKind::Tfp)?;
+    let isi = take(RepresentationKind::Isi)?;
     let also = opts
         .also
         .iter()
-        .map(|&kind| Ok(represent.represent(kind, &window)?.data))
+        .map(|&kind| take(kind))
         .collect::<eyre::Result<Vec<_>>>()?;
 
     let phi = CameraConfig::default().phi;
@@ -574,8 +600,8 @@ pub fn sample(
         angle_deg,
         theta_on,
         theta_off,
-        lum_per_rate: camera.lum_per_rate(),
-        events: window.events.t_ns.len(),
+        lum_per_rate,
+        events: got.window.events.t_ns.len(),
         complex: cell_light <= COMPLEX_MAX_LIGHT || speed >= COMPLEX_MIN_SPEED_PX_S,
         camera: cam,
     };
@@ -587,6 +613,80 @@ pub fn sample(
         tfi,
         also,
         info,
+    })
+}
+
+/// A sample's window, cut by align from the spike camera's `chunk` and the DVS's `batch`, and
+/// its representations of `kinds` (in that order), made by `representer`: the align and
+/// represent stages in a chain, as a graph runs them. Align's stride is half the chunk, so its
+/// first window is the one around the chunk's middle plane.
+struct Through {
+    window: AlignedWindow,
+    representations: Vec<Array3<f32>>,
+}
+
+fn window_through_the_stages(
+    chunk: SpikeChunk,
+    batch: EventBatch,
+    representer: Representer,
+    kinds: &[RepresentationKind],
+) -> eyre::Result<Through> {
+    let n = u32::try_from(chunk.n_planes)
+        .map_err(|_| eyre!("dataset: {} planes in a window", chunk.n_planes))?;
+    let align = AlignConfig {
+        window_planes: n,
+        stride_planes: u64::from(n / 2).max(1),
+        ..AlignConfig::default()
+    };
+    let window = Mutex::new(None);
+    let made = Mutex::new(vec![None; kinds.len()]);
+    let mut chain = Chain::new();
+    chain
+        .add(
+            "cameras",
+            Replay::new("cameras")
+                .output("spikes", MsgType::SpikeChunk, [Msg::from(chunk)])
+                .output("events", MsgType::EventBatch, [Msg::from(batch)]),
+        )?
+        .add("align", AlignStage::new(align, true, false))?
+        .add("represent", RepresentStage::new(representer, kinds))?
+        .connect("cameras/spikes", "align/spikes")?
+        .connect("cameras/events", "align/events")?
+        .connect("align/windows", "represent/windows")?;
+    chain.tap("align/windows", |m| {
+        let mut w = window.lock().unwrap_or_else(|e| e.into_inner());
+        // The first window only: the chunk holds one.
+        if w.is_none() {
+            *w = Some(AlignedWindow::try_from(m)?);
+        }
+        Ok(())
+    })?;
+    for (i, kind) in kinds.iter().enumerate() {
+        let made = &made;
+        chain.tap(&format!("represent/{}", kind.name()), move |m| {
+            let r = Representation::try_from(m)?;
+            let mut made = made.lock().unwrap_or_else(|e| e.into_inner());
+            if made[i].is_none() {
+                made[i] = Some(r.data);
+            }
+            Ok(())
+        })?;
+    }
+    chain.run()?;
+    let window = window
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .ok_or_else(|| eyre!("dataset: align cut no window"))?;
+    let representations = made
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .zip(kinds)
+        .map(|(r, k)| r.ok_or_else(|| eyre!("dataset: represent made no {k}")))
+        .collect::<eyre::Result<_>>()?;
+    Ok(Through {
+        window,
+        representations,
     })
 }
 
@@ -830,6 +930,73 @@ mod tests {
                 kind.name()
             );
             assert!(direct.also[k].iter().any(|&v| v != 0.0), "{}", kind.name());
+        }
+    }
+
+    #[test]
+    fn the_stages_see_the_whole_chunk_as_one_window_as_the_shipped_sets_were_made() {
+        // The shipped networks were trained on windows holding the camera's chunk whole, with
+        // the DVS batch of its span: align must cut exactly that, and represent make from it
+        // what the `Representer` makes on that window directly.
+        let scene = Scene::from_yaml_str(
+            "width: 24\nheight: 24\nseed: 3\ntexture:\n  kind: strokes\nmotion:\n  vx_px_s: 3000.0\n  rotation_deg_s: 90.0\n",
+            "test",
+            None,
+        )
+        .expect("scene");
+        for n in [2usize, 31, 33, 64] {
+            let cfg = CameraConfig {
+                width: 24,
+                height: 24,
+                ..CameraConfig::default()
+            };
+            let chunk = SpikeCamera::new(scene.clone(), cfg)
+                .expect("camera")
+                .next_chunk(n, 0);
+            let (t0, t1) = (
+                chunk.t_first_ns - chunk.plane_period_ns,
+                chunk.plane_time_ns(n - 1),
+            );
+            let dvs = DvsConfig {
+                width: 24,
+                height: 24,
+                ..DvsConfig::default()
+            };
+            let batch = EventCamera::new(scene.clone(), dvs, t0)
+                .expect("dvs")
+                .advance_to(t1, 0);
+            let cfg = RepresentConfig {
+                repr_channels: 2,
+                ei_channels: 4,
+                ..RepresentConfig::default()
+            };
+            let kinds = [
+                RepresentationKind::SpikeRepr,
+                RepresentationKind::EventIntegration,
+                RepresentationKind::VoxelGrid,
+            ];
+            let got = window_through_the_stages(
+                chunk.clone(),
+                batch.clone(),
+                Representer::new(cfg.clone()).expect("representer"),
+                &kinds,
+            )
+            .expect("through the stages");
+            let whole = AlignedWindow {
+                t_ref_ns: chunk.plane_time_ns(n / 2),
+                ref_plane: (n / 2) as u64,
+                spikes: chunk.clone(),
+                events: batch.clone(),
+            };
+            assert!(!batch.t_ns.is_empty(), "{n} planes: the scene moves");
+            assert_eq!(got.window.ref_plane, whole.ref_plane, "{n} planes");
+            assert_eq!(got.window.spikes.bits, chunk.bits, "{n} planes");
+            assert_eq!(got.window.events.t_ns, batch.t_ns, "{n} planes");
+            let mut direct = Representer::new(cfg).expect("representer");
+            for (k, kind) in kinds.iter().enumerate() {
+                let want = direct.represent(*kind, &whole).expect("represent").data;
+                assert_eq!(got.representations[k], want, "{n} planes, {kind}");
+            }
         }
     }
 

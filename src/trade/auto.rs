@@ -196,16 +196,19 @@ pub fn stage_row(
         .wrap_err("cannot start a thread pool")?;
     neuspike_infer::learned::set_threads(1);
     let last = rec.scored.last().copied().unwrap_or(0);
+    let refs: Vec<u64> = (140..=last)
+        .step_by(super::grid::STRIDE_PLANES as usize)
+        .collect();
+    let cuts = rec.windows(256, &refs, false)?;
     let (frames, ms, mix, late) = pool.install(|| -> eyre::Result<_> {
         let mut frames = Vec::new();
         let mut ms = Vec::new();
         let mut mix: BTreeMap<String, usize> = BTreeMap::new();
         let mut late = 0;
-        let mut c = 140;
-        while c <= last {
-            let w = rec.window(c, 256, c / super::grid::STRIDE_PLANES);
+        for cut in &cuts {
+            let c = cut.window.ref_plane;
             let f = stage
-                .frame(&w)
+                .frame(&cut.window)
                 .map_err(|e| eyre!("auto: window at plane {c}: {e}"))?;
             if rec.scored.contains(&c) {
                 ms.push(f.compute_ns as f64 / 1e6);
@@ -219,7 +222,6 @@ pub fn stage_row(
                 late += usize::from(f.late);
                 frames.push(f.data);
             }
-            c += super::grid::STRIDE_PLANES;
         }
         Ok((frames, ms, mix, late))
     })?;

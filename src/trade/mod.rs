@@ -338,7 +338,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             }
             let (rec, label) = run::simulate(class, opts.set, *t, &opts.noise, opts.rig)
                 .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
-            let stats = run::window_stats(&rec);
+            let stats = run::window_stats(&rec)?;
             let template = with_stats(
                 Row {
                     set: set.clone(),
@@ -425,7 +425,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
                     label: name,
                     ..empty_row()
                 },
-                &run::window_stats(&rec),
+                &run::window_stats(&rec)?,
             );
             for spec in methods.iter().filter(|m| rec.fits(m)) {
                 if have.contains(&("real".into(), class.clone(), 0, spec.name.clone())) {

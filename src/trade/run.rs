@@ -1,12 +1,15 @@
-//! One recording through one method, as the graph pays for it: align's windows, the represent
-//! stage computing only the kinds the method reads, and the infer stage's `Reconstructor`, timed
-//! per window on a given number of threads; the scored frames kept for the metrics.
+//! One recording through one method, as the graph pays for it: the align stage's windows (the
+//! recording replayed through the stage in a chain), the represent stage's `Representer`
+//! computing only the kinds the method reads, and the infer stage's `Reconstructor`, timed per
+//! window on a given number of threads; the scored frames kept for the metrics.
 
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use eyre::{WrapErr, bail, eyre};
 use ndarray::Array2;
+use neuspike_align::{AlignConfig, AlignStage};
 use neuspike_event_source::{DvsConfig, EventCamera};
 use neuspike_infer::learned::LearnedModel;
 use neuspike_infer::{EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor};
@@ -15,6 +18,7 @@ use neuspike_schemas::{
     AlignedWindow, EventBatch, RepresentationKind, SpikeChunk, bytes_per_plane,
 };
 use neuspike_spike_source::{CameraConfig, SpikeCamera};
+use neuspike_stage::{Chain, Msg, MsgType, Replay};
 
 use super::grid::{self, SceneClass, TextureSet};
 use crate::memory;
@@ -234,7 +238,10 @@ pub const LONGEST_PLANES: u32 = 256;
 /// The statistics of each scored window, as `auto` sees them (its 33 central planes, the event
 /// rate also over the [`LONGEST_PLANES`] around it where the recording holds them:
 /// [`neuspike_represent::choice_stats`]), and the milliseconds each took.
-pub fn window_stats(rec: &Recording) -> Vec<(WindowStats, f64)> {
+///
+/// # Errors
+/// Align did not cut a scored window.
+pub fn window_stats(rec: &Recording) -> eyre::Result<Vec<(WindowStats, f64)>> {
     rec.scored
         .iter()
         .map(|&c| {
@@ -244,15 +251,16 @@ pub fn window_stats(rec: &Recording) -> Vec<(WindowStats, f64)> {
             } else {
                 WINDOW_PLANES
             };
-            let w = rec.window(c, n, c / grid::STRIDE_PLANES);
+            let [cut] = <[_; 1]>::try_from(rec.windows(n, &[c], false)?)
+                .map_err(|_| eyre!("align: no window at plane {c}"))?;
             let start = Instant::now();
             let s = neuspike_represent::choice_stats(
-                &w,
+                &cut.window,
                 WINDOW_PLANES as usize,
                 LONGEST_PLANES as usize,
             )
             .unwrap_or_default();
-            (s, start.elapsed().as_secs_f64() * 1e3)
+            Ok((s, start.elapsed().as_secs_f64() * 1e3))
         })
         .collect()
 }
@@ -412,10 +420,6 @@ pub fn real(path: &Path) -> eyre::Result<Recording> {
 }
 
 impl Recording {
-    fn plane_time(&self, k: u64) -> i64 {
-        self.spikes.plane_time_ns(k as usize)
-    }
-
     /// Whether `spec` can run here: events when it needs them, and every scored window inside
     /// the planes.
     pub fn fits(&self, spec: &MethodSpec) -> bool {
@@ -427,55 +431,108 @@ impl Recording {
                 .all(|&c| c >= n / 2 && c + n - 1 - n / 2 < self.spikes.n_planes as u64)
     }
 
-    /// The window of `n` planes around reference plane `c`, as align cuts it.
-    pub(crate) fn window(&self, c: u64, n: u32, seq: u64) -> AlignedWindow {
-        let n = u64::from(n);
-        let first = c - n / 2;
-        let per = bytes_per_plane(self.spikes.width, self.spikes.height);
-        let bits = self.spikes.bits[first as usize * per..(first + n) as usize * per].to_vec();
-        let period = self.spikes.plane_period_ns;
-        let (t_start, t_end) = (
-            self.plane_time(first) - period,
-            self.plane_time(first + n - 1),
-        );
-        AlignedWindow {
-            t_ref_ns: self.plane_time(c),
-            ref_plane: c,
-            spikes: SpikeChunk {
-                first_plane: first,
-                n_planes: n as usize,
-                t_first_ns: self.plane_time(first),
-                seq,
-                bits,
-                width: self.spikes.width,
-                height: self.spikes.height,
-                plane_period_ns: period,
-                lum_per_rate: self.spikes.lum_per_rate,
-            },
-            events: self.events_in(t_start, t_end, seq),
-        }
-    }
-
-    /// The events of `[t_start, t_end)` as a batch numbered `seq` (an empty 0x0 batch without an
-    /// event camera, as align sends).
-    fn events_in(&self, t_start: i64, t_end: i64, seq: u64) -> EventBatch {
-        let Some(ev) = &self.events else {
-            return EventBatch::empty(0, 0, t_start, t_end, seq);
+    /// The windows of `n` planes that align cuts at the reference planes `refs` (multiples of
+    /// the stride, ascending), each with the event stream align cuts at it when `stream` and the
+    /// recording has events: the recording replayed, in chunks of [`grid::STRIDE_PLANES`]
+    /// planes, through the align stage in a chain, as a graph's align gets it from a camera.
+    ///
+    /// # Errors
+    /// Align refused the recording, or did not cut every window asked for (a reference plane
+    /// off the stride, or too near an end of the recording).
+    pub(crate) fn windows(&self, n: u32, refs: &[u64], stream: bool) -> eyre::Result<Vec<Cut>> {
+        let Some(&last) = refs.iter().max() else {
+            return Ok(Vec::new());
         };
-        let lo = ev.t_ns.partition_point(|&t| t < t_start);
-        let hi = ev.t_ns.partition_point(|&t| t < t_end);
-        EventBatch {
-            width: ev.width,
-            height: ev.height,
-            t_start_ns: t_start,
-            t_end_ns: t_end,
-            seq,
-            t_ns: ev.t_ns[lo..hi].to_vec(),
-            x: ev.x[lo..hi].to_vec(),
-            y: ev.y[lo..hi].to_vec(),
-            polarity: ev.polarity[lo..hi].to_vec(),
+        let sp = &self.spikes;
+        let n64 = u64::from(n);
+        // Planes up to the last window's end: align needs nothing after it.
+        let planes = last.saturating_add(n64 - n64 / 2).min(sp.n_planes as u64);
+        let per = bytes_per_plane(sp.width, sp.height);
+        let step = grid::STRIDE_PLANES;
+        let chunks = (0..planes.div_ceil(step)).map(move |k| {
+            let first = k * step;
+            let count = step.min(planes - first);
+            Msg::from(SpikeChunk {
+                first_plane: first,
+                n_planes: count as usize,
+                t_first_ns: sp.plane_time_ns(first as usize),
+                seq: k,
+                bits: sp.bits[first as usize * per..(first + count) as usize * per].to_vec(),
+                width: sp.width,
+                height: sp.height,
+                plane_period_ns: sp.plane_period_ns,
+                lum_per_rate: sp.lum_per_rate,
+            })
+        });
+        let with_events = self.events.is_some();
+        let stream = stream && with_events;
+        let mut replay = Replay::new("recording").output("spikes", MsgType::SpikeChunk, chunks);
+        if let Some(ev) = &self.events {
+            replay = replay.output("events", MsgType::EventBatch, [Msg::from(ev.clone())]);
         }
+        let cfg = AlignConfig {
+            window_planes: n,
+            stride_planes: step,
+            ..AlignConfig::default()
+        };
+        let cuts = Mutex::new(Vec::<Cut>::with_capacity(refs.len()));
+        let mut chain = Chain::new();
+        chain
+            .add("recording", replay)?
+            .add("align", AlignStage::new(cfg, with_events, stream))?
+            .connect("recording/spikes", "align/spikes")?;
+        if with_events {
+            chain.connect("recording/events", "align/events")?;
+        }
+        chain.tap("align/windows", |m| {
+            let window = AlignedWindow::try_from(m)?;
+            if refs.binary_search(&window.ref_plane).is_ok() {
+                lock(&cuts).push(Cut {
+                    window,
+                    stream: None,
+                });
+            }
+            Ok(())
+        })?;
+        if stream {
+            // Each window's batch of the stream comes right after it, with its number.
+            chain.tap("align/events", |m| {
+                let batch = EventBatch::try_from(m)?;
+                if let Some(cut) = lock(&cuts).last_mut()
+                    && cut.window.seq() == batch.seq
+                {
+                    cut.stream = Some(batch);
+                }
+                Ok(())
+            })?;
+        }
+        chain.run()?;
+        let cuts = cuts.into_inner().unwrap_or_else(|e| e.into_inner());
+        if cuts.len() != refs.len() {
+            bail!(
+                "align cut {} of the {} windows of {n} planes asked for (reference planes {refs:?}, \
+                 {} planes recorded)",
+                cuts.len(),
+                refs.len(),
+                sp.n_planes
+            );
+        }
+        Ok(cuts)
     }
+}
+
+/// The cuts being collected (a tap that panicked poisoned nothing worth refusing).
+fn lock(cuts: &Mutex<Vec<Cut>>) -> std::sync::MutexGuard<'_, Vec<Cut>> {
+    cuts.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A window align cut, and the event stream it cut at the window's reference instant (when
+/// asked for and the recording has events).
+pub(crate) struct Cut {
+    /// The window.
+    pub window: AlignedWindow,
+    /// The events since the previous window's reference instant.
+    pub stream: Option<EventBatch>,
 }
 
 /// What one pass of a method over a recording gave.
@@ -531,6 +588,22 @@ fn pass_on_this_pool(
     cache: &mut Cache,
 ) -> eyre::Result<Pass> {
     let ids = spec.input_ids();
+    let last = *rec.scored.last().ok_or_else(|| eyre!("no scored window"))?;
+    let refs: Vec<u64> = if spec.stateful() {
+        let first = u64::from(spec.window_planes)
+            .div_ceil(2)
+            .div_ceil(grid::STRIDE_PLANES);
+        (first.max(1)..)
+            .map(|k| k * grid::STRIDE_PLANES)
+            .take_while(|&c| c <= last)
+            .collect()
+    } else {
+        rec.scored.clone()
+    };
+    // Cut before the pass is measured: a graph's align holds one window at a time.
+    let cuts = rec
+        .windows(spec.window_planes, &refs, spec.reads_event_stream())
+        .wrap_err_with(|| format!("{}: align", spec.name))?;
     let before = memory::reset_peak();
     let cfg = spec.infer_config(rec.theta);
     let key = (spec.name.clone(), threads);
@@ -571,32 +644,16 @@ fn pass_on_this_pool(
     };
     let mut represent = Representer::new(spec.represent_config()).map_err(|e| eyre!("{e}"))?;
     let kinds = spec.representations();
-    let last = *rec.scored.last().ok_or_else(|| eyre!("no scored window"))?;
-    let refs: Vec<u64> = if spec.stateful() {
-        let first = u64::from(spec.window_planes)
-            .div_ceil(2)
-            .div_ceil(grid::STRIDE_PLANES);
-        (first.max(1)..)
-            .map(|k| k * grid::STRIDE_PLANES)
-            .take_while(|&c| c <= last)
-            .collect()
-    } else {
-        rec.scored.clone()
-    };
     let mut frames = Vec::with_capacity(rec.scored.len());
     let mut times_ms = Vec::with_capacity(refs.len());
     let mut scored_ms = Vec::with_capacity(rec.scored.len());
-    let mut stream_from = rec.events.as_ref().map_or(0, |e| e.t_start_ns);
-    let mut step = |c: u64, stream_from: i64| -> eyre::Result<(f64, Array2<f32>)> {
-        let seq = c / grid::STRIDE_PLANES;
-        let window = rec.window(c, spec.window_planes, seq);
-        let stream = spec
-            .reads_event_stream()
-            .then(|| rec.events_in(stream_from, window.t_ref_ns, seq));
+    let mut step = |cut: &Cut| -> eyre::Result<(f64, Array2<f32>)> {
+        let (window, c) = (&cut.window, cut.window.ref_plane);
+        let stream = cut.stream.clone();
         let start = Instant::now();
         for &k in &kinds {
             let r = represent
-                .represent(k, &window)
+                .represent(k, window)
                 .map_err(|e| eyre!("{}: window at plane {c}: {e}", spec.name))?;
             let id = match spec.recon {
                 Recon::Classical(_) => REPRESENTATION,
@@ -618,11 +675,11 @@ fn pass_on_this_pool(
     if warm_up {
         // A network's first frame of a size plans it and times its convolution paths (the infer
         // node does this once, at its first window): not a frame's cost.
-        step(refs[0], stream_from)?;
+        step(&cuts[0])?;
     }
-    for &c in &refs {
-        let (ms, frame) = step(c, stream_from)?;
-        stream_from = rec.plane_time(c);
+    for cut in &cuts {
+        let c = cut.window.ref_plane;
+        let (ms, frame) = step(cut)?;
         times_ms.push(ms);
         if rec.scored.contains(&c) {
             frames.push(frame);
@@ -636,4 +693,117 @@ fn pass_on_this_pool(
         times_ms,
         peak_bytes,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use neuspike_scene::Scene;
+
+    /// A small recording of a moving scene, with events, every plane from 0.
+    fn recording(planes: usize) -> Recording {
+        let scene = Scene::from_yaml_str(
+            "width: 24\nheight: 16\nseed: 5\ntexture:\n  kind: strokes\nmotion:\n  vx_px_s: 2000.0\n",
+            "test",
+            None,
+        )
+        .expect("scene");
+        let cfg = CameraConfig {
+            width: 24,
+            height: 16,
+            ..CameraConfig::default()
+        };
+        let spikes = SpikeCamera::new(scene.clone(), cfg)
+            .expect("camera")
+            .next_chunk(planes, 0);
+        let dvs = DvsConfig {
+            width: 24,
+            height: 16,
+            ..DvsConfig::default()
+        };
+        let period = spikes.plane_period_ns;
+        let events = EventCamera::new(scene, dvs, spikes.t_first_ns - period)
+            .expect("dvs")
+            .advance_to(spikes.plane_time_ns(planes - 1), 0);
+        Recording {
+            spikes,
+            events: Some(events),
+            scored: vec![100, 120],
+            truth: None,
+            theta: 0.2,
+        }
+    }
+
+    /// The window of `n` planes around `c` cut by hand from the recording: planes
+    /// `[c - n/2, c + n - 1 - n/2]`, the events of `[t(first) - period, t(last))`.
+    fn by_hand(rec: &Recording, c: u64, n: u32) -> (Vec<u8>, Vec<i64>) {
+        let sp = &rec.spikes;
+        let n = u64::from(n);
+        let first = c - n / 2;
+        let per = bytes_per_plane(sp.width, sp.height);
+        let bits = sp.bits[first as usize * per..(first + n) as usize * per].to_vec();
+        let t0 = sp.plane_time_ns(first as usize) - sp.plane_period_ns;
+        let t1 = sp.plane_time_ns((first + n - 1) as usize);
+        let ev = rec.events.as_ref().expect("events");
+        let t = ev
+            .t_ns
+            .iter()
+            .copied()
+            .filter(|&t| t >= t0 && t < t1)
+            .collect();
+        (bits, t)
+    }
+
+    #[test]
+    fn align_cuts_each_asked_window_as_the_planes_and_events_around_it() {
+        let rec = recording(200);
+        for n in [1u32, 20, 33, 64, 129] {
+            let refs = [80u64, 100, 120];
+            let cuts = rec.windows(n, &refs, false).expect("cut");
+            assert_eq!(cuts.len(), refs.len(), "{n} planes");
+            for (cut, &c) in cuts.iter().zip(&refs) {
+                let (bits, t) = by_hand(&rec, c, n);
+                assert_eq!(cut.window.ref_plane, c, "{n} planes");
+                assert_eq!(cut.window.spikes.n_planes, n as usize, "{n} planes at {c}");
+                assert!(
+                    cut.window.spikes.bits == bits,
+                    "{n} planes at {c}: planes differ"
+                );
+                assert_eq!(
+                    cut.window.events.t_ns, t,
+                    "{n} planes at {c}: events differ"
+                );
+                assert!(cut.stream.is_none());
+            }
+        }
+    }
+
+    #[test]
+    fn the_event_stream_is_cut_at_each_reference_instant_and_misses_nothing() {
+        let rec = recording(200);
+        let refs: Vec<u64> = (1..=8).map(|k| k * grid::STRIDE_PLANES).collect();
+        let cuts = rec.windows(33, &refs, true).expect("cut");
+        let ev = rec.events.as_ref().expect("events");
+        let t_last = cuts.last().expect("cuts").window.t_ref_ns;
+        let mut streamed = Vec::new();
+        for cut in &cuts {
+            let s = cut.stream.as_ref().expect("a stream batch at every window");
+            assert!(s.t_ns.iter().all(|&t| t < cut.window.t_ref_ns));
+            streamed.extend_from_slice(&s.t_ns);
+        }
+        let want: Vec<i64> = ev.t_ns.iter().copied().filter(|&t| t < t_last).collect();
+        assert!(!want.is_empty());
+        assert_eq!(streamed, want);
+    }
+
+    #[test]
+    fn a_window_the_recording_cannot_hold_is_refused_in_one_line() {
+        let rec = recording(60);
+        let e = format!(
+            "{:#}",
+            rec.windows(33, &[60], false).err().expect("refused")
+        );
+        assert!(e.contains("align cut 0 of the 1 windows"), "{e}");
+        assert!(!e.contains('\n'), "{e}");
+    }
 }

@@ -27,11 +27,13 @@ pub mod chain;
 mod fused;
 mod message;
 mod pace;
+mod replay;
 
 pub use chain::{Chain, ChainReport, StageReport};
 pub use fused::Fused;
 pub use message::{Msg, MsgType, WrongType};
 pub use pace::{Pace, Pacer, unix_now_ns};
+pub use replay::Replay;
 
 use neuspike_schemas::SeqTracker;
 
