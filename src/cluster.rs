@@ -123,16 +123,6 @@ pub fn places_nodes(path: &Path) -> eyre::Result<bool> {
     Ok(!machines(&g, path)?.is_empty())
 }
 
-/// Removes every node's `deploy:`, so that the graph runs on one daemon.
-pub fn strip_deploy(graph: &mut Value) {
-    let list = graph.get_mut("nodes").and_then(Value::as_sequence_mut);
-    for node in list.into_iter().flatten() {
-        if let Some(map) = node.as_mapping_mut() {
-            map.remove("deploy");
-        }
-    }
-}
-
 /// Gives every placed node the graph's own folder as its working folder when it names none, so
 /// that relative paths (`--out ../out/x`) mean on every machine what they mean beside the graph.
 fn set_working_dirs(graph: &mut Value, graph_dir: &Path) {
@@ -544,7 +534,7 @@ mod tests {
             g["nodes"][1]["deploy"]["working_dir"].as_str(),
             Some("/srv")
         );
-        strip_deploy(&mut g);
+        graph::strip_deploy(&mut g);
         assert!(g["nodes"][0].get("deploy").is_none() && g["nodes"][1].get("deploy").is_none());
     }
 

@@ -9,7 +9,10 @@ use neuspike_pipeline::{Side, data_inputs, port_type, stage_kind};
 use neuspike_stage::MsgType;
 use serde_yaml::{Mapping, Value};
 
+mod credits;
 pub mod fuse;
+
+pub use credits::{CREDIT_WINDOW, wire_credits};
 
 /// The output on which a consumer returns credits.
 const CREDITS: &str = "credits";
@@ -371,7 +374,7 @@ pub fn derive(graph: &mut Value, window: u64, build: Option<&str>) -> eyre::Resu
             }
         }
     }
-    crate::graph::wire_credits(graph, window);
+    wire_credits(graph, window);
     Ok(())
 }
 

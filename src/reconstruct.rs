@@ -65,7 +65,7 @@ impl AutoPlan {
     /// # Errors
     /// The policy does not load (the error names the file and field).
     pub fn new(policy: &Path, window_planes: Option<u32>) -> eyre::Result<AutoPlan> {
-        use neuspike_policy::{MethodName, Policy};
+        use neuspike_infer::policy::{MethodName, Policy};
         let policy = std::fs::canonicalize(crate::models::or_shipped(policy))
             .wrap_err_with(|| format!("--policy {}: cannot open", policy.display()))?;
         let p = Policy::read(&policy)?;
@@ -149,7 +149,7 @@ pub fn graph_yaml(
     let bins = graph::node_dir().unwrap_or_default();
     let bin = |name: &str| bins.join(format!("neuspike-{name}"));
     let build = graph::build_command().map_or(String::new(), |cmd| format!("\n    build: {cmd}"));
-    let queue = format!("queue_size: {}", graph::CREDIT_WINDOW);
+    let queue = format!("queue_size: {}", crate::derive::CREDIT_WINDOW);
     let m = opts.method.as_str();
     let mut y = String::new();
     let _ = writeln!(
@@ -420,13 +420,13 @@ pub fn recorded_lum_per_rate(spikes: &Path) -> Option<f64> {
 /// Planes per window of the methods that do not choose their own.
 pub const DEFAULT_WINDOW_PLANES: u32 = 33;
 
-/// `yaml` with neuspike's credit flow control wired in ([`graph::wire_credits`]), its first
+/// `yaml` with neuspike's credit flow control wired in ([`crate::derive::wire_credits`]), its first
 /// comment line kept.
 fn with_credits(yaml: &str) -> String {
     let Ok(mut g) = serde_yaml::from_str::<serde_yaml::Value>(yaml) else {
         return yaml.to_string();
     };
-    graph::wire_credits(&mut g, graph::CREDIT_WINDOW);
+    crate::derive::wire_credits(&mut g, crate::derive::CREDIT_WINDOW);
     let comment: String = yaml
         .lines()
         .take_while(|l| l.starts_with('#'))
@@ -616,7 +616,7 @@ mod tests {
             let sink = find(&nodes, "sink");
             assert_eq!(
                 sink["inputs"][m]["queue_size"].as_u64(),
-                Some(graph::CREDIT_WINDOW)
+                Some(crate::derive::CREDIT_WINDOW)
             );
             assert_eq!(sink["outputs"][0].as_str(), Some("credits"));
             assert_eq!(

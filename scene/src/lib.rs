@@ -319,7 +319,7 @@ impl Scene {
     /// the distance from the view centre to a corner and `omega` is in rad/s.
     pub fn max_speed_px_per_s(&self) -> f64 {
         let m = &self.spec.motion;
-        let duration_s = self.duration_ns as f64 / render::NS_PER_S;
+        let duration_s = self.duration_ns as f64 / spec::NS_PER_S;
         let max_log_scale = (m.zoom_per_s * duration_s).clamp(0.0, render::MAX_LOG_ZOOM);
         let corner = (self.width() as f64 / 2.0).hypot(self.height() as f64 / 2.0);
         let translation = m.vx_px_s.hypot(m.vy_px_s) * max_log_scale.exp();

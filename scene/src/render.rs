@@ -14,8 +14,6 @@ use crate::Scene;
 pub(crate) const PARALLEL_MIN_SAMPLES: usize = 1 << 15;
 /// Rows per rayon task.
 pub(crate) const ROWS_PER_TASK: usize = 8;
-/// Nanoseconds per second.
-pub(crate) const NS_PER_S: f64 = 1e9;
 /// `|log s(t)|` is clamped to this, so extreme zoom never produces infinities.
 pub(crate) const MAX_LOG_ZOOM: f64 = 30.0;
 

@@ -11,6 +11,9 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::error::SceneError;
 
+/// Nanoseconds in a second, for times in seconds.
+pub(crate) const NS_PER_S: f64 = 1e9;
+
 /// Default view width in scene pixels.
 pub const DEFAULT_WIDTH: usize = 400;
 /// Default view height in scene pixels.
@@ -488,7 +491,7 @@ impl MotionSpec {
             .stop_ns
             .map_or(i64::MAX, |s| i64::try_from(s).unwrap_or(i64::MAX))
             .max(start);
-        t_ns.clamp(start, stop).saturating_sub(start) as f64 / crate::render::NS_PER_S
+        t_ns.clamp(start, stop).saturating_sub(start) as f64 / NS_PER_S
     }
 
     fn validate(&self, origin: &str) -> Result<(), SceneError> {

@@ -12,7 +12,7 @@ use std::path::Path;
 
 use eyre::{WrapErr, bail, eyre};
 use ndarray::Array2;
-use neuspike_policy::{Policy, Provenance};
+use neuspike_infer::policy::{Policy, Provenance};
 use neuspike_represent::WindowStats;
 
 use super::BenchOptions;
@@ -282,11 +282,11 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
     // whose state lives across windows in the infer stage.
     let runnable = |m: &str| {
         !matches!(
-            neuspike_policy::MethodName::parse(m),
-            Ok(neuspike_policy::MethodName::Hf
-                | neuspike_policy::MethodName::Cf
-                | neuspike_policy::MethodName::Fusion
-                | neuspike_policy::MethodName::FusionTfp)
+            neuspike_infer::policy::MethodName::parse(m),
+            Ok(neuspike_infer::policy::MethodName::Hf
+                | neuspike_infer::policy::MethodName::Cf
+                | neuspike_infer::policy::MethodName::Fusion
+                | neuspike_infer::policy::MethodName::FusionTfp)
                 | Err(_)
         )
     };
@@ -311,7 +311,7 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
                 (m.clone(), s.psnr, s.p50_1t_ms)
             })
             .collect();
-        let Some(pick) = neuspike_policy::best_value(&cands, opts.db_per_ms) else {
+        let Some(pick) = neuspike_infer::policy::best_value(&cands, opts.db_per_ms) else {
             continue;
         };
         let best = cands
@@ -319,17 +319,17 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
             .map(|c| c.1)
             .filter(|v| v.is_finite())
             .fold(f64::NAN, f64::max);
-        let mut ranked: Vec<neuspike_policy::Ranked> = cands
+        let mut ranked: Vec<neuspike_infer::policy::Ranked> = cands
             .iter()
             .filter(|c| c.1.is_finite() && c.2.is_finite())
-            .map(|c| neuspike_policy::Ranked {
+            .map(|c| neuspike_infer::policy::Ranked {
                 method: c.0.clone(),
                 psnr_db: round2(c.1),
                 ms: (c.2 * 1_000.0).round() / 1_000.0,
             })
             .collect();
         ranked.sort_by(|a, b| b.psnr_db.total_cmp(&a.psnr_db));
-        classes.push(neuspike_policy::Class {
+        classes.push(neuspike_infer::policy::Class {
             class: class.clone(),
             method: pick.0.clone(),
             psnr_db: round2(pick.1),
@@ -343,7 +343,7 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
             if !seen.insert(r.texture) {
                 continue;
             }
-            out.push(neuspike_policy::Row {
+            out.push(neuspike_infer::policy::Row {
                 class: class.clone(),
                 texture: r.label.clone(),
                 rate: round6(r.rate),

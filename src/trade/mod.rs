@@ -204,7 +204,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             .policy
             .clone()
             .unwrap_or_else(|| opts.models.join(auto::DEFAULT_POLICY));
-        policy_used = neuspike_policy::Policy::read(&path).ok();
+        policy_used = neuspike_infer::policy::Policy::read(&path).ok();
     } else {
         let mut methods = run::methods(&opts.models)?;
         let installed = methods.clone();

@@ -1,5 +1,5 @@
 //! `--method auto`: per window, the method the scene needs, from a policy fitted by
-//! `neuspike bench` (`neuspike_policy`). The stage reads align's windows itself and computes only
+//! `neuspike bench` (`crate::policy`). The stage reads align's windows itself and computes only
 //! what the chosen method reads: a window that needs TFP never pays for a network's inputs.
 //!
 //! Per window: the statistics of its 33 central planes, the event rate also over the longest
@@ -24,8 +24,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::policy::{MethodName, Policy};
 use ndarray::{Array2, Axis};
-use neuspike_policy::{MethodName, Policy};
 use neuspike_represent::{RepresentConfig, Representer, choice_stats, window_stats};
 use neuspike_schemas::{AlignedWindow, RepresentationKind};
 
@@ -377,7 +377,7 @@ impl Auto {
     /// the most accurate that fits without it (TFSTP then misses this window's planes, counted
     /// in its `gaps`), else the cheapest candidate without it. A frame is planned to
     /// [`PLAN_SHARE`] of the budget; the rest absorbs jitter.
-    fn pick(&self, row: &neuspike_policy::Class, spent_ms: f64) -> (usize, bool) {
+    fn pick(&self, row: &crate::policy::Class, spent_ms: f64) -> (usize, bool) {
         let chosen = self.index(&row.method).unwrap_or(0);
         let Some(budget) = self.budget_ms else {
             return (chosen, true);

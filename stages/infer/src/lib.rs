@@ -37,6 +37,7 @@ mod filter;
 mod fusion;
 pub mod learned;
 mod online;
+pub mod policy;
 mod reconstructor;
 mod recursive;
 mod stage;

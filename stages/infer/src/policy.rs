@@ -31,7 +31,7 @@ use std::path::Path;
 use neuspike_represent::WindowStats;
 use serde::{Deserialize, Serialize};
 
-/// The format version this crate reads and writes.
+/// The format version this module reads and writes.
 pub const VERSION: u32 = 2;
 
 /// Largest policy file read, bytes: a table of a few hundred rows is well under this.
@@ -390,7 +390,7 @@ impl Policy {
             path,
             format!(
                 "# neuspike --method auto: each window takes the method most of its nearest rows \
-                 choose, on the scaled features of its statistics (see neuspike-policy).\n{yaml}"
+                 choose, on the scaled features of its statistics (see neuspike_infer::policy).\n{yaml}"
             ),
         )
     }
