@@ -152,12 +152,15 @@ pub fn run(opts: &PublishFile) -> eyre::Result<Published> {
     // The subscriber's declaration arrived; give its route a moment to settle on every hop.
     std::thread::sleep(Duration::from_millis(200));
 
+    let sent = std::cell::Cell::new(0u32);
     let put = |urn: &str,
                meta: &neuspike_schemas::Meta,
                data: &neuspike_schemas::arrow::array::ArrayRef|
      -> eyre::Result<()> {
         let bytes = ipc::encode(urn, meta, data)?;
-        publisher.put(bytes).wait().map_err(|e| eyre!("{key}: {e}"))
+        let sn = sent.get();
+        sent.set(sn.wrapping_add(1));
+        neuspike_net::put_message(&publisher, bytes, sn).map_err(|e| eyre!("{key}: {e}"))
     };
     let pacer = Pacer::start(opts.pace);
     let start = Instant::now();

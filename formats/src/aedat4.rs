@@ -20,8 +20,18 @@
 //!
 //! The FlatBuffers are read by a small checked reader of our own ([`fb`]), not the `flatbuffers`
 //! crate: its accessors for hand-written tables need `unsafe` implementations, and every offset
-//! here is bounds-checked instead. A packet is decompressed whole, at most [`MAX_PACKET_BYTES`]
-//! (a decompression bomb is an error, not an allocation); memory is bounded by one packet.
+//! here is bounds-checked instead.
+//!
+//! Hostile bytes: nothing is allocated from what a length field claims. Every size read from the
+//! file (the `IOHeader`'s length, a packet's size, a vector's element count, a frame's size) is
+//! checked against the bytes that are there (the file's length, when the reader opened the file
+//! itself; the packet's bytes for what lies inside a packet) and against a stated limit
+//! ([`MAX_HEADER_BYTES`], [`ReadOptions::max_packet_bytes`], by default [`MAX_PACKET_BYTES`])
+//! before anything is allocated, and stored bytes are read as they come, never into a buffer
+//! sized by the claim. A compressed payload is read through a reader that stops one byte past
+//! the packet limit (a decompression bomb is an error naming the limit, not an allocation), and
+//! a Zstandard frame that asks for a window larger than the limit is refused before decoding.
+//! Memory is thus bounded by one packet of at most the limit.
 //!
 //! Bad input: every error names the file and the byte offset of the packet (or header field) at
 //! fault, and the value: a wrong magic, a header that is not an `IOHeader`, an unknown
@@ -43,10 +53,17 @@ use crate::header::resolve_resolution;
 
 /// The first bytes of every AEDAT 4 file.
 pub const MAGIC: &[u8; 14] = b"#!AER-DAT4.0\r\n";
-/// The most bytes one packet may take, stored or decompressed (512 MiB).
-pub const MAX_PACKET_BYTES: usize = 512 << 20;
-/// The most bytes the `IOHeader` may take (16 MiB: it holds an XML description).
-const MAX_HEADER_BYTES: usize = 16 << 20;
+/// The most bytes one packet may take, stored or decompressed, unless
+/// [`ReadOptions::max_packet_bytes`] (or [`Aedat4Frames::with_max_packet_bytes`]) says otherwise:
+/// 64 MiB. A DV event packet holds thousands of 16-byte events (a million, 16 MB, at 100 million
+/// events a second in 10 ms packets) and a frame packet one APS frame (a DAVIS346 frame is
+/// 180 KB, a 4K BGRA frame 33 MB). A packet that claims more, or whose LZ4 or Zstd payload
+/// expands to more, is an error that names this limit: one bad packet header or one compressed
+/// bomb must not take a node's memory.
+pub const MAX_PACKET_BYTES: usize = 64 << 20;
+/// The most bytes the `IOHeader` may take: 16 MiB. It holds the XML description of the streams,
+/// a few KB in DV's files; a longer claim is an error naming this limit.
+pub const MAX_HEADER_BYTES: usize = 16 << 20;
 /// Bytes of one `Event` struct in an `EVTS` packet.
 const EVENT_BYTES: usize = 16;
 /// Events per packet the writer emits.
@@ -200,7 +217,11 @@ pub(crate) mod fb {
             match self.field(slot) {
                 None => Ok(default),
                 Some(p) => Ok(i16::from_le_bytes(
-                    self.b.get(p..p + 2).ok_or(())?.try_into().map_err(|_| ())?,
+                    self.b
+                        .get(p..p.checked_add(2).ok_or(())?)
+                        .ok_or(())?
+                        .try_into()
+                        .map_err(|_| ())?,
                 )),
             }
         }
@@ -240,16 +261,19 @@ pub(crate) mod fb {
         pub(crate) fn str(&self, slot: usize) -> Result<Option<&'a str>, ()> {
             match self.vector(slot, 1)? {
                 None => Ok(None),
-                Some((len, start)) => std::str::from_utf8(&self.b[start..start + len])
-                    .map(Some)
-                    .map_err(|_| ()),
+                Some((len, start)) => {
+                    std::str::from_utf8(self.b.get(start..start + len).ok_or(())?)
+                        .map(Some)
+                        .map_err(|_| ())
+                }
             }
         }
     }
 }
 
-/// Reads the magic, the `IOHeader` and the description; returns the header and the bytes read.
-fn read_header<R: Read>(r: &mut R, path: &Path) -> Result<Aedat4Header> {
+/// Reads the magic, the `IOHeader` and the description; returns the header. `file_len`, when
+/// known, is the file's size: a header length beyond it is refused before anything is read.
+fn read_header<R: Read>(r: &mut R, path: &Path, file_len: Option<u64>) -> Result<Aedat4Header> {
     let corrupt = |offset: u64, what: String| FormatError::Corrupt {
         path: path.to_path_buf(),
         offset,
@@ -284,11 +308,26 @@ fn read_header<R: Read>(r: &mut R, path: &Path) -> Result<Aedat4Header> {
     if len > MAX_HEADER_BYTES {
         return Err(corrupt(
             14,
-            format!("IOHeader length {len} bytes is over the {MAX_HEADER_BYTES}-byte limit"),
+            format!(
+                "IOHeader length {len} bytes is over the {MAX_HEADER_BYTES}-byte limit \
+                 (aedat4::MAX_HEADER_BYTES)"
+            ),
         ));
     }
-    let mut buf = vec![0u8; len];
-    let got = read_full(r, &mut buf, path, 18)?;
+    if let Some(file_len) = file_len
+        && 18 + len as u64 > file_len
+    {
+        return Err(FormatError::Truncated {
+            path: path.to_path_buf(),
+            offset: 14,
+            what: format!(
+                "IOHeader length {len} bytes, but {} bytes follow in the {file_len}-byte file",
+                file_len.saturating_sub(18)
+            ),
+        });
+    }
+    let mut buf = Vec::new();
+    let got = read_up_to(r, len as u64, &mut buf, path, 18)?;
     if got < len {
         return Err(FormatError::Truncated {
             path: path.to_path_buf(),
@@ -402,11 +441,40 @@ fn read_full<R: Read>(r: &mut R, buf: &mut [u8], path: &Path, offset: u64) -> Re
     })
 }
 
+/// Reads up to `n` bytes of `r` into `out` (cleared first) and returns how many came. `out` grows
+/// with the bytes read, never to what `n` claims: a forged length costs no memory. An I/O error
+/// names `offset`, where the read began.
+fn read_up_to<R: Read>(
+    r: &mut R,
+    n: u64,
+    out: &mut Vec<u8>,
+    path: &Path,
+    offset: u64,
+) -> Result<usize> {
+    out.clear();
+    r.take(n)
+        .read_to_end(out)
+        .map_err(|source| FormatError::Io {
+            path: path.to_path_buf(),
+            offset,
+            source,
+        })
+}
+
+/// The size of `file`, when the system says.
+fn file_len(file: &File) -> Option<u64> {
+    file.metadata().ok().map(|m| m.len())
+}
+
 /// Packets in file order, decompressed on demand.
 struct Packets<R> {
     src: R,
     path: PathBuf,
     header: Aedat4Header,
+    /// The file's size, when known: a packet claiming more than is left is refused unread.
+    file_len: Option<u64>,
+    /// The most bytes a packet may take, stored or decompressed.
+    max_bytes: usize,
     /// File offset of the next packet header.
     offset: u64,
     /// The stored bytes of the current packet.
@@ -477,11 +545,26 @@ impl<R: Read> Packets<R> {
                     .join(", ")
             )));
         };
-        if size > MAX_PACKET_BYTES {
+        if size > self.max_bytes {
             self.done = true;
             return Err(corrupt(format!(
-                "packet size {size} bytes is over the {MAX_PACKET_BYTES}-byte limit"
+                "packet of stream {stream}: size {size} bytes is over the {}-byte limit \
+                 (aedat4::MAX_PACKET_BYTES; ReadOptions::max_packet_bytes raises it)",
+                self.max_bytes
             )));
+        }
+        if let Some(len) = self.file_len
+            && at + 8 + size as u64 > len
+        {
+            self.done = true;
+            return Err(truncated(
+                at,
+                format!(
+                    "packet of stream {stream}: size {size} bytes, but {} bytes follow its \
+                     header in the {len}-byte file",
+                    len.saturating_sub(at + 8)
+                ),
+            ));
         }
         if let Some(end) = self.header.data_table_position
             && at + 8 + size as u64 > end
@@ -491,9 +574,19 @@ impl<R: Read> Packets<R> {
                 "a {size}-byte packet runs past the packet index at byte {end}"
             )));
         }
-        self.stored.resize(size, 0);
         let got = if want(stream) {
-            read_full(&mut self.src, &mut self.stored, &self.path, at + 8)?
+            if self.file_len.is_some() {
+                // Checked against the file's length above: the bytes are there, taken at once.
+                self.stored.clear();
+                self.stored.reserve_exact(size);
+            }
+            read_up_to(
+                &mut self.src,
+                size as u64,
+                &mut self.stored,
+                &self.path,
+                at + 8,
+            )?
         } else {
             let copied =
                 std::io::copy(&mut (&mut self.src).take(size as u64), &mut std::io::sink())
@@ -537,10 +630,19 @@ impl<R: Read> Packets<R> {
             Compression::Lz4 => bounded_read(
                 lz4_flex::frame::FrameDecoder::new(&self.stored[..]),
                 &mut self.payload,
+                self.max_bytes,
             ),
-            Compression::Zstd => match ruzstd::decoding::StreamingDecoder::new(&self.stored[..]) {
-                Ok(d) => bounded_read(d, &mut self.payload),
-                Err(e) => Err(e.to_string()),
+            Compression::Zstd => match zstd_window(&self.stored) {
+                // The decoder reserves the window the frame asks for: refused before it does.
+                Some(w) if w > self.max_bytes as u64 => Err(format!(
+                    "its Zstandard frame asks for a {w}-byte window, over the {}-byte limit \
+                     (aedat4::MAX_PACKET_BYTES; ReadOptions::max_packet_bytes raises it)",
+                    self.max_bytes
+                )),
+                _ => match ruzstd::decoding::StreamingDecoder::new(&self.stored[..]) {
+                    Ok(d) => bounded_read(d, &mut self.payload, self.max_bytes),
+                    Err(e) => Err(e.to_string()),
+                },
             },
         };
         decoded.map_err(|e| {
@@ -577,22 +679,49 @@ impl<R: Read> Packets<R> {
     }
 }
 
-/// Reads all of `r` into `out`, at most [`MAX_PACKET_BYTES`].
-fn bounded_read(r: impl Read, out: &mut Vec<u8>) -> std::result::Result<(), String> {
-    let mut limited = r.take(MAX_PACKET_BYTES as u64 + 1);
+/// Reads `r` (a decompressor) into `out` through a reader that stops one byte past `max`: a
+/// payload that expands to more is an error naming the limit, after at most `max + 1` bytes.
+fn bounded_read(r: impl Read, out: &mut Vec<u8>, max: usize) -> std::result::Result<(), String> {
+    let mut limited = r.take(max as u64 + 1);
     limited.read_to_end(out).map_err(|e| e.to_string())?;
-    if out.len() > MAX_PACKET_BYTES {
+    if out.len() > max {
         return Err(format!(
-            "it decompresses to more than {MAX_PACKET_BYTES} bytes"
+            "it decompresses to more than {max} bytes, the limit \
+             (aedat4::MAX_PACKET_BYTES; ReadOptions::max_packet_bytes raises it)"
         ));
     }
     Ok(())
 }
 
+/// The window a Zstandard frame asks its decoder to hold (RFC 8878, 3.1.1.1: the window
+/// descriptor, or the frame content size of a single-segment frame); `None` when `b` does not
+/// start with a frame header (the decoder then says what is wrong).
+fn zstd_window(b: &[u8]) -> Option<u64> {
+    const ZSTD_MAGIC: u32 = 0xFD2F_B528;
+    if fb::u32_at(b, 0)? != ZSTD_MAGIC {
+        return None;
+    }
+    let descriptor = *b.get(4)?;
+    if descriptor & 0x20 == 0 {
+        // Window_Descriptor: exponent (5 bits) and mantissa (3 bits); at most 2^41 + 7 * 2^38.
+        let w = *b.get(5)?;
+        let base = 1u64 << (10 + u32::from(w >> 3));
+        return Some(base + (base / 8) * u64::from(w & 7));
+    }
+    // Single segment: the window is the content size, after the dictionary id.
+    let at = 5 + [0, 1, 2, 4][usize::from(descriptor & 3)];
+    Some(match descriptor >> 6 {
+        0 => u64::from(*b.get(at)?),
+        1 => u64::from(fb::u16_at(b, at)?) + 256,
+        2 => u64::from(fb::u32_at(b, at)?),
+        _ => u64::from_le_bytes(b.get(at..at + 8)?.try_into().ok()?),
+    })
+}
+
 /// A streaming reader of the events of one `EVTS` stream (the first, unless chosen).
 ///
 /// Packets of other streams are skipped unread and counted in
-/// [`ReadStats::skipped_packets`]. Timestamps are the file's µs times in ns, as recorded
+/// [`crate::ReadStats::skipped_packets`]. Timestamps are the file's µs times in ns, as recorded
 /// (DV's clock is the Unix epoch in µs, about 1.6e15, far inside `i64` ns).
 pub struct Aedat4Reader<R: Read> {
     packets: Packets<R>,
@@ -614,20 +743,36 @@ struct Current {
 }
 
 impl Aedat4Reader<BufReader<File>> {
-    /// Opens an AEDAT 4 file and its first event stream.
+    /// Opens an AEDAT 4 file and its first event stream. Sizes the file claims are also checked
+    /// against its length.
     pub fn open(path: impl AsRef<Path>, opts: &ReadOptions) -> Result<Self> {
         let path = path.as_ref();
         let file = crate::open_file(path)?;
-        Self::from_reader(BufReader::with_capacity(256 * 1024, file), path, opts)
+        let len = file_len(&file);
+        Self::with_len(
+            BufReader::with_capacity(256 * 1024, file),
+            path.to_path_buf(),
+            opts,
+            len,
+        )
     }
 }
 
 impl<R: Read> Aedat4Reader<R> {
     /// Reads an AEDAT 4 stream from `r`, named `name` in errors.
-    pub fn from_reader(mut r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
-        let path: PathBuf = name.into();
+    pub fn from_reader(r: R, name: impl Into<PathBuf>, opts: &ReadOptions) -> Result<Self> {
+        Self::with_len(r, name.into(), opts, None)
+    }
+
+    /// [`Self::from_reader`] of a source of `file_len` bytes, when known.
+    fn with_len(
+        mut r: R,
+        path: PathBuf,
+        opts: &ReadOptions,
+        file_len: Option<u64>,
+    ) -> Result<Self> {
         let allow_unknown_size = opts.allow_unknown_size;
-        let header = read_header(&mut r, &path)?;
+        let header = read_header(&mut r, &path, file_len)?;
         let Some(stream) = header.first("EVTS").cloned() else {
             return Err(FormatError::Unsupported {
                 path,
@@ -655,6 +800,8 @@ impl<R: Read> Aedat4Reader<R> {
                 src: r,
                 path: path.clone(),
                 header,
+                file_len,
+                max_bytes: opts.max_packet_bytes,
                 offset,
                 stored: Vec::new(),
                 payload: Vec::new(),
@@ -913,19 +1060,36 @@ pub struct Aedat4Frames<R: Read> {
 }
 
 impl Aedat4Frames<BufReader<File>> {
-    /// Opens an AEDAT 4 file for its frames.
+    /// Opens an AEDAT 4 file for its frames. Sizes the file claims are also checked against its
+    /// length.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         let file = crate::open_file(path)?;
-        Self::from_reader(BufReader::with_capacity(256 * 1024, file), path)
+        let len = file_len(&file);
+        Self::with_len(
+            BufReader::with_capacity(256 * 1024, file),
+            path.to_path_buf(),
+            len,
+        )
     }
 }
 
 impl<R: Read> Aedat4Frames<R> {
     /// Reads frames from `r`, named `name` in errors. A file without a frame stream gives none.
-    pub fn from_reader(mut r: R, name: impl Into<PathBuf>) -> Result<Self> {
-        let path = name.into();
-        let header = read_header(&mut r, &path)?;
+    pub fn from_reader(r: R, name: impl Into<PathBuf>) -> Result<Self> {
+        Self::with_len(r, name.into(), None)
+    }
+
+    /// The most bytes one packet may take, stored or decompressed ([`MAX_PACKET_BYTES`] unless
+    /// set here): raise it for frames larger than 64 MiB.
+    pub fn with_max_packet_bytes(mut self, max: usize) -> Self {
+        self.packets.max_bytes = max;
+        self
+    }
+
+    /// [`Self::from_reader`] of a source of `file_len` bytes, when known.
+    fn with_len(mut r: R, path: PathBuf, file_len: Option<u64>) -> Result<Self> {
+        let header = read_header(&mut r, &path, file_len)?;
         let stream = header.first("FRME").map_or(i32::MIN, |s| s.id);
         let offset = header.data_offset;
         Ok(Aedat4Frames {
@@ -933,6 +1097,8 @@ impl<R: Read> Aedat4Frames<R> {
                 src: r,
                 path,
                 header,
+                file_len,
+                max_bytes: MAX_PACKET_BYTES,
                 offset,
                 stored: Vec::new(),
                 payload: Vec::new(),
@@ -985,7 +1151,11 @@ impl<R: Read> Aedat4Frames<R> {
             if w < 0 || h < 0 {
                 return Err(corrupt(format!("Frame: size {w}x{h}")));
             }
-            let want = w as usize * h as usize * format.bytes_per_pixel();
+            // At most 32,767^2 x 4 bytes: checked, for 32-bit targets.
+            let want = (w as usize)
+                .checked_mul(h as usize)
+                .and_then(|n| n.checked_mul(format.bytes_per_pixel()))
+                .ok_or_else(|| corrupt(format!("Frame: size {w}x{h} overflows usize")))?;
             let (n, start) = t
                 .vector(10, 1)
                 .map_err(|()| past("the pixel vector"))?
@@ -1002,7 +1172,10 @@ impl<R: Read> Aedat4Frames<R> {
                 format,
                 width: w as u16,
                 height: h as u16,
-                pixels: buf[start..start + n].to_vec(),
+                pixels: buf
+                    .get(start..start + n)
+                    .ok_or_else(|| past("the pixel vector"))?
+                    .to_vec(),
             }));
         }
     }

@@ -55,7 +55,7 @@ pub enum UnknownWords {
 }
 
 /// How to read an event file.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct ReadOptions {
     /// The sensor size, for files that do not state it (the Event Camera Dataset text without its
     /// `W H` line, RAW files without a `geometry`/`format` line, DAT files without `Width` and
@@ -69,6 +69,26 @@ pub struct ReadOptions {
     /// events against a sensor (what [`crate::info()`] does to summarise any file); by default
     /// such a file is refused, naming what is missing.
     pub allow_unknown_size: bool,
+    /// AEDAT 4: the most bytes one packet may take, stored or decompressed; a packet that claims
+    /// or expands to more is an error naming this limit. Default
+    /// [`crate::aedat4::MAX_PACKET_BYTES`]; raise it for recordings of very large APS frames.
+    pub max_packet_bytes: usize,
+    /// Text: the most bytes one line may take (its line feed excluded); a longer line, or a file
+    /// without a line feed, is an error naming the line. Default [`crate::text::MAX_LINE_BYTES`].
+    pub max_line_bytes: usize,
+}
+
+impl Default for ReadOptions {
+    fn default() -> Self {
+        ReadOptions {
+            resolution: None,
+            disorder: Disorder::default(),
+            unknown_words: UnknownWords::default(),
+            allow_unknown_size: false,
+            max_packet_bytes: crate::aedat4::MAX_PACKET_BYTES,
+            max_line_bytes: crate::text::MAX_LINE_BYTES,
+        }
+    }
 }
 
 impl ReadOptions {

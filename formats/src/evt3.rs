@@ -26,6 +26,12 @@
 //! count). Events before the first `TIME_HIGH` or the first `EVT_ADDR_Y`, and vector words before
 //! any `VECT_BASE_X`, are dropped and counted in
 //! [`crate::ReadStats::events_without_time_base`].
+//!
+//! Columns: each vector word moves the base column on by 12 or 8, so a long run of them can
+//! carry it past the sensor and, on a hostile file, towards `u32::MAX`. The base saturates and
+//! every column is computed with checked arithmetic: an event at or past the sensor's width is
+//! an error ([`crate::FormatError::OutOfBounds`], naming its byte and the column, `4294967295`
+//! when the column does not fit a `u32`), never a column that wrapped back onto the sensor.
 
 use std::io::Write;
 
@@ -272,7 +278,12 @@ impl Evt3Decoder {
                     let Some(base) = base_x else { break };
                     let k = if kind == word::VECT_12 { 12 } else { 8 };
                     let mut valid = payload & ((1 << k) - 1);
-                    if valid != 0 && base + (31 - valid.leading_zeros()) >= width {
+                    // The last valid column, unwrapped: on the sensor, or the checked path names it.
+                    if valid != 0
+                        && base
+                            .checked_add(31 - valid.leading_zeros())
+                            .is_none_or(|last| last >= width)
+                    {
                         break;
                     }
                     while valid != 0 {
@@ -347,10 +358,11 @@ impl Evt3Decoder {
                             while valid != 0 {
                                 let i = valid.trailing_zeros();
                                 valid &= valid - 1;
+                                // Saturated, never wrapped: u32::MAX is off every sensor.
                                 sink.emit(
                                     out,
                                     t_ns,
-                                    base + i,
+                                    base.saturating_add(i),
                                     y,
                                     self.base_on,
                                     Location::Byte(at),
@@ -852,5 +864,50 @@ mod tests {
         d.wraps -= 1;
         assert_eq!(d.decode_fast(&x, 40, &mut out, 100), 2);
         assert_eq!(out.x, [1]);
+    }
+
+    /// A base column carried (by a long run of vector words) to just below `u32::MAX`: the next
+    /// vector's columns would wrap back onto the sensor (x 0 to 7). Both paths refuse them, naming
+    /// the saturated column, and deliver none.
+    #[test]
+    fn vector_columns_past_u32_max_are_out_of_bounds_not_wrapped() {
+        let state = Evt3Decoder {
+            high: Some(0),
+            y: Some(0),
+            base_x: Some(u32::MAX - 3),
+            base_on: true,
+            ..Evt3Decoder::default()
+        };
+        // VECT_12 with bits 4..=11 valid: columns base + 4 ..= base + 11, past u32::MAX.
+        let vect = ((u16::from(word::VECT_12) << 12) | 0xFF0).to_le_bytes();
+        let opts = crate::ReadOptions::default();
+        let mut d = state;
+        let fast = decode_all(&vect, 100, 64, &opts, |b, at, sink, out| {
+            d.decode(b, at, sink, out)
+        });
+        let mut d = state;
+        let checked = decode_all(&vect, 100, 64, &opts, |b, at, sink, out| {
+            d.decode_checked(b, at, sink, out)
+        });
+        for (events, _, error) in [fast, checked] {
+            assert!(
+                events.is_empty(),
+                "wrapped columns delivered: {:?}",
+                events.x
+            );
+            let e = error.expect("an error");
+            assert!(
+                e.contains("byte 0") && e.contains("(4294967295, 0)") && e.contains("40x30"),
+                "{e}"
+            );
+        }
+        // The base itself saturates instead of wrapping (a vector word without valid bits).
+        let empty = (u16::from(word::VECT_12) << 12).to_le_bytes();
+        let mut d = state;
+        let (events, _, error) = decode_all(&empty, 100, 64, &opts, |b, at, sink, out| {
+            d.decode_checked(b, at, sink, out)
+        });
+        assert!(events.is_empty() && error.is_none(), "{error:?}");
+        assert_eq!(d.base_x, Some(u32::MAX));
     }
 }

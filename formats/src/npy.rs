@@ -15,8 +15,10 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{FormatError, Result};
 
-/// The longest header read (NumPy writes a few hundred bytes).
-const MAX_HEADER_BYTES: usize = 1 << 20;
+/// The longest header read: 1 MiB (NumPy writes a few hundred bytes; a longer claim is an error
+/// naming this limit). The header's bytes are read as they come, never into a buffer sized by
+/// the claimed length.
+pub const MAX_HEADER_BYTES: usize = 1 << 20;
 
 /// What an `.npy` header says.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -69,11 +71,25 @@ pub fn parse_header(reader: &mut impl Read, path: &Path) -> Result<NpyHeader> {
     };
     if len > MAX_HEADER_BYTES {
         return Err(bad(format!(
-            "header length {len} bytes: over the {MAX_HEADER_BYTES} read"
+            "header length {len} bytes: over the {MAX_HEADER_BYTES} read (npy::MAX_HEADER_BYTES)"
         )));
     }
-    let mut text = vec![0u8; len];
-    read_exact(reader, &mut text, path, 8 + width)?;
+    let mut text = Vec::new();
+    let got = (&mut *reader)
+        .take(len as u64)
+        .read_to_end(&mut text)
+        .map_err(|source| FormatError::Io {
+            path: path.to_path_buf(),
+            offset: (8 + width) as u64,
+            source,
+        })?;
+    if got < len {
+        return Err(FormatError::Truncated {
+            path: path.to_path_buf(),
+            offset: (8 + width + got) as u64,
+            what: format!("header length {len} bytes, but the file ends after {got}"),
+        });
+    }
     let text = std::str::from_utf8(&text)
         .map_err(|e| bad(format!("header is not UTF-8: {e}")))?
         .trim_end_matches(['\n', ' ', '\0']);

@@ -55,8 +55,8 @@ pub fn open_event_format(
             });
         }
         Format::Aedat4 => {
-            let file = BufReader::with_capacity(256 * 1024, open(path)?);
-            let r = Aedat4Reader::from_reader(file, p, opts)?;
+            // Opened by path, so that sizes it claims are also checked against its length.
+            let r = Aedat4Reader::open(path, opts)?;
             let known = r.known_resolution();
             (Box::new(r), known)
         }

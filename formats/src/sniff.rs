@@ -105,10 +105,14 @@ pub fn sniff_bytes(prefix: &[u8], len: u64, path: &Path) -> Result<Format> {
             if h.dat_contents.is_some() || h.dat_version.is_some() {
                 return Ok(Format::PropheseeDat);
             }
-            let after = len.saturating_sub(h.data_offset);
+            // Bytes after the header: at least those read (a file that grew since its size was
+            // taken, or a `len` smaller than the prefix, must not underflow the subtraction).
+            let after = len.max(prefix.len() as u64).saturating_sub(h.data_offset);
             if rest.len() >= 2
                 && is_type_size_pair(rest[0], rest[1])
-                && (after - 2) % RECORD_BYTES as u64 == 0
+                && after
+                    .checked_sub(2)
+                    .is_some_and(|records| records % RECORD_BYTES as u64 == 0)
             {
                 return Ok(Format::PropheseeDat);
             }
@@ -204,5 +208,23 @@ mod tests {
         let e = sniff_mem(b"hello world\n").unwrap_err().to_string();
         assert!(e.contains("hello world"), "{e}");
         assert!(matches!(sniff_mem(b""), Err(FormatError::Empty { .. })));
+    }
+
+    /// A size smaller than the bytes read (a file that grew after its size was taken, or a
+    /// caller's wrong `len`) used to underflow `after - 2` (a panic in debug builds, a wrapped
+    /// count in release ones): the bytes read count, and whole records after the pair are DAT.
+    #[test]
+    fn a_size_smaller_than_the_prefix_does_not_underflow() {
+        let bytes = b"% x\n\x0c\x08";
+        for len in 1..bytes.len() as u64 {
+            assert_eq!(
+                sniff_bytes(bytes, len, Path::new("x.dat")).unwrap(),
+                Format::PropheseeDat,
+                "len {len}"
+            );
+        }
+        // A pair followed by a partial record is still not DAT, whatever `len` says.
+        let e = sniff_bytes(b"% x\n\x0c\x08\x01", 5, Path::new("x.dat")).unwrap_err();
+        assert!(matches!(e, FormatError::Ambiguous { .. }), "{e}");
     }
 }

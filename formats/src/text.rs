@@ -6,9 +6,13 @@
 //! float: `2.097134001` is exactly 2,097,134,001 ns. Digits past the ninth decimal are rounded
 //! half up on the tenth (`2.1957200009999998` -> 2,195,720,001 ns). Signs, exponents and anything
 //! else but digits and one `.` are errors that quote the line.
+//!
+//! A line longer than [`ReadOptions::max_line_bytes`] (by default [`MAX_LINE_BYTES`]), such as
+//! a binary file without a line feed, is an error naming the line once that many bytes have
+//! been read: it is never gathered whole.
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
 use neuspike_schemas::{Event, EventBatch};
@@ -21,6 +25,46 @@ use crate::header::resolve_resolution;
 const NS_PER_S: i64 = 1_000_000_000;
 /// Longest quote of a bad line in an error message.
 const QUOTE_MAX: usize = 80;
+/// The most bytes one line may hold before its line feed, unless
+/// [`ReadOptions::max_line_bytes`] says otherwise: 4 KiB. An event line is under 100 bytes
+/// (`1234567.123456789 65535 65535 1`); the limit keeps a file without a line feed (a binary
+/// file, a damaged one) from being read whole into one line.
+pub const MAX_LINE_BYTES: usize = 4 * 1024;
+
+/// Reads the next line of `r` (with its line feed) into `line` and returns its bytes, 0 at the
+/// end. A line of more than `max` bytes before its line feed is an error naming `line_no`, its
+/// number, after `max + 1` bytes: memory stays bounded by `max`. `offset` is where it starts.
+fn read_line_bounded<R: BufRead>(
+    r: &mut R,
+    line: &mut Vec<u8>,
+    max: usize,
+    path: &Path,
+    line_no: u64,
+    offset: u64,
+) -> Result<usize> {
+    line.clear();
+    let n = r
+        .by_ref()
+        .take((max as u64).saturating_add(1))
+        .read_until(b'\n', line)
+        .map_err(|source| FormatError::Io {
+            path: path.to_path_buf(),
+            offset,
+            source,
+        })?;
+    if n > max && line.last() != Some(&b'\n') {
+        return Err(FormatError::Text {
+            path: path.to_path_buf(),
+            line: line_no,
+            what: format!(
+                "longer than {max} bytes (no line feed in its first {n} bytes, from byte \
+                 {offset}); an event line is under 100 bytes (text::MAX_LINE_BYTES, \
+                 ReadOptions::max_line_bytes)"
+            ),
+        });
+    }
+    Ok(n)
+}
 
 /// Parses decimal seconds into nanoseconds without floating point; see the module docs.
 ///
@@ -170,6 +214,8 @@ pub struct TextReader<R: BufRead> {
     /// The first line, when it was an event line read while looking for the size line.
     held: Option<(Vec<u8>, u64)>,
     size_line: Option<Resolution>,
+    /// The longest line accepted ([`ReadOptions::max_line_bytes`]).
+    max_line: usize,
     sink: Sink,
 }
 
@@ -194,6 +240,7 @@ impl<R: BufRead> TextReader<R> {
             bytes_read: 0,
             held: None,
             size_line: None,
+            max_line: opts.max_line_bytes,
             // Replaced below once the size is known.
             sink: Sink::new(path.clone(), Bounds::Unknown, opts),
         };
@@ -246,15 +293,14 @@ impl<R: BufRead> TextReader<R> {
 
     /// Reads the next line into `self.line`; false at the end.
     fn next_line(&mut self, path: &Path) -> Result<bool> {
-        self.line.clear();
-        let n = self
-            .r
-            .read_until(b'\n', &mut self.line)
-            .map_err(|source| FormatError::Io {
-                path: path.to_path_buf(),
-                offset: self.bytes_read,
-                source,
-            })?;
+        let n = read_line_bounded(
+            &mut self.r,
+            &mut self.line,
+            self.max_line,
+            path,
+            self.line_no + 1,
+            self.bytes_read,
+        )?;
         self.bytes_read += n as u64;
         if n > 0 {
             self.line_no += 1;
@@ -295,6 +341,7 @@ impl<R: BufRead> EventReader for TextReader<R> {
             bytes_read,
             held,
             sink,
+            max_line,
             ..
         } = self;
         sink.read_with(out, max, |sink, out| {
@@ -302,14 +349,8 @@ impl<R: BufRead> EventReader for TextReader<R> {
                 line_event(sink, out, &l, n)?;
             }
             while !sink.full() {
-                line.clear();
-                let n = r
-                    .read_until(b'\n', line)
-                    .map_err(|source| FormatError::Io {
-                        path: sink.path.clone(),
-                        offset: *bytes_read,
-                        source,
-                    })?;
+                let n =
+                    read_line_bounded(r, line, *max_line, &sink.path, *line_no + 1, *bytes_read)?;
                 if n == 0 {
                     sink.finish();
                     return Ok(());

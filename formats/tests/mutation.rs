@@ -219,6 +219,7 @@ fn options(disorder: bool, skip: bool) -> ReadOptions {
             UnknownWords::Error
         },
         allow_unknown_size: false,
+        ..ReadOptions::default()
     }
 }
 

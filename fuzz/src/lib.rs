@@ -30,6 +30,7 @@ pub fn options(data: &[u8]) -> (ReadOptions, usize, &[u8]) {
             UnknownWords::Error
         },
         allow_unknown_size: b & 64 != 0,
+        ..ReadOptions::default()
     };
     let batch = [1, 7, 256, 4096][usize::from(b >> 4) & 3];
     (opts, batch, rest)

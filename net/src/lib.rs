@@ -14,5 +14,5 @@ pub mod remote;
 pub mod ros2;
 pub mod session;
 
-pub use remote::{Remote, RemoteError, Taken};
+pub use remote::{Remote, RemoteError, Taken, put_message};
 pub use session::{SessionError, ZenohArgs};

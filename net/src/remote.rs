@@ -20,9 +20,22 @@ use zenoh::Wait;
 use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
+use zenoh::session::EntityGlobalId;
 
 /// Samples the subscriber holds before zenoh stops reading the link.
 pub const QUEUE: usize = 64;
+
+/// How long the publisher a stream follows must have been silent before another may take its
+/// place (a camera restarted as a new process, with a new identity).
+pub const REJOIN_AFTER: Duration = Duration::from_secs(2);
+
+/// Malformed samples a stream may take before [`BAD_SHARE`] applies: a few bad samples (a
+/// stray publisher, one damaged message) are counted and dropped, never the end of a camera.
+pub const BAD_GRACE: u64 = 16;
+
+/// The share of the samples that arrived which may be malformed (past [`BAD_GRACE`]) before the
+/// stream fails: beyond it the key is carrying something else, and saying so beats dropping.
+pub const BAD_SHARE: f64 = 0.05;
 
 /// What [`Remote::next`] took.
 #[derive(Debug)]
@@ -96,6 +109,19 @@ pub enum RemoteError {
         /// Why.
         reason: String,
     },
+    /// Too many samples were malformed: more than [`BAD_GRACE`], and more than [`BAD_SHARE`]
+    /// of all that arrived.
+    #[error("{key}: {bad} of the {arrived} samples that arrived were malformed; the last: {last}")]
+    TooManyBad {
+        /// The key.
+        key: String,
+        /// Malformed samples.
+        bad: u64,
+        /// Samples that arrived.
+        arrived: u64,
+        /// Why the last one was refused.
+        last: String,
+    },
     /// The session closed under the subscriber.
     #[error("{key}: the zenoh session closed")]
     Closed {
@@ -113,6 +139,23 @@ pub fn origin(meta: &Meta) -> Option<i64> {
     }
 }
 
+/// Puts `bytes` (one message) on `publisher` with its source identity (the publisher's
+/// `EntityGlobalId`) and `sn`, the publisher's count of what it put: what a [`Remote`] follows.
+///
+/// # Errors
+/// zenoh refused the put.
+pub fn put_message(
+    publisher: &zenoh::pubsub::Publisher<'_>,
+    bytes: Vec<u8>,
+    sn: u32,
+) -> zenoh::Result<()> {
+    use zenoh::sample::SourceInfo;
+    publisher
+        .put(bytes)
+        .source_info(SourceInfo::new(publisher.id(), sn))
+        .wait()
+}
+
 /// A stream of neuspike messages of one type on one zenoh key.
 pub struct Remote {
     key: String,
@@ -120,6 +163,13 @@ pub struct Remote {
     sub: Subscriber<FifoChannelHandler<Sample>>,
     seq: SeqTracker,
     arrived: u64,
+    /// Samples refused as malformed.
+    malformed: u64,
+    /// The publisher the stream follows (its zenoh source identity; `None` inside for one that
+    /// sends none), and when it last sent.
+    owner: Option<(Option<EntityGlobalId>, Instant)>,
+    /// Samples refused for coming from another publisher.
+    foreign: u64,
     silence: Duration,
     last: Instant,
     /// Set once the first message came.
@@ -152,6 +202,9 @@ impl Remote {
             sub,
             seq: SeqTracker::default(),
             arrived: 0,
+            malformed: 0,
+            owner: None,
+            foreign: 0,
             silence,
             last: Instant::now(),
             started: false,
@@ -172,6 +225,69 @@ impl Remote {
     /// Messages received (duplicates not counted).
     pub fn received(&self) -> u64 {
         self.seq.received()
+    }
+
+    /// Messages refused, not lost: a sequence number far past the stream's, or an end
+    /// announcing far too many ([`neuspike_schemas::SeqStatus::Anomaly`]).
+    pub fn refused(&self) -> u64 {
+        self.seq.anomalies()
+    }
+
+    /// Samples refused for coming from a publisher other than the one the stream follows.
+    pub fn foreign(&self) -> u64 {
+        self.foreign
+    }
+
+    /// Whether the sample comes from the publisher the stream follows: the first one, or, once
+    /// that one has been silent for [`REJOIN_AFTER`], whoever sends next (a restarted camera).
+    /// A sample from anyone else is counted and refused: it can neither end the stream nor move
+    /// its sequence.
+    fn follows(&mut self, sample: &Sample) -> bool {
+        let id = sample.source_info().map(|s| *s.source_id());
+        let now = Instant::now();
+        match &mut self.owner {
+            Some((owner, last)) if *owner == id => {
+                *last = now;
+                true
+            }
+            Some((owner, last)) if now.duration_since(*last) < REJOIN_AFTER => {
+                self.foreign += 1;
+                tracing::warn!(key = %self.key, from = ?id, following = ?owner, "a sample from another publisher: refused");
+                false
+            }
+            previous => {
+                if let Some((old, _)) = previous {
+                    tracing::warn!(key = %self.key, from = ?id, was = ?old, "the publisher went silent; following the new one");
+                }
+                *previous = Some((id, now));
+                true
+            }
+        }
+    }
+
+    /// Samples refused as malformed: not a neuspike message, another type, no sequence number,
+    /// or a payload its reader refused ([`Remote::reject`]).
+    pub fn malformed(&self) -> u64 {
+        self.malformed
+    }
+
+    /// Counts a malformed sample (`why`) and drops it; the stream fails once more than
+    /// [`BAD_GRACE`] samples, and more than [`BAD_SHARE`] of all that arrived, were malformed.
+    ///
+    /// # Errors
+    /// [`RemoteError::TooManyBad`], naming the key, the counts and `why`.
+    pub fn reject(&mut self, why: RemoteError) -> Result<(), RemoteError> {
+        self.malformed += 1;
+        tracing::warn!(key = %self.key, "{why}: dropped");
+        if self.malformed > BAD_GRACE && self.malformed as f64 > BAD_SHARE * self.arrived as f64 {
+            return Err(RemoteError::TooManyBad {
+                key: self.key.clone(),
+                bad: self.malformed,
+                arrived: self.arrived,
+                last: why.to_string(),
+            });
+        }
+        Ok(())
     }
 
     /// Waits up to `wait` for the next message.
@@ -199,22 +315,32 @@ impl Remote {
                     });
                 }
             };
+            if !self.follows(&sample) {
+                continue;
+            }
             self.last = Instant::now();
             let n = self.arrived;
             self.arrived += 1;
             let bytes = sample.payload().to_bytes();
-            let (urn, meta, data) = ipc::decode(&bytes).map_err(|source| RemoteError::Decode {
-                key: self.key.clone(),
-                n,
-                source,
-            })?;
+            let (urn, meta, data) = match ipc::decode(&bytes) {
+                Ok(m) => m,
+                Err(source) => {
+                    self.reject(RemoteError::Decode {
+                        key: self.key.clone(),
+                        n,
+                        source,
+                    })?;
+                    continue;
+                }
+            };
             if urn != self.expected {
-                return Err(RemoteError::Type {
+                self.reject(RemoteError::Type {
                     key: self.key.clone(),
                     n,
                     expected: self.expected,
                     found: urn,
-                });
+                })?;
+                continue;
             }
             if let Some(count) = is_end_of_stream(&meta) {
                 let lost = self.seq.end(count);
@@ -226,13 +352,17 @@ impl Remote {
                     cut: meta.flag(neuspike_schemas::meta::CUT),
                 });
             }
-            let seq = meta
-                .uint("message", neuspike_schemas::meta::SEQ)
-                .map_err(|e| RemoteError::Header {
-                    key: self.key.clone(),
-                    n,
-                    reason: e.to_string(),
-                })?;
+            let seq = match meta.uint("message", neuspike_schemas::meta::SEQ) {
+                Ok(seq) => seq,
+                Err(e) => {
+                    self.reject(RemoteError::Header {
+                        key: self.key.clone(),
+                        n,
+                        reason: e.to_string(),
+                    })?;
+                    continue;
+                }
+            };
             match self.seq.observe(seq) {
                 SeqStatus::InOrder => {}
                 SeqStatus::Gap { missing } => {
@@ -241,6 +371,13 @@ impl Remote {
                 SeqStatus::Stale => {
                     tracing::warn!(key = %self.key, seq, "a message at or before one already taken: dropped");
                     continue;
+                }
+                SeqStatus::Anomaly { jump } => {
+                    tracing::warn!(key = %self.key, seq, jump, "a sequence number far past the stream's: refused");
+                    continue;
+                }
+                SeqStatus::Resynced { jump } => {
+                    tracing::warn!(key = %self.key, seq, jump, "the remote stream was renumbered: following it");
                 }
             }
             if !self.started {
@@ -255,7 +392,7 @@ impl Remote {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use neuspike_schemas::arrow::array::{Array, UInt8Array};
+    use neuspike_schemas::arrow::array::UInt8Array;
     use neuspike_schemas::{Message, Parameter, SpikeChunk, end_of_stream};
     use std::sync::Arc;
 
@@ -337,15 +474,17 @@ mod tests {
             std::thread::sleep(Duration::from_millis(20));
         }
         let put = |urn: &str, (m, d): (Meta, ArrayRef)| {
-            publisher
-                .put(ipc::encode(urn, &m, &d).expect("encode"))
-                .wait()
-                .expect("put");
+            put_message(&publisher, ipc::encode(urn, &m, &d).expect("encode"), 0).expect("put");
         };
         for seq in [0, 1, 3, 3] {
             put(SpikeChunk::TYPE_URN, chunk(seq));
         }
-        let (mut eos, d) = end_of_stream::<SpikeChunk>(5);
+        // A forged number far ahead is refused, and blinds nothing: 4 still comes through.
+        let (mut forged, d) = chunk(4);
+        forged.insert("seq".into(), Parameter::Integer(1 << 62));
+        put(SpikeChunk::TYPE_URN, (forged, d));
+        put(SpikeChunk::TYPE_URN, chunk(4));
+        let (mut eos, d) = end_of_stream::<SpikeChunk>(6);
         eos.insert("cut".into(), Parameter::Bool(true));
         put(SpikeChunk::TYPE_URN, (eos, d));
         let mut seqs = Vec::new();
@@ -355,33 +494,105 @@ mod tests {
                     seqs.push(SpikeChunk::from_arrow(&m, &d).expect("chunk").seq);
                 }
                 Taken::End { count, cut } => {
-                    assert_eq!((count, cut), (5, true));
+                    assert_eq!((count, cut), (6, true));
                     break;
                 }
                 Taken::Idle => unreachable!(),
             }
         }
-        assert_eq!(seqs, [0, 1, 3], "the duplicate is dropped");
         assert_eq!(
-            (remote.received(), remote.missing()),
-            (3, 2),
-            "seq 2 and seq 4"
+            seqs,
+            [0, 1, 3, 4],
+            "the duplicate and the forgery are dropped"
+        );
+        assert_eq!(
+            (remote.received(), remote.missing(), remote.refused()),
+            (4, 2, 1),
+            "seq 2 and seq 5 lost, the forgery refused"
         );
 
-        // Another type, or bytes that are not a message, are errors naming the key.
+        // Another type, or bytes that are not a message, are counted and dropped...
         let bytes: ArrayRef = Arc::new(UInt8Array::from(vec![1u8]));
         let mut m = Meta::new();
         m.insert("seq".into(), Parameter::Integer(9));
-        put("neuspike/messages/v1/Frame", (m, bytes.clone()));
+        put("neuspike/messages/v1/Frame", (m.clone(), bytes.clone()));
+        put_message(&publisher, b"not arrow".to_vec(), 0).expect("put");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while remote.malformed() < 2 {
+            assert!(Instant::now() < deadline, "the bad samples never came");
+            assert!(matches!(
+                remote.next(Duration::from_millis(50)).expect("still going"),
+                Taken::Idle
+            ));
+        }
+        // ... until they are too many: then the stream fails, naming the key and the last.
+        for _ in 0..BAD_GRACE {
+            put("neuspike/messages/v1/Frame", (m.clone(), bytes.clone()));
+        }
         let e = next_error(&mut remote);
         assert!(
-            e.contains("test/spikes") && e.contains("is a neuspike/messages/v1/Frame"),
+            e.starts_with("test/spikes: 17 of the ")
+                && e.contains("is a neuspike/messages/v1/Frame"),
             "{e}"
         );
-        assert_eq!(bytes.len(), 1);
-        publisher.put(b"not arrow".to_vec()).wait().expect("put");
-        let e = next_error(&mut remote);
-        assert!(e.contains("is not a neuspike message"), "{e}");
+    }
+
+    #[test]
+    fn a_stream_follows_its_first_publisher_and_refuses_the_others() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("port")
+            .port();
+        let a = session(&format!("tcp/127.0.0.1:{port}"), "");
+        let camera = session("tcp/127.0.0.1:0", &format!("\"tcp/127.0.0.1:{port}\""));
+        let intruder = session("tcp/127.0.0.1:0", &format!("\"tcp/127.0.0.1:{port}\""));
+        let mut remote = Remote::subscribe(
+            &a,
+            "test/owned",
+            SpikeChunk::TYPE_URN,
+            Duration::from_secs(10),
+        )
+        .expect("subscribe");
+        let declare = |s: &zenoh::Session| {
+            let p = s.declare_publisher("test/owned").wait().expect("publisher");
+            let deadline = Instant::now() + Duration::from_secs(10);
+            while !p.matching_status().wait().expect("status").matching() {
+                assert!(Instant::now() < deadline, "the subscriber never matched");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            p
+        };
+        let (cam, bad) = (declare(&camera), declare(&intruder));
+        let put = |p: &zenoh::pubsub::Publisher<'_>, (m, d): (Meta, ArrayRef)| {
+            let bytes = ipc::encode(SpikeChunk::TYPE_URN, &m, &d).expect("encode");
+            put_message(p, bytes, 0).expect("put");
+        };
+        put(&cam, chunk(0));
+        let first = next_taken(&mut remote);
+        assert!(matches!(first, Taken::Message(..)), "{first:?}");
+        // Another publisher's chunk and its end marker: refused, the stream goes on.
+        put(&bad, chunk(1));
+        put(&bad, end_of_stream::<SpikeChunk>(2));
+        put(&cam, chunk(1));
+        put(&cam, end_of_stream::<SpikeChunk>(2));
+        let mut seqs = Vec::new();
+        loop {
+            match next_taken(&mut remote) {
+                Taken::Message(m, d) => {
+                    seqs.push(SpikeChunk::from_arrow(&m, &d).expect("chunk").seq)
+                }
+                Taken::End { count, .. } => {
+                    assert_eq!(count, 2);
+                    break;
+                }
+                Taken::Idle => unreachable!(),
+            }
+        }
+        assert_eq!(seqs, [1]);
+        assert_eq!(
+            (remote.received(), remote.missing(), remote.foreign()),
+            (2, 0, 2)
+        );
     }
 
     #[test]

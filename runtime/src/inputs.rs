@@ -257,6 +257,19 @@ impl Inputs {
                 tracing::warn!(input, seq, "stale message");
                 0
             }
+            SeqStatus::Anomaly { jump } => {
+                tracing::warn!(
+                    input,
+                    seq,
+                    jump,
+                    "a sequence number far past the stream's: refused"
+                );
+                return Ok(Accepted::Refused);
+            }
+            SeqStatus::Resynced { jump } => {
+                tracing::warn!(input, seq, jump, "the stream was renumbered");
+                0
+            }
         };
         // The credits of messages lost on the way: a gap in the sender's count of what it sent
         // (messages never made, a gap in `seq` alone, took none). A sender that does not count
@@ -280,6 +293,9 @@ enum Accepted {
         on_the_way: u64,
     },
     End(u64),
+    /// A message refused (its sequence number far past the stream's): not handed on, its
+    /// credit returned.
+    Refused,
 }
 
 /// Hands `on` the end of `input` (after `count` messages), then returns the credits still owed.
@@ -334,6 +350,10 @@ pub fn receive(
                         link.mark_cut();
                     }
                     end_input(link, &input, count, &mut on)?
+                }
+                Accepted::Refused => {
+                    link.taken(&input, 0)?;
+                    Flow::Continue
                 }
                 Accepted::Message { on_the_way } => {
                     link.saw(&meta);

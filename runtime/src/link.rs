@@ -641,10 +641,19 @@ pub fn relay_remote<M: Message>(
     let key = remote.key().to_string();
     let relayed = relay(link, output, |wait| {
         Ok(match remote.next(wait)? {
-            Taken::Message(meta, data) => Arrival::Message(
-                M::from_arrow(&meta, &data).map_err(|e| eyre::eyre!("{key}: {e}"))?,
-                neuspike_net::remote::origin(&meta),
-            ),
+            // A payload its reader refuses (a forged size, a broken column) is one malformed
+            // sample: counted and dropped, unless too many are.
+            Taken::Message(meta, data) => match M::from_arrow(&meta, &data) {
+                Ok(m) => Arrival::Message(m, neuspike_net::remote::origin(&meta)),
+                Err(e) => {
+                    remote.reject(neuspike_net::RemoteError::Header {
+                        key: key.clone(),
+                        n: remote.received().saturating_sub(1),
+                        reason: e.to_string(),
+                    })?;
+                    Arrival::Idle
+                }
+            },
             Taken::End { count, cut } => Arrival::End { count, cut },
             Taken::Idle => Arrival::Idle,
         })
@@ -653,6 +662,8 @@ pub fn relay_remote<M: Message>(
         key,
         received = remote.received(),
         lost = remote.missing(),
+        refused = remote.refused(),
+        malformed = remote.malformed(),
         "the remote stream ended"
     );
     relayed

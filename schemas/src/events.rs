@@ -257,6 +257,10 @@ impl Message for EventBatch {
             seq: m.uint(NAME, meta::SEQ)?,
             ..Default::default()
         };
+        // 0 x 0: a batch without an event camera (align's windows without one).
+        if (b.width, b.height) != (0, 0) {
+            crate::limits::check_sensor(NAME, b.width, b.height)?;
+        }
         let s =
             data.as_any()
                 .downcast_ref::<StructArray>()
@@ -289,6 +293,18 @@ mod tests {
             polarity: -1,
         });
         b
+    }
+
+    #[test]
+    fn a_batch_claiming_a_huge_sensor_is_refused_before_anything_is_made() {
+        let (mut m, a) = EventBatch::empty(346, 260, 0, 10, 0).to_arrow();
+        m.set_int(meta::WIDTH, 65_535);
+        m.set_int(meta::HEIGHT, 65_535);
+        let e = EventBatch::from_arrow(&m, &a).unwrap_err().to_string();
+        assert!(e.starts_with("event batch: sensor 65535x65535 has"), "{e}");
+        // No camera: the empty 0 x 0 batch still passes.
+        let (m, a) = EventBatch::empty(0, 0, 0, 10, 0).to_arrow();
+        assert!(EventBatch::from_arrow(&m, &a).is_ok());
     }
 
     #[test]

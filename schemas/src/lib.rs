@@ -29,6 +29,7 @@ mod events;
 mod frame;
 pub mod ipc;
 mod kind;
+pub mod limits;
 pub mod meta;
 mod spikes;
 mod stream;
@@ -40,7 +41,10 @@ pub use frame::{Frame, FrameKind, Representation};
 pub use kind::{RepresentationKind, UnknownKind};
 pub use meta::{Meta, MetaExt, Parameter, SchemaError};
 pub use spikes::{SpikeChunk, bytes_per_plane, fired_pixels, pack_planes, unpack_planes_into};
-pub use stream::{SeqStatus, SeqTracker, end_of_stream, end_of_stream_header, is_end_of_stream};
+pub use stream::{
+    MAX_SEQ_JUMP, RESYNC_AFTER, SeqStatus, SeqTracker, end_of_stream, end_of_stream_header,
+    is_end_of_stream,
+};
 pub use window::{AlignedWindow, Central};
 
 /// Re-exported so that nodes name the exact Arrow dora uses.

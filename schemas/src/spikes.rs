@@ -7,6 +7,7 @@ use arrow::datatypes::DataType;
 use ndarray::{ArrayView3, ArrayViewMut3};
 
 use crate::Message;
+use crate::limits::MAX_PLANE;
 use crate::meta::{self, Meta, MetaExt, SchemaError, check_type, int_of};
 
 const NAME: &str = "spike chunk";
@@ -179,18 +180,41 @@ impl SpikeChunk {
         let t_first_ns = m.int(NAME, meta::T_FIRST_NS)?;
         let plane_period_ns = m.int(NAME, meta::PLANE_PERIOD_NS)?;
         let seq = m.uint(NAME, meta::SEQ)?;
-        if width == 0 || height == 0 {
-            return Err(SchemaError::Inconsistent {
-                message: NAME,
-                what: format!("empty sensor {width}x{height}"),
-            });
-        }
+        crate::limits::check_sensor(NAME, width, height)?;
         if plane_period_ns <= 0 {
             return Err(SchemaError::BadKey {
                 message: NAME,
                 key: meta::PLANE_PERIOD_NS,
                 expected: "a positive period",
                 found: plane_period_ns.to_string(),
+            });
+        }
+        // The stream's planes and clock stay far inside i64 (a plane's time is
+        // `t_first + k * period` downstream).
+        let last_plane = first_plane.checked_add(n_planes as u64);
+        if last_plane.is_none_or(|p| p > MAX_PLANE) {
+            return Err(SchemaError::BadKey {
+                message: NAME,
+                key: meta::FIRST_PLANE,
+                expected: "a plane number that, with the chunk's planes, stays within 2^48",
+                found: first_plane.to_string(),
+            });
+        }
+        let t_last = (n_planes as i64)
+            .checked_mul(plane_period_ns)
+            .and_then(|d| t_first_ns.checked_add(d))
+            .filter(|_| {
+                (first_plane as i64)
+                    .checked_mul(plane_period_ns)
+                    .is_some_and(|back| t_first_ns.checked_sub(back).is_some())
+            });
+        if t_last.is_none() {
+            return Err(SchemaError::Inconsistent {
+                message: NAME,
+                what: format!(
+                    "planes {first_plane}.. every {plane_period_ns} ns from {t_first_ns} ns \
+                     leave the 64-bit clock"
+                ),
             });
         }
         let expected = n_planes
@@ -241,6 +265,38 @@ mod tests {
     use super::*;
     use ndarray::Array3;
     use proptest::prelude::*;
+
+    fn chunk_header(first_plane: u64, t_first_ns: i64) -> (Meta, ArrayRef) {
+        SpikeChunk {
+            width: 8,
+            height: 2,
+            first_plane,
+            n_planes: 1,
+            t_first_ns,
+            plane_period_ns: 50_000,
+            seq: 0,
+            bits: vec![0; 2],
+            lum_per_rate: None,
+        }
+        .to_arrow()
+    }
+
+    #[test]
+    fn a_chunk_whose_planes_or_clock_reach_past_the_limits_is_refused() {
+        let (m, a) = chunk_header(1_000, 50_000_000);
+        assert!(SpikeChunk::from_arrow(&m, &a).is_ok());
+        let (m, a) = chunk_header(i64::MAX as u64 - 1, 0);
+        let e = SpikeChunk::from_arrow(&m, &a).unwrap_err().to_string();
+        assert!(e.contains("first_plane") && e.contains("2^48"), "{e}");
+        let (m, a) = chunk_header(0, i64::MAX - 10);
+        let e = SpikeChunk::from_arrow(&m, &a).unwrap_err().to_string();
+        assert!(e.contains("leave the 64-bit clock"), "{e}");
+        let (mut m, a) = chunk_header(0, 0);
+        m.set_int(meta::WIDTH, 65_535);
+        m.set_int(meta::HEIGHT, 65_535);
+        let e = SpikeChunk::from_arrow(&m, &a).unwrap_err().to_string();
+        assert!(e.contains("65535x65535"), "{e}");
+    }
 
     #[test]
     fn packing_is_lsb_first_row_major() {

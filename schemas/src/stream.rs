@@ -46,7 +46,30 @@ pub enum SeqStatus {
     },
     /// A message at or before one already seen (duplicate or reordered).
     Stale,
+    /// A number more than [`MAX_SEQ_JUMP`] past the next expected one: refused and counted, the
+    /// expected number unchanged (a forged or corrupt number must not make the genuine
+    /// messages after it look stale, nor count billions lost).
+    Anomaly {
+        /// How far past the next expected number it was.
+        jump: u64,
+    },
+    /// The [`RESYNC_AFTER`]th message in a row continuing one jump past [`MAX_SEQ_JUMP`]: the
+    /// sender renumbered its stream (it restarted), and the tracker follows it from here. The
+    /// numbers skipped count neither as lost nor as received.
+    Resynced {
+        /// How far past the previously expected number the stream resumed.
+        jump: u64,
+    },
 }
+
+/// How far past the next expected sequence number a message may be and still be taken, the
+/// numbers skipped counted as lost: 65,536 messages (over a minute of loss at 1,000 messages a
+/// second). A larger jump is a [`SeqStatus::Anomaly`].
+pub const MAX_SEQ_JUMP: u64 = 1 << 16;
+
+/// Messages in a row, each one past the last and all beyond [`MAX_SEQ_JUMP`], after which the
+/// stream is taken to have been renumbered ([`SeqStatus::Resynced`]).
+pub const RESYNC_AFTER: u64 = 4;
 
 /// Follows the sequence numbers of one input and counts what went missing.
 #[derive(Clone, Debug, Default)]
@@ -55,6 +78,10 @@ pub struct SeqTracker {
     received: u64,
     missing: u64,
     stale: u64,
+    anomalies: u64,
+    resyncs: u64,
+    /// A run of anomalies each one past the last: the number it expects next, and its length.
+    run: Option<(u64, u64)>,
     announced: Option<u64>,
 }
 
@@ -65,25 +92,61 @@ impl SeqTracker {
             self.stale += 1;
             return SeqStatus::Stale;
         }
+        let jump = seq - self.next;
+        if jump > MAX_SEQ_JUMP {
+            let run = match self.run {
+                Some((expect, n)) if expect == seq => n + 1,
+                _ => 1,
+            };
+            if run < RESYNC_AFTER {
+                self.anomalies += 1;
+                self.run = Some((seq.saturating_add(1), run));
+                return SeqStatus::Anomaly { jump };
+            }
+            // The run's earlier messages were refused: they stay counted as anomalies.
+            self.run = None;
+            self.resyncs += 1;
+            self.received += 1;
+            self.next = seq.saturating_add(1);
+            return SeqStatus::Resynced { jump };
+        }
+        self.run = None;
         self.received += 1;
-        let status = if seq == self.next {
+        let status = if jump == 0 {
             SeqStatus::InOrder
         } else {
-            let missing = seq - self.next;
-            self.missing += missing;
-            SeqStatus::Gap { missing }
+            self.missing += jump;
+            SeqStatus::Gap { missing: jump }
         };
-        self.next = seq + 1;
+        self.next = seq.saturating_add(1);
         status
     }
 
-    /// Records the end-of-stream marker; returns how many messages were lost at the tail.
+    /// Records the end-of-stream marker; returns how many messages were lost at the tail. A
+    /// count more than [`MAX_SEQ_JUMP`] past the messages seen is an anomaly: the stream ends
+    /// at what came, nothing counted lost at its tail.
     pub fn end(&mut self, count: u64) -> u64 {
+        if count.saturating_sub(self.next) > MAX_SEQ_JUMP {
+            self.anomalies += 1;
+            self.announced = Some(self.next);
+            return 0;
+        }
         self.announced = Some(count);
         let tail = count.saturating_sub(self.next);
         self.missing += tail;
         self.next = self.next.max(count);
         tail
+    }
+
+    /// Messages refused for a sequence number too far ahead ([`SeqStatus::Anomaly`]), and end
+    /// markers announcing too many.
+    pub fn anomalies(&self) -> u64 {
+        self.anomalies
+    }
+
+    /// Times the stream was renumbered ([`SeqStatus::Resynced`]).
+    pub fn resyncs(&self) -> u64 {
+        self.resyncs
     }
 
     /// Messages received (excluding stale ones).
@@ -123,6 +186,73 @@ mod tests {
             (t.received(), t.missing(), t.stale(), t.announced()),
             (2, 4, 1, Some(6))
         );
+    }
+
+    #[test]
+    fn a_forged_jump_is_refused_without_blinding_the_stream() {
+        let mut t = SeqTracker::default();
+        assert_eq!(t.observe(0), SeqStatus::InOrder);
+        assert_eq!(
+            t.observe(1 << 62),
+            SeqStatus::Anomaly {
+                jump: (1 << 62) - 1
+            }
+        );
+        // The genuine messages after it are in order, nothing counted lost.
+        assert_eq!(t.observe(1), SeqStatus::InOrder);
+        assert_eq!(t.observe(2), SeqStatus::InOrder);
+        assert_eq!((t.received(), t.missing(), t.anomalies()), (3, 0, 1));
+        // A jump within the window is loss, as before.
+        assert_eq!(
+            t.observe(3 + MAX_SEQ_JUMP),
+            SeqStatus::Gap {
+                missing: MAX_SEQ_JUMP
+            }
+        );
+        // A forged end marker far ahead ends the stream at what came, with no tail lost.
+        assert_eq!(t.end(u64::MAX), 0);
+        assert_eq!(t.announced(), Some(4 + MAX_SEQ_JUMP));
+        assert_eq!(t.anomalies(), 2);
+    }
+
+    #[test]
+    fn a_renumbered_stream_is_followed_after_a_run_of_consecutive_numbers() {
+        let mut t = SeqTracker::default();
+        for s in 0..10 {
+            assert_eq!(t.observe(s), SeqStatus::InOrder);
+        }
+        let base = 1_000_000;
+        for k in 0..RESYNC_AFTER - 1 {
+            assert!(matches!(t.observe(base + k), SeqStatus::Anomaly { .. }));
+        }
+        assert_eq!(
+            t.observe(base + RESYNC_AFTER - 1),
+            SeqStatus::Resynced {
+                jump: base + RESYNC_AFTER - 1 - 10
+            }
+        );
+        assert_eq!(t.observe(base + RESYNC_AFTER), SeqStatus::InOrder);
+        assert_eq!(t.observe(5), SeqStatus::Stale);
+        assert_eq!(
+            (t.missing(), t.resyncs(), t.anomalies()),
+            (0, 1, RESYNC_AFTER - 1)
+        );
+        // A run broken by a genuine message starts again.
+        let mut u = SeqTracker::default();
+        assert!(matches!(u.observe(1 << 40), SeqStatus::Anomaly { .. }));
+        assert_eq!(u.observe(0), SeqStatus::InOrder);
+        assert!(matches!(
+            u.observe((1 << 40) + 1),
+            SeqStatus::Anomaly { .. }
+        ));
+        assert!(matches!(
+            u.observe((1 << 40) + 2),
+            SeqStatus::Anomaly { .. }
+        ));
+        assert!(matches!(
+            u.observe((1 << 40) + 3),
+            SeqStatus::Anomaly { .. }
+        ));
     }
 
     #[test]

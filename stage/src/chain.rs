@@ -968,6 +968,25 @@ impl<'a> Chain<'a> {
                 );
             }
             SeqStatus::Stale => tracing::warn!(stage = slot.id, input, seq, "stale message"),
+            SeqStatus::Anomaly { jump } => {
+                tracing::warn!(
+                    stage = slot.id,
+                    input,
+                    seq,
+                    jump,
+                    "a sequence number far past the stream's: refused"
+                );
+                return;
+            }
+            SeqStatus::Resynced { jump } => {
+                tracing::warn!(
+                    stage = slot.id,
+                    input,
+                    seq,
+                    jump,
+                    "the stream was renumbered"
+                );
+            }
         }
         slot.received += 1;
         slot.origin = Some(slot.origin.map_or(origin, |o| o.max(origin)));

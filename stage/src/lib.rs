@@ -154,6 +154,9 @@ pub struct Tally {
     pub received: u64,
     /// Messages known to be missing (gaps in the sequence numbers, and the tail).
     pub missing: u64,
+    /// Messages refused, not lost: a sequence number far past the stream's
+    /// ([`neuspike_schemas::SeqStatus::Anomaly`]), or an end announcing far too many.
+    pub refused: u64,
     /// Whether the stream ended.
     pub ended: bool,
     /// Whether it was cut short: its sender failed, or a stage upstream did.
@@ -167,6 +170,7 @@ impl Tally {
             announced: seq.announced(),
             received: seq.received(),
             missing: seq.missing(),
+            refused: seq.anomalies(),
             ended,
             cut,
         }

@@ -1,6 +1,7 @@
 //! dora node: the DVS event camera, simulated or played from a recording. Output `events`
 //! (EventBatch), one batch per `--batch-ns` interval, empty batches included, so a receiver always
-//! knows how far time went. The stage itself (the settings, the scene or the recording, the
+//! knows how far time went (a gap in a recording longer than two intervals is one empty batch
+//! across it). The stage itself (the settings, the scene or the recording, the
 //! batches) is `neuspike_event_source::playback`.
 //!
 //! A recording that turns out bad part-way has every batch before the fault sent, then the

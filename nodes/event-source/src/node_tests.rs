@@ -232,6 +232,35 @@ fn plays_a_written_text_file_in_contiguous_batches() {
 }
 
 #[test]
+fn a_gap_in_a_recording_is_one_empty_batch_not_one_per_interval() {
+    let dir = tempfile::tempdir().unwrap();
+    // A day between two events, 1 ms batches: 86 million empty batches played one by one.
+    let day = 86_400_000_000_000;
+    let events = [ev(1_000_000, 0, 0, 1), ev(day + 1_500_000, 1, 1, -1)];
+    let path = write_text(dir.path(), &events, false);
+    let a = args(&[
+        "--file",
+        path.to_str().unwrap(),
+        "--file-width",
+        "10",
+        "--file-height",
+        "3",
+    ]);
+    let bs = batches(&a);
+    assert_contiguous(&bs);
+    let intervals: Vec<(i64, i64)> = bs.iter().map(|b| (b.t_start_ns, b.t_end_ns)).collect();
+    assert_eq!(
+        intervals,
+        [
+            (1_000_000, 2_000_000),
+            (2_000_000, day + 1_000_000),
+            (day + 1_000_000, day + 1_500_001)
+        ]
+    );
+    assert_eq!(bs.iter().map(|b| b.len()).sum::<usize>(), 2);
+}
+
+#[test]
 fn start_end_and_batch_length_cut_an_evt2_file() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("events.raw");

@@ -42,8 +42,8 @@ pub struct AlignConfig {
     /// Planes per window (N).
     #[arg(long, default_value_t = 33, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub window_planes: u32,
-    /// Planes between two reference planes (K): one window every K planes.
-    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..))]
+    /// Planes between two reference planes (K): one window every K planes (at most 2^32).
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..=1 << 32))]
     pub stride_planes: u64,
     /// Emit windows at this frame rate (Hz) instead of every `stride-planes` planes.
     #[arg(long)]
@@ -65,7 +65,21 @@ pub struct AlignConfig {
     /// The clock offsets `--estimate-rig-planes` searches, either way, nanoseconds.
     #[arg(long, default_value_t = 5_000_000)]
     pub estimate_max_offset_ns: i64,
+    /// The most planes a chunk may skip (planes lost on the way) and still continue the
+    /// stream, the windows that needed them counted as skipped. A chunk further ahead is
+    /// refused and counted, unless it is the last of a run of chunks continuing one another
+    /// out there (the camera renumbered its planes), where the stream restarts (2^24: 7 minutes
+    /// at 40 kHz).
+    #[arg(long, default_value_t = DEFAULT_MAX_GAP_PLANES)]
+    pub max_gap_planes: u64,
 }
+
+/// The default `--max-gap-planes`.
+pub const DEFAULT_MAX_GAP_PLANES: u64 = 1 << 24;
+
+/// Chunks in a row, each continuing the last, beyond `--max-gap-planes` after which align takes
+/// the stream to have been renumbered and restarts there.
+pub const RESYNC_CHUNKS: u64 = 4;
 
 /// `--homography`'s parser: the error names the value.
 fn parse_homography(text: &str) -> Result<Homography, String> {
@@ -82,6 +96,7 @@ impl Default for AlignConfig {
             homography: None,
             estimate_rig_planes: None,
             estimate_max_offset_ns: 5_000_000,
+            max_gap_planes: DEFAULT_MAX_GAP_PLANES,
         }
     }
 }
@@ -148,6 +163,11 @@ pub struct Aligner {
     estimating: Option<Estimating>,
     /// The rig estimate's failure, until taken.
     rig_error: Option<AlignError>,
+    /// A run of chunks beyond `--max-gap-planes`: the plane the next would start at, and its
+    /// length.
+    far: Option<(u64, u64)>,
+    /// Chunks refused for starting too far ahead.
+    refused_chunks: u64,
 }
 
 /// The streams' beginnings, held while the rig is estimated from them.
@@ -308,6 +328,8 @@ impl Aligner {
             pixel_map: None,
             estimating: None,
             rig_error: None,
+            far: None,
+            refused_chunks: 0,
         }
         .estimating_if_asked(with_events)
     }
@@ -470,11 +492,42 @@ impl Aligner {
         }
     }
 
-    /// Moves to the next reference plane whose window starts at or after `first_plane`.
+    /// Moves to the next reference plane.
     fn advance(&mut self) {
         let period = self.geometry.map_or(1, |g| g.2);
         self.ref_index += 1;
         self.next_ref = self.ref_plane(self.ref_index, period);
+    }
+
+    /// Moves to the first reference plane whose window starts at or after `first_plane`
+    /// (staying put if the next one does), in a few steps whatever the distance; returns the
+    /// windows passed over.
+    fn skip_to(&mut self, first_plane: u64) -> u64 {
+        let period = self.geometry.map_or(1, |g| g.2).max(1);
+        let target = first_plane.saturating_add(self.before);
+        let from = self.ref_index;
+        // An estimate of the index from below, then steps to the exact one.
+        let estimate = match self.cfg.fps {
+            Some(fps) => ((target as f64) * period as f64 * fps / 1e9).floor() as u64,
+            None => {
+                let k = self.cfg.stride_planes.max(1);
+                target.saturating_sub(self.before.div_ceil(k) * k) / k
+            }
+        }
+        .saturating_sub(1);
+        if estimate > self.ref_index {
+            self.ref_index = estimate;
+            self.next_ref = self.ref_plane(self.ref_index, period);
+        }
+        while self.next_ref < target {
+            self.advance();
+        }
+        self.ref_index - from
+    }
+
+    /// Chunks refused for starting more than `--max-gap-planes` ahead of the stream.
+    pub fn refused_chunks(&self) -> u64 {
+        self.refused_chunks
     }
 
     /// The sequence number of the next window: its place among the stream's windows, those
@@ -529,10 +582,7 @@ impl Aligner {
                 self.next_ref = self.ref_plane(0, chunk.plane_period_ns);
                 // The first window whose planes can still come: a stream may start anywhere
                 // (a recording played from its middle).
-                while self.next_ref < self.before || self.next_ref - self.before < chunk.first_plane
-                {
-                    self.advance();
-                }
+                self.skip_to(chunk.first_plane);
                 for batch in std::mem::take(&mut self.pending) {
                     self.add_events(batch);
                 }
@@ -547,18 +597,46 @@ impl Aligner {
             Some(_) => {}
         }
         let end = self.first_buffered + self.planes.len() as u64;
-        if chunk.first_plane > end {
+        if chunk.first_plane > end && chunk.first_plane - end > self.cfg.max_gap_planes {
+            let after = chunk.first_plane.saturating_add(chunk.n_planes as u64);
+            let run = match self.far {
+                Some((next, n)) if next == chunk.first_plane => n + 1,
+                _ => 1,
+            };
+            if run < RESYNC_CHUNKS {
+                self.far = Some((after, run));
+                self.refused_chunks += 1;
+                tracing::warn!(
+                    seq = chunk.seq,
+                    expected = end,
+                    first_plane = chunk.first_plane,
+                    "a spike chunk far past the stream's planes (--max-gap-planes): refused"
+                );
+                return Ok(());
+            }
+            // The camera renumbered its planes: the stream goes on from here, its windows
+            // numbered on as if nothing were skipped (nothing was lost: the numbering moved).
+            tracing::warn!(
+                from = end,
+                to = chunk.first_plane,
+                "the spike stream was renumbered: restarting the window buffer there"
+            );
+            self.far = None;
+            self.planes.clear();
+            self.first_buffered = chunk.first_plane;
+            self.skip_to(chunk.first_plane);
+        } else if chunk.first_plane > end {
             tracing::warn!(
                 from = end,
                 to = chunk.first_plane,
                 "spike planes missing; restarting the window buffer"
             );
+            self.far = None;
             self.planes.clear();
             self.first_buffered = chunk.first_plane;
-            while self.next_ref.saturating_sub(self.before) < chunk.first_plane {
-                self.advance();
-                self.skipped_windows += 1;
-            }
+            self.skipped_windows += self.skip_to(chunk.first_plane);
+        } else {
+            self.far = None;
         }
         let per = bytes_per_plane(chunk.width, chunk.height);
         for (i, plane) in chunk.bits.chunks_exact(per.max(1)).enumerate() {
@@ -1070,6 +1148,78 @@ mod tests {
             e.contains("fps") && e.contains("30000") && e.contains("20000"),
             "{e}"
         );
+    }
+
+    fn refs_of(a: &mut Aligner) -> Vec<(u64, u64)> {
+        std::iter::from_fn(|| a.pop_ready())
+            .map(|w| (w.ref_plane, w.seq()))
+            .collect()
+    }
+
+    #[test]
+    fn a_chunk_far_ahead_is_refused_without_stepping_or_blinding_the_stream() {
+        let cfg = AlignConfig {
+            window_planes: 3,
+            stride_planes: 1,
+            ..Default::default()
+        };
+        let mut a = Aligner::new(cfg, false);
+        a.push_spikes(chunk(0, 4, 0)).unwrap();
+        assert_eq!(refs_of(&mut a), [(1, 0), (2, 1)]);
+        // A forged chunk 2^40 planes ahead, with no planes: refused at
+        // once (one stride at a time it would take days), nothing counted lost.
+        let mut forged = chunk(1 << 40, 0, 1);
+        forged.bits.clear();
+        let t = std::time::Instant::now();
+        a.push_spikes(forged).unwrap();
+        assert!(t.elapsed() < std::time::Duration::from_secs(1));
+        assert_eq!((a.refused_chunks(), a.skipped_windows()), (1, 0));
+        // The genuine planes after it still make their windows.
+        a.push_spikes(chunk(4, 2, 2)).unwrap();
+        assert_eq!(refs_of(&mut a), [(3, 2), (4, 3)]);
+    }
+
+    #[test]
+    fn a_long_gap_within_the_limit_is_skipped_in_one_step_and_counted() {
+        let cfg = AlignConfig {
+            window_planes: 3,
+            stride_planes: 1,
+            ..Default::default()
+        };
+        let mut a = Aligner::new(cfg, false);
+        a.push_spikes(chunk(0, 3, 0)).unwrap();
+        assert_eq!(refs_of(&mut a), [(1, 0)]);
+        let gap = DEFAULT_MAX_GAP_PLANES - 1;
+        let t = std::time::Instant::now();
+        a.push_spikes(chunk(3 + gap, 3, 1)).unwrap();
+        assert!(t.elapsed() < std::time::Duration::from_secs(1));
+        // Windows 2 ..= gap + 3 needed lost planes; the next is around plane gap + 4.
+        let got = refs_of(&mut a);
+        assert_eq!(got, [(gap + 4, gap + 3)]);
+        assert_eq!(a.skipped_windows(), gap + 2);
+    }
+
+    #[test]
+    fn a_renumbered_stream_is_followed_after_a_run_of_chunks() {
+        let cfg = AlignConfig {
+            window_planes: 3,
+            stride_planes: 2,
+            ..Default::default()
+        };
+        let mut a = Aligner::new(cfg, false);
+        a.push_spikes(chunk(0, 4, 0)).unwrap();
+        assert_eq!(refs_of(&mut a), [(2, 0)]);
+        let base = 1u64 << 40;
+        for k in 0..RESYNC_CHUNKS {
+            a.push_spikes(chunk(base + 2 * k, 2, 1 + k)).unwrap();
+        }
+        // The first three were refused; the fourth restarted the stream there, numbered on.
+        assert_eq!(a.refused_chunks(), RESYNC_CHUNKS - 1);
+        assert_eq!(a.skipped_windows(), 0);
+        a.push_spikes(chunk(base + 2 * RESYNC_CHUNKS, 4, 9))
+            .unwrap();
+        let got = refs_of(&mut a);
+        assert_eq!(got.first(), Some(&(base + 2 * RESYNC_CHUNKS - 2 + 2, 1)));
     }
 
     #[test]

@@ -114,6 +114,7 @@ impl Stage for AlignStage {
             spike_chunks_lost = inputs.get(SPIKES).map_or(0, |s| s.missing),
             event_batches_lost = inputs.get(EVENTS).map_or(0, |s| s.missing),
             events_outside_the_spike_grid = self.aligner.dropped_events(),
+            spike_chunks_refused = self.aligner.refused_chunks(),
             "align finished"
         );
         Ok(())

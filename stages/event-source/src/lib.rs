@@ -199,6 +199,13 @@ impl DvsConfig {
         if self.height == 0 || self.height > usize::from(u16::MAX) {
             return bad("height", self.height.to_string(), "must be in 1..=65535");
         }
+        if self.width * self.height > neuspike_schemas::limits::max_sensor_pixels() {
+            return bad(
+                "width",
+                format!("{}x{}", self.width, self.height),
+                "the sensor has more pixels than NEUSPIKE_MAX_SENSOR_PIXELS allows (16777216, 4096x4096, unless set)",
+            );
+        }
         for (key, v) in [("theta-on", self.theta_on), ("theta-off", self.theta_off)] {
             if !(v.is_finite() && v >= MIN_THRESHOLD) {
                 return bad(key, format!("{:?}", v), "must be finite and >= 0.01");
@@ -1475,6 +1482,19 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("theta-on") && e.contains('0'), "{e}");
+        let c = DvsConfig {
+            width: 65_535,
+            height: 65_535,
+            ..cfg()
+        };
+        let e = EventCamera::new(scene("", 1.0), c, 0)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("65535x65535") && e.contains("NEUSPIKE_MAX_SENSOR_PIXELS"),
+            "{e}"
+        );
     }
 
     proptest::proptest! {

@@ -403,6 +403,23 @@ impl EventFile {
         if let Some(&t) = batch.t_ns.last() {
             self.last_t_ns = Some(t);
         }
+        // A gap in the recording: one empty batch up to the interval of the next event, not one
+        // per `batch_ns` across it (a day's gap would be 86 million of them at 1 ms).
+        if batch.is_empty()
+            && !exhausted
+            && let Some(gap) = self
+                .pending
+                .t_ns
+                .get(self.pos)
+                .and_then(|&t| t.checked_sub(t0))
+        {
+            let whole = gap / self.batch_ns * self.batch_ns;
+            let mut far = t0.saturating_add(whole);
+            if let Some(end) = self.end_ns {
+                far = far.min(end);
+            }
+            batch.t_end_ns = far.max(t1);
+        }
         if exhausted {
             // The recording ends inside this interval: the stream ends after its last event.
             match self.last_t_ns {

@@ -84,7 +84,18 @@ pub struct PacketDecoder {
     t_end_ns: Option<i64>,
     /// Events at the last time seen, held for the next batch.
     carry: EventBatch,
+    /// Events dropped for coming at one instant past [`MAX_EVENTS_AT_ONE_INSTANT`].
+    dropped_events: u64,
+    /// Packet numbers that jumped past [`neuspike_schemas::MAX_SEQ_JUMP`] (a driver restarted,
+    /// or a forgery): not counted as packets lost.
+    seq_anomalies: u64,
 }
+
+/// The most events held at one instant, waiting for a later time to close their batch: 2^20,
+/// more than every pixel of a 1280 x 720 sensor firing within one nanosecond. Past it, events at
+/// that instant are dropped and counted ([`PacketDecoder::dropped_events`]), so a stream whose
+/// time stands still cannot grow without bound.
+pub const MAX_EVENTS_AT_ONE_INSTANT: usize = 1 << 20;
 
 impl PacketDecoder {
     /// A decoder for the packets of `topic` (the name errors give).
@@ -99,7 +110,19 @@ impl PacketDecoder {
             batches: 0,
             t_end_ns: None,
             carry: EventBatch::default(),
+            dropped_events: 0,
+            seq_anomalies: 0,
         }
+    }
+
+    /// Events dropped for coming at one instant past [`MAX_EVENTS_AT_ONE_INSTANT`].
+    pub fn dropped_events(&self) -> u64 {
+        self.dropped_events
+    }
+
+    /// Packet numbers that jumped too far to be packets lost (not counted as lost).
+    pub fn seq_anomalies(&self) -> u64 {
+        self.seq_anomalies
     }
 
     /// Packets lost so far (gaps in their `seq`).
@@ -137,6 +160,12 @@ impl PacketDecoder {
                 ));
             }
         };
+        neuspike_schemas::limits::check_sensor(
+            "event packet",
+            usize::from(size.0),
+            usize::from(size.1),
+        )
+        .map_err(|e| self.error(p, e.to_string()))?;
         if let Some(s) = self.size
             && s != size
         {
@@ -184,10 +213,15 @@ impl PacketDecoder {
         self.encoding = Some(encoding);
         decoded.map_err(|e| self.error(p, e))?;
 
+        let mut anomaly = false;
         if let Some(next) = self.next_packet_seq
             && p.seq != next
         {
-            if p.seq > next {
+            if p.seq > next && p.seq - next > neuspike_schemas::MAX_SEQ_JUMP {
+                anomaly = true;
+                self.seq_anomalies += 1;
+                tracing::warn!(topic = %self.topic, seq = p.seq, expected = next, "a packet number far past the stream's: not counted as packets lost");
+            } else if p.seq > next {
                 let lost = p.seq - next;
                 self.lost_packets += lost;
                 tracing::error!(topic = %self.topic, seq = p.seq, lost, "event packets lost before this one");
@@ -195,7 +229,11 @@ impl PacketDecoder {
                 tracing::warn!(topic = %self.topic, seq = p.seq, expected = next, "the driver's packet numbers went back");
             }
         }
-        self.next_packet_seq = Some(p.seq.wrapping_add(1));
+        // A number far ahead leaves the expected one where it was: the genuine packets after
+        // it are not taken as going back.
+        if !anomaly {
+            self.next_packet_seq = Some(p.seq.wrapping_add(1));
+        }
         self.packets += 1;
 
         // The interval: from where the last batch ended (or the first event, or the packet's
@@ -222,8 +260,15 @@ impl PacketDecoder {
         }
         let end = events.t_ns.last().copied().unwrap_or(start).max(start);
         let keep = events.t_ns.partition_point(|&t| t < end);
-        for i in keep..events.len() {
+        let held = events.len() - keep;
+        let room = MAX_EVENTS_AT_ONE_INSTANT.min(held);
+        for i in keep..keep + room {
             self.carry.push(events.get(i));
+        }
+        if held > room {
+            let dropped = (held - room) as u64;
+            self.dropped_events += dropped;
+            tracing::warn!(topic = %self.topic, dropped, t_ns = end, "more events at one instant than a sensor makes: dropped");
         }
         events.truncate(keep);
         Ok(self.numbered(events, start, end))
@@ -243,7 +288,7 @@ impl PacketDecoder {
         batch.t_start_ns = start;
         batch.t_end_ns = end;
         // Numbered so that a lost packet is a gap downstream too.
-        batch.seq = self.batches + self.lost_packets;
+        batch.seq = self.batches.saturating_add(self.lost_packets);
         self.batches += 1;
         self.t_end_ns = Some(end);
         batch
@@ -441,6 +486,55 @@ mod tests {
 
     fn mono(t: u32, x: u16, y: u16, on: bool) -> [u8; 8] {
         (u64::from(on) << 63 | u64::from(y) << 48 | u64::from(x) << 32 | u64::from(t)).to_le_bytes()
+    }
+
+    #[test]
+    fn a_stream_whose_time_stands_still_holds_a_bounded_number_of_events() {
+        let mut d = PacketDecoder::new("/dvs/events");
+        let per = 4096;
+        let events: Vec<u8> = (0..per)
+            .flat_map(|i| mono(7, (i % 40) as u16, (i / 40 % 30) as u16, true))
+            .collect();
+        let packets = MAX_EVENTS_AT_ONE_INSTANT / per + 3;
+        for seq in 0..packets as u64 {
+            let b = d
+                .packet(&packet(seq, "mono", events.clone()))
+                .expect("packet");
+            assert_eq!(b.len(), 0, "every event waits for a later time");
+        }
+        assert_eq!(d.carry.len(), MAX_EVENTS_AT_ONE_INSTANT);
+        assert_eq!(
+            d.dropped_events(),
+            (packets * per - MAX_EVENTS_AT_ONE_INSTANT) as u64
+        );
+    }
+
+    #[test]
+    fn a_packet_number_far_ahead_is_not_counted_as_packets_lost() {
+        let mut d = PacketDecoder::new("/dvs/events");
+        d.packet(&packet(0, "mono", mono(1, 0, 0, true).to_vec()))
+            .expect("first");
+        let b = d
+            .packet(&packet(1 << 63, "mono", mono(2, 0, 0, true).to_vec()))
+            .expect("far ahead");
+        assert_eq!((d.lost_packets(), d.seq_anomalies(), b.seq), (0, 1, 1));
+        let b = d
+            .packet(&packet(1, "mono", mono(3, 0, 0, true).to_vec()))
+            .expect("genuine");
+        assert_eq!((d.lost_packets(), b.seq), (0, 2));
+    }
+
+    #[test]
+    fn a_packet_claiming_a_sensor_past_the_pixel_limit_is_refused() {
+        let mut d = PacketDecoder::new("/dvs/events");
+        let mut p = packet(0, "mono", vec![]);
+        p.width = 65_535;
+        p.height = 65_535;
+        let e = d.packet(&p).expect_err("too big").to_string();
+        assert!(
+            e.contains("/dvs/events") && e.contains("65535x65535"),
+            "{e}"
+        );
     }
 
     #[test]

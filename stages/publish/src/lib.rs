@@ -338,8 +338,8 @@ impl Publisher {
             if let Some(bag) = &mut self.bag {
                 bag.neuspike(&format!("neuspike/{}/{input}", self.graph), &bytes, now_ns)?;
             }
-            p.put(bytes)
-                .wait()
+            // The source number wraps at 2^32: a follower checks the identity, not the number.
+            neuspike_net::put_message(p, bytes, self.published as u32)
                 .map_err(|e| eyre!("neuspike/{}/{input}: {e}", self.graph))?;
             self.published += 1;
         }

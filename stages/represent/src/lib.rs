@@ -60,4 +60,4 @@ pub use surface::{TIME_SURFACE_CHANNELS, time_surface_into, time_surface_referen
 pub use voxel::{
     VoxelNorm, event_stack_into, event_stack_reference, voxel_grid_into, voxel_grid_reference,
 };
-pub use window::{RepresentConfig, Representer};
+pub use window::{MAX_CHANNELS, RepresentConfig, Representer};

@@ -12,6 +12,11 @@ use crate::{
     spike_representation_packed_into, tfp_packed_into, time_surface_into, voxel_grid_into,
 };
 
+/// The most channels or time bins a representation may have (`--repr-channels`,
+/// `--ei-channels`, `--voxel-bins`, `--stack-bins`): 4096, 128 times the paper's 32, so that a
+/// typo cannot ask for a representation of hundreds of GB.
+pub const MAX_CHANNELS: i64 = 4096;
+
 /// The represent stage's settings (the node's `args:`).
 #[derive(Clone, Debug, PartialEq, clap::Args)]
 pub struct RepresentConfig {
@@ -19,10 +24,10 @@ pub struct RepresentConfig {
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub tfp_planes: Option<u32>,
     /// Channels of the NeuSpike-Net spike representation (1 ISI + N-1 planes).
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(2..))]
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(2..=MAX_CHANNELS))]
     pub repr_channels: u32,
     /// Channels of the event integration (instants evenly spaced over the window).
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=MAX_CHANNELS))]
     pub ei_channels: u32,
     /// Decay constant tau of the event integration (paper Eq. 8), nanoseconds.
     #[arg(long, default_value_t = 500_000.0)]
@@ -41,10 +46,10 @@ pub struct RepresentConfig {
     pub stp_tau_f_ticks: f64,
     /// `voxel_grid`: time bins of E2VID's voxel grid (normalised as E2VID: the non-zero voxels
     /// to mean 0 and standard deviation 1).
-    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=MAX_CHANNELS))]
     pub voxel_bins: u32,
     /// `event_stack`: time bins of the event stack.
-    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=MAX_CHANNELS))]
     pub stack_bins: u32,
     /// `time_surface`: decay constant of the time surface, nanoseconds (> 0, inf allowed).
     #[arg(long, default_value_t = 500_000.0)]
@@ -97,6 +102,20 @@ impl RepresentConfig {
                 value: self.surface_tau_ns.to_string(),
                 reason: "must be > 0 (inf allowed)",
             });
+        }
+        for (name, value) in [
+            ("repr-channels", self.repr_channels),
+            ("ei-channels", self.ei_channels),
+            ("voxel-bins", self.voxel_bins),
+            ("stack-bins", self.stack_bins),
+        ] {
+            if value == 0 || i64::from(value) > MAX_CHANNELS {
+                return Err(RepresentError::Param {
+                    name,
+                    value: value.to_string(),
+                    reason: "must be in 1..=4096",
+                });
+            }
         }
         self.stp_params().check()
     }
@@ -277,6 +296,21 @@ mod tests {
             y: &b.y,
             polarity: &b.polarity,
         }
+    }
+
+    #[test]
+    fn a_representation_of_too_many_channels_is_refused_before_anything_is_made() {
+        let cfg = RepresentConfig {
+            voxel_bins: u32::MAX,
+            ..RepresentConfig::default()
+        };
+        let e = Representer::new(cfg).unwrap_err().to_string();
+        assert!(e.contains("voxel-bins") && e.contains("4294967295"), "{e}");
+        let cfg = RepresentConfig {
+            ei_channels: 4096,
+            ..RepresentConfig::default()
+        };
+        assert!(Representer::new(cfg).is_ok());
     }
 
     #[test]

@@ -134,6 +134,13 @@ impl CameraConfig {
         if self.height == 0 || self.height > u16::MAX as usize {
             return bad("height", self.height.to_string(), "must be in 1..=65535");
         }
+        if self.width * self.height > neuspike_schemas::limits::max_sensor_pixels() {
+            return bad(
+                "width",
+                format!("{}x{}", self.width, self.height),
+                "the sensor has more pixels than NEUSPIKE_MAX_SENSOR_PIXELS allows (16777216, 4096x4096, unless set)",
+            );
+        }
         if !(self.rate_hz.is_finite() && self.rate_hz > 0.0 && self.rate_hz <= 1e9) {
             return bad("rate-hz", self.rate_hz.to_string(), "must be in (0, 1e9]");
         }
@@ -1323,6 +1330,20 @@ mod tests {
             .unwrap()
             .to_string();
         assert!(e.contains("rate-hz") && e.contains("-1"), "{e}");
+        // A sensor beyond the pixel limit is refused before anything is allocated.
+        let cfg = CameraConfig {
+            width: 65_535,
+            height: 65_535,
+            ..Default::default()
+        };
+        let e = SpikeCamera::new(flat_scene(0.5, 1.0), cfg)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("65535x65535") && e.contains("NEUSPIKE_MAX_SENSOR_PIXELS"),
+            "{e}"
+        );
     }
 
     proptest::proptest! {
