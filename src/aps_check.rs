@@ -563,7 +563,8 @@ pub fn main(o: &ApsCheckOptions) -> eyre::Result<()> {
     let check = run(o)?;
     let text = check.markdown();
     if let Some(path) = &o.report {
-        std::fs::write(path, &text).wrap_err_with(|| format!("cannot write {}", path.display()))?;
+        neuspike_formats::atomic::write(path, &text)
+            .wrap_err_with(|| format!("cannot write {}", path.display()))?;
     }
     std::io::stdout()
         .write_all(text.as_bytes())

@@ -175,7 +175,8 @@ pub fn run(opts: &CalibrateOptions) -> eyre::Result<Calibration> {
 }
 
 fn write(path: &Path, text: &str) -> eyre::Result<()> {
-    std::fs::write(path, text).wrap_err_with(|| format!("cannot write {}", path.display()))
+    neuspike_formats::atomic::write(path, text)
+        .wrap_err_with(|| format!("cannot write {}", path.display()))
 }
 
 fn cell(v: Option<f64>) -> String {

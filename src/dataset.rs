@@ -870,7 +870,8 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         camera
     );
     let yml_path = out.join("dataset.yml");
-    fs::write(&yml_path, yml).wrap_err_with(|| format!("cannot write {}", yml_path.display()))?;
+    neuspike_formats::atomic::write(&yml_path, yml)
+        .wrap_err_with(|| format!("cannot write {}", yml_path.display()))?;
     Ok(summary)
 }
 

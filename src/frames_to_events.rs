@@ -179,13 +179,17 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     check_frame(&prev, 0, w, &name)?;
     let mut pixels =
         DvsPixels::new(&cfg, o.light_scale, &prev).map_err(|e| eyre!("frames-to-events: {e}"))?;
-    let file = std::fs::File::create(&o.out)
-        .wrap_err_with(|| format!("cannot create {}", o.out.display()))?;
+    // The events go to `<out>.partial`, renamed to `out` once every frame is done: a run that
+    // fails (a bad frame, a full disk, a kill) leaves its events there, never a shorter file
+    // under the name that reads as whole.
+    let partial = partial_path(&o.out);
+    let file = std::fs::File::create(&partial)
+        .wrap_err_with(|| format!("cannot create {}", partial.display()))?;
     let resolution = Resolution {
         width: w as u16,
         height: h as u16,
     };
-    let mut writer = TextWriter::new(std::io::BufWriter::new(file), &o.out, resolution, true)?;
+    let mut writer = TextWriter::new(std::io::BufWriter::new(file), &partial, resolution, true)?;
     let mut summary = FramesToEventsSummary {
         frames: t,
         width: w,
@@ -202,7 +206,10 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
             .and_then(|()| check_frame(&cur, k, w, &name))
         {
             writer.finish()?;
-            return Err(e);
+            return Err(eyre!(
+                "{e:#} (the events of the {k} frames before it are in {})",
+                partial.display()
+            ));
         }
         let t_a = (k as i64 - 1).saturating_mul(o.dt_ns);
         let t_b = (k as i64).saturating_mul(o.dt_ns);
@@ -222,7 +229,16 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
         std::mem::swap(&mut prev, &mut cur);
     }
     writer.finish()?;
+    std::fs::rename(&partial, &o.out)
+        .wrap_err_with(|| format!("cannot rename {} to {}", partial.display(), o.out.display()))?;
     Ok(summary)
+}
+
+/// `<out>.partial`: where the events are written until the run is done.
+fn partial_path(out: &std::path::Path) -> std::path::PathBuf {
+    let mut name = out.file_name().unwrap_or_default().to_os_string();
+    name.push(".partial");
+    out.with_file_name(name)
 }
 
 /// Where the frames come from: the file a frame at a time, or an array read whole.
@@ -330,13 +346,16 @@ mod tests {
         f.index_axis_mut(ndarray::Axis(0), 1).fill(1.0);
         f[[2, 1, 0]] = f32::NAN;
         let o = options(dir.path(), &f);
-        let e = run(&o).expect_err("nan").to_string();
+        let e = format!("{:#}", run(&o).expect_err("nan"));
         assert!(
             e.contains("frame 2 pixel (0, 1)") && e.contains("NaN"),
             "{e}"
         );
-        // The events of the frames before the bad one are written, not lost.
-        let written = std::fs::read_to_string(&o.out).expect("events");
+        // The events of the frames before the bad one are written, not lost, and not under the
+        // name a whole run's file has.
+        assert!(e.contains("events.txt.partial"), "{e}");
+        assert!(!o.out.exists());
+        let written = std::fs::read_to_string(partial_path(&o.out)).expect("events");
         assert!(
             written.lines().skip(1).any(|l| l.ends_with(" 1")),
             "{written}"

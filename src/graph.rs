@@ -209,7 +209,7 @@ pub fn write_built_in(
     let path = out.join("graph.yml");
     let body =
         serde_yaml::to_string(&g).wrap_err_with(|| format!("{by}: cannot write the graph"))?;
-    std::fs::write(&path, format!("# Written by `{by}`.\n{body}"))
+    neuspike_formats::atomic::write(&path, format!("# Written by `{by}`.\n{body}"))
         .wrap_err_with(|| format!("cannot write {}", path.display()))?;
     Ok(path)
 }
@@ -253,7 +253,7 @@ pub fn write_full(graph: &mut Value, graph_path: &Path, out: &Path) -> eyre::Res
     std::fs::create_dir_all(dir).wrap_err_with(|| format!("cannot create {}", dir.display()))?;
     write_types(dir)?;
     let body = serde_yaml::to_string(graph).wrap_err("cannot write the graph")?;
-    std::fs::write(
+    neuspike_formats::atomic::write(
         out,
         format!(
             "# Written by `neuspike graph` from {}: run it with `dora run` or `neuspike run`.\n{body}",

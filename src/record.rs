@@ -255,7 +255,9 @@ fn write_manifest(
         gt = rec.ground_truth,
     );
     let path = opts.out.join("recording.yml");
-    fs::write(&path, manifest).wrap_err_with(|| format!("cannot write {}", path.display()))
+    // Last, and whole: a recording without its manifest is one that did not finish.
+    neuspike_formats::atomic::write(&path, manifest)
+        .wrap_err_with(|| format!("cannot write {}", path.display()))
 }
 
 /// The summary `neuspike info` prints for a recording file.

@@ -38,6 +38,7 @@
 #![deny(missing_docs)]
 
 pub mod aedat4;
+pub mod atomic;
 mod binary;
 pub mod dat;
 pub mod error;

@@ -45,7 +45,10 @@ impl Resume {
             });
         }
         let now = unix_now_ns();
-        std::fs::write(&path, now.to_string())
+        // Through a temporary file and a rename: a restarted node never reads half a time.
+        let tmp = path.with_extension(format!("{}.tmp", std::process::id()));
+        std::fs::write(&tmp, now.to_string())
+            .and_then(|()| std::fs::rename(&tmp, &path))
             .wrap_err_with(|| format!("cannot write the start time to {}", path.display()))?;
         Ok(Resume {
             path,

@@ -191,7 +191,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             for r in &rows {
                 let _ = writeln!(text, "{}", r.to_csv());
             }
-            std::fs::write(&csv_path, text)
+            neuspike_formats::atomic::write(&csv_path, text)
                 .wrap_err_with(|| format!("cannot write {}", csv_path.display()))?;
         }
     }
@@ -454,7 +454,8 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
     let mut md = summary(&rows, opts, started.elapsed().as_secs_f64(), new_rows);
     auto::summary(&mut md, &rows, policy_used.as_ref());
     let md_path = opts.out.join("summary.md");
-    std::fs::write(&md_path, md).wrap_err_with(|| format!("cannot write {}", md_path.display()))?;
+    neuspike_formats::atomic::write(&md_path, md)
+        .wrap_err_with(|| format!("cannot write {}", md_path.display()))?;
     plot::pareto(&rows, &opts.out.join("pareto.png"))?;
     plot::winners(&rows, &opts.out.join("winners.png"))?;
     Ok(BenchRun {
