@@ -286,7 +286,7 @@ fn a_recording_sent_over_zenoh_reconstructs_as_from_the_file() {
         zenoh: neuspike_net::ZenohArgs {
             listen: vec![],
             connect: vec![endpoint],
-            zenoh_config: None,
+            ..Default::default()
         },
     })
     .expect("published");

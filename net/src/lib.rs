@@ -10,6 +10,7 @@
 //!   tokens, attachments, `sensor_msgs/msg/Image` and `event_camera_msgs/msg/EventPacket` in CDR,
 //!   written and read (every length checked against the bytes before it is used).
 
+pub mod queue;
 pub mod remote;
 pub mod ros2;
 pub mod session;

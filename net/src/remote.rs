@@ -7,23 +7,19 @@
 //! on which nothing arrives for the silence limit is an error that names it, so a source whose
 //! camera vanished ends instead of waiting forever.
 //!
-//! The subscriber's queue is bounded ([`QUEUE`] samples); when it is full zenoh stops reading
-//! the link, so a publisher that sends with congestion control `block` (neuspike's do) is held
-//! back rather than losing messages.
+//! The subscriber's queue is bounded in samples and in bytes ([`crate::queue`]); when it is full
+//! zenoh stops reading the link, so a publisher that sends with congestion control `block`
+//! (neuspike's do) is held back rather than losing messages.
 
 use std::time::{Duration, Instant};
 
+use crate::queue::BoundedSubscriber;
 use neuspike_schemas::arrow::array::ArrayRef;
 use neuspike_schemas::ipc::{self, IpcError};
 use neuspike_schemas::{Meta, MetaExt, SeqStatus, SeqTracker, is_end_of_stream};
 use zenoh::Wait;
-use zenoh::handlers::FifoChannelHandler;
-use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 use zenoh::session::EntityGlobalId;
-
-/// Samples the subscriber holds before zenoh stops reading the link.
-pub const QUEUE: usize = 64;
 
 /// How long the publisher a stream follows must have been silent before another may take its
 /// place (a camera restarted as a new process, with a new identity).
@@ -160,7 +156,7 @@ pub fn put_message(
 pub struct Remote {
     key: String,
     expected: &'static str,
-    sub: Subscriber<FifoChannelHandler<Sample>>,
+    sub: BoundedSubscriber,
     seq: SeqTracker,
     arrived: u64,
     /// Samples refused as malformed.
@@ -188,14 +184,10 @@ impl Remote {
         expected: &'static str,
         silence: Duration,
     ) -> Result<Self, RemoteError> {
-        let sub = session
-            .declare_subscriber(key.to_string())
-            .with(zenoh::handlers::FifoChannel::new(QUEUE))
-            .wait()
-            .map_err(|e| RemoteError::Subscribe {
-                key: key.to_string(),
-                reason: e.to_string(),
-            })?;
+        let sub = BoundedSubscriber::declare(session, key).map_err(|e| RemoteError::Subscribe {
+            key: key.to_string(),
+            reason: e.to_string(),
+        })?;
         Ok(Remote {
             key: key.to_string(),
             expected,
@@ -297,23 +289,15 @@ impl Remote {
     /// number, silence beyond the limit, or the session closed.
     pub fn next(&mut self, wait: Duration) -> Result<Taken, RemoteError> {
         loop {
-            let sample = match self.sub.recv_timeout(wait) {
-                Ok(Some(s)) => s,
-                Ok(None) => {
-                    if self.last.elapsed() >= self.silence {
-                        return Err(RemoteError::Silent {
-                            key: self.key.clone(),
-                            secs: self.silence.as_secs_f64(),
-                            received: self.seq.received(),
-                        });
-                    }
-                    return Ok(Taken::Idle);
-                }
-                Err(_) => {
-                    return Err(RemoteError::Closed {
+            let Some(sample) = self.sub.recv_timeout(wait) else {
+                if self.last.elapsed() >= self.silence {
+                    return Err(RemoteError::Silent {
                         key: self.key.clone(),
+                        secs: self.silence.as_secs_f64(),
+                        received: self.seq.received(),
                     });
                 }
+                return Ok(Taken::Idle);
             };
             if !self.follows(&sample) {
                 continue;

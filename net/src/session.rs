@@ -25,7 +25,16 @@ pub struct ZenohArgs {
     /// TLS: see `docs/robots.md`).
     #[arg(long)]
     pub zenoh_config: Option<PathBuf>,
+    /// The largest message the session takes from the network, bytes (default
+    /// [`MAX_MESSAGE_BYTES`], 64 MiB): a larger one is dropped by zenoh before it is assembled.
+    #[arg(long)]
+    pub max_message_bytes: Option<usize>,
 }
+
+/// The largest message a session takes from the network unless `--max-message-bytes` says
+/// otherwise: 64 MiB, five 400 x 250 chunks of 1,000 spike planes, or seventeen float frames of
+/// 1280 x 720 (zenoh's own default is 1 GiB, which one forged message could make a node hold).
+pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
 
 /// The session could not be set up.
 #[derive(Debug, thiserror::Error)]
@@ -97,6 +106,13 @@ impl ZenohArgs {
         )?;
         set("scouting/multicast/enabled", "false")?;
         set(
+            "transport/link/rx/max_message_size",
+            &self
+                .max_message_bytes
+                .unwrap_or(MAX_MESSAGE_BYTES)
+                .to_string(),
+        )?;
+        set(
             "transport/link/tx/queue/congestion_control/block/wait_before_close",
             &(BLOCK_WAIT_S * 1_000_000).to_string(),
         )?;
@@ -160,6 +176,7 @@ mod tests {
         assert_eq!(get("listen/endpoints"), "[\"tcp/127.0.0.1:0\"]");
         assert_eq!(get("connect/endpoints"), "[\"tcp/127.0.0.1:7447\"]");
         assert_eq!(get("scouting/multicast/enabled"), "false");
+        assert_eq!(get("transport/link/rx/max_message_size"), "67108864");
         assert_eq!(
             get("transport/link/tx/queue/congestion_control/block/wait_before_close"),
             "60000000"

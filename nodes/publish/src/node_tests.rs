@@ -72,7 +72,7 @@ fn frames_reach_zenoh_as_arrow_and_ros2_images_with_their_attachment_and_tokens(
         zenoh: neuspike_net::ZenohArgs {
             listen: vec!["tcp/127.0.0.1:0".into()],
             connect: vec![format!("tcp/127.0.0.1:{port}")],
-            zenoh_config: None,
+            ..Default::default()
         },
     };
     let inputs = vec!["tfp".to_string()];

@@ -16,15 +16,13 @@ use std::time::{Duration, Instant};
 
 use neuspike_formats::evt3::Evt3Stream;
 use neuspike_formats::{EventBatch, ReadOptions, Resolution};
+use neuspike_net::queue::BoundedSubscriber;
 use neuspike_net::ros2::{
     self, EVENT_PACKET_HASH, EVENT_PACKET_TYPE, EventPacket, RosNode, parse_attachment,
     parse_event_packet,
 };
 use neuspike_schemas::Event;
 use zenoh::Wait;
-use zenoh::handlers::FifoChannelHandler;
-use zenoh::pubsub::Subscriber;
-use zenoh::sample::Sample;
 
 /// Why a ROS 2 event stream failed. Each names the topic and the packet.
 #[derive(Debug, thiserror::Error)]
@@ -58,6 +56,20 @@ pub enum RosError {
         seq: u64,
         /// What was wrong, with the value.
         reason: String,
+    },
+    /// Too many packets were malformed (see `neuspike_net::remote::BAD_SHARE`).
+    #[error(
+        "{topic}: {bad} of the {arrived} packets that arrived were malformed; the last: {last}"
+    )]
+    TooManyBad {
+        /// The topic.
+        topic: String,
+        /// Malformed packets.
+        bad: u64,
+        /// Packets that arrived.
+        arrived: u64,
+        /// Why the last one was refused.
+        last: String,
     },
     /// The session closed under the subscriber.
     #[error("{topic}: the zenoh session closed")]
@@ -353,8 +365,14 @@ pub enum RosTaken {
 /// A ROS 2 event topic, subscribed over rmw_zenoh.
 pub struct RosEvents {
     topic: String,
-    sub: Subscriber<FifoChannelHandler<Sample>>,
+    sub: BoundedSubscriber,
     decoder: PacketDecoder,
+    /// The publisher followed (its GID, `None` inside for one without an attachment), and when
+    /// it last sent.
+    owner: Option<(Option<[u8; 16]>, Instant)>,
+    foreign: u64,
+    malformed: u64,
+    arrived: u64,
     silence: Duration,
     last: Instant,
     _tokens: [zenoh::liveliness::LivelinessToken; 2],
@@ -390,11 +408,7 @@ impl RosEvents {
             "{domain}/{}/{EVENT_PACKET_TYPE}/*",
             ros2::strip_topic(topic)
         );
-        let sub = session
-            .declare_subscriber(key)
-            .with(zenoh::handlers::FifoChannel::new(256))
-            .wait()
-            .map_err(err)?;
+        let sub = BoundedSubscriber::declare(session, &key).map_err(err)?;
         let node_token = session
             .liveliness()
             .declare_token(ros.node_token())
@@ -409,6 +423,10 @@ impl RosEvents {
             topic: topic.to_string(),
             sub,
             decoder: PacketDecoder::new(topic),
+            owner: None,
+            foreign: 0,
+            malformed: 0,
+            arrived: 0,
             silence,
             last: Instant::now(),
             _tokens: [node_token, sub_token],
@@ -426,43 +444,101 @@ impl RosEvents {
     /// Silence before the first packet, a packet that cannot be read or decoded, or the session
     /// closed.
     pub fn next(&mut self, wait: Duration) -> Result<RosTaken, RosError> {
-        let sample = match self.sub.recv_timeout(wait) {
-            Ok(Some(s)) => s,
-            Ok(None) if self.last.elapsed() < self.silence => return Ok(RosTaken::Idle),
-            Ok(None) if self.decoder.packets() > 0 => {
-                if let Some(last) = self.decoder.flush() {
-                    return Ok(RosTaken::Batch(last, None));
+        loop {
+            let Some(sample) = self.sub.recv_timeout(wait) else {
+                if self.last.elapsed() < self.silence {
+                    return Ok(RosTaken::Idle);
                 }
-                tracing::info!(topic = %self.topic, packets = self.decoder.packets(), lost = self.decoder.lost_packets(), "no packet for {} s: the stream ends", self.silence.as_secs());
-                return Ok(RosTaken::End);
-            }
-            Ok(None) => {
+                if self.decoder.packets() > 0 {
+                    if let Some(last) = self.decoder.flush() {
+                        return Ok(RosTaken::Batch(last, None));
+                    }
+                    tracing::info!(topic = %self.topic, packets = self.decoder.packets(), lost = self.decoder.lost_packets(), foreign = self.foreign, malformed = self.malformed, "no packet for {} s: the stream ends", self.silence.as_secs());
+                    return Ok(RosTaken::End);
+                }
                 return Err(RosError::Silent {
                     topic: self.topic.clone(),
                     secs: self.silence.as_secs(),
                 });
+            };
+            let attachment = sample
+                .attachment()
+                .and_then(|a| parse_attachment(&a.to_bytes()).ok());
+            if !self.follows(attachment.as_ref().map(|a| a.gid)) {
+                continue;
             }
-            Err(_) => {
-                return Err(RosError::Closed {
+            self.last = Instant::now();
+            self.arrived += 1;
+            let n = self.decoder.packets();
+            let origin = attachment.map(|a| a.source_ns);
+            let decoded = parse_event_packet(&sample.payload().to_bytes())
+                .map_err(|e| RosError::Packet {
                     topic: self.topic.clone(),
-                });
+                    n,
+                    seq: 0,
+                    reason: e.to_string(),
+                })
+                .and_then(|packet| self.decoder.packet(&packet));
+            match decoded {
+                Ok(batch) => return Ok(RosTaken::Batch(batch, origin)),
+                Err(e) => self.reject(e)?,
             }
-        };
-        self.last = Instant::now();
-        let n = self.decoder.packets();
-        let origin = sample
-            .attachment()
-            .and_then(|a| parse_attachment(&a.to_bytes()).ok())
-            .map(|a| a.source_ns);
-        let packet =
-            parse_event_packet(&sample.payload().to_bytes()).map_err(|e| RosError::Packet {
+        }
+    }
+
+    /// Packets refused for coming from a publisher other than the one the stream follows.
+    pub fn foreign(&self) -> u64 {
+        self.foreign
+    }
+
+    /// Packets refused as malformed.
+    pub fn malformed(&self) -> u64 {
+        self.malformed
+    }
+
+    /// Whether a packet from the publisher with `gid` (from its rmw_zenoh attachment; `None`
+    /// without one) is the stream's: the first publisher's, or, once that one has been silent
+    /// for [`neuspike_net::remote::REJOIN_AFTER`], the next one's (a restarted driver). Another
+    /// publisher's packets are counted and refused.
+    fn follows(&mut self, gid: Option<[u8; 16]>) -> bool {
+        let now = Instant::now();
+        match &mut self.owner {
+            Some((owner, last)) if *owner == gid => {
+                *last = now;
+                true
+            }
+            Some((_, last)) if now.duration_since(*last) < neuspike_net::remote::REJOIN_AFTER => {
+                self.foreign += 1;
+                tracing::warn!(topic = %self.topic, "a packet from another publisher: refused");
+                false
+            }
+            previous => {
+                if previous.is_some() {
+                    tracing::warn!(topic = %self.topic, "the publisher went silent; following the new one");
+                }
+                *previous = Some((gid, now));
+                true
+            }
+        }
+    }
+
+    /// Counts a malformed packet and drops it; the stream fails once more than
+    /// [`neuspike_net::remote::BAD_GRACE`] packets, and more than
+    /// [`neuspike_net::remote::BAD_SHARE`] of all that arrived, were malformed.
+    fn reject(&mut self, why: RosError) -> Result<(), RosError> {
+        self.malformed += 1;
+        tracing::warn!(topic = %self.topic, "{why}: dropped");
+        if self.malformed > neuspike_net::remote::BAD_GRACE
+            && self.malformed as f64 > neuspike_net::remote::BAD_SHARE * self.arrived as f64
+        {
+            return Err(RosError::TooManyBad {
                 topic: self.topic.clone(),
-                n,
-                seq: 0,
-                reason: e.to_string(),
-            })?;
-        let batch = self.decoder.packet(&packet)?;
-        Ok(RosTaken::Batch(batch, origin))
+                bad: self.malformed,
+                arrived: self.arrived,
+                last: why.to_string(),
+            });
+        }
+        Ok(())
     }
 }
 
