@@ -77,4 +77,13 @@ pub enum SinkError {
     /// Two images given to a metric differ in shape.
     #[error(transparent)]
     Metrics(#[from] MetricsError),
+    /// The summary could not be written: the counts it held, on one line, so that they still
+    /// reach the user (on stderr, with the error).
+    #[error("{what}; the frames per input: {counts}")]
+    SummaryLost {
+        /// Why it could not be written.
+        what: String,
+        /// Every input's counts, one line.
+        counts: String,
+    },
 }

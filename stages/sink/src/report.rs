@@ -276,6 +276,8 @@ pub struct Summary {
     auto: BTreeMap<String, BTreeMap<String, Chosen>>,
     /// `auto`'s budget and late frames, by method.
     budget: BTreeMap<String, (i64, u64, u64)>,
+    /// Why the sink failed, if it did: the figures above cover what came before.
+    failure: Option<String>,
 }
 
 /// Frames one method of `auto` made.
@@ -667,8 +669,14 @@ impl Summary {
             ),
             None => String::new(),
         };
+        let failure = match &self.failure {
+            Some(why) => format!(
+                "**The sink failed**: {why}. The figures below cover the frames before it.\n\n"
+            ),
+            None => String::new(),
+        };
         format!(
-            "# neuspike run summary\n\n## Metrics per method\n\n{}\n\
+            "# neuspike run summary\n\n{failure}## Metrics per method\n\n{}\n\
              PSNR dB: mean over frames with a finite PSNR; exact: frames with MSE 0 (PSNR inf), \
              counted, never averaged. PSNR after gain: least-squares gain, clipped to [0, 1]. \
              NaN: figures that were NaN, left out of the means.\n{}\n## Frames per input\n\n{}{sampling}{latency}",
@@ -676,6 +684,36 @@ impl Summary {
             self.to_markdown_auto(),
             self.to_markdown_counts(),
         )
+    }
+
+    /// Records why the sink failed (the first reason is kept).
+    pub fn set_failure(&mut self, why: &str) {
+        self.failure.get_or_insert_with(|| why.to_string());
+    }
+
+    /// Every input's counts on one line: `tfp: 120 expected, 118 received, 118 written, 2
+    /// missing; ...`.
+    pub fn counts_line(&self) -> String {
+        let line: Vec<String> = self
+            .counts
+            .values()
+            .map(|c| {
+                format!(
+                    "{}: {} expected, {} received, {} written, {} missing{}",
+                    c.input,
+                    c.expected,
+                    c.received,
+                    c.written,
+                    c.missing,
+                    if c.cut { " (cut short)" } else { "" }
+                )
+            })
+            .collect();
+        if line.is_empty() {
+            "no input".into()
+        } else {
+            line.join("; ")
+        }
     }
 
     /// The machine-readable summary (`summary.yml`): every input's counts and latency.

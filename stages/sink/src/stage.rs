@@ -39,6 +39,23 @@ impl SinkStage {
             .as_mut()
             .ok_or_else(|| eyre::eyre!("sink: a frame after the summary was written"))
     }
+
+    /// One frame of `input`: written, scored and counted.
+    fn take(&mut self, input: &str, msg: Msg, out: &mut Outbox) -> eyre::Result<Flow> {
+        let f = Frame::try_from(msg).map_err(|e| eyre::eyre!("sink: input `{input}`: {e}"))?;
+        let origin = out.origin_unix_ns();
+        let sink = self.sink()?;
+        if input == GROUND_TRUTH {
+            sink.on_truth(f)?;
+        } else {
+            if let Some(origin) = origin {
+                let now = unix_now_ns();
+                sink.on_latency(input, now.saturating_sub(origin), now);
+            }
+            sink.on_frame(input, f)?;
+        }
+        Ok(Flow::Continue)
+    }
 }
 
 impl Stage for SinkStage {
@@ -58,19 +75,12 @@ impl Stage for SinkStage {
     }
 
     fn on_message(&mut self, input: &str, msg: Msg, out: &mut Outbox) -> eyre::Result<Flow> {
-        let f = Frame::try_from(msg).map_err(|e| eyre::eyre!("sink: input `{input}`: {e}"))?;
-        let origin = out.origin_unix_ns();
-        let sink = self.sink()?;
-        if input == GROUND_TRUTH {
-            sink.on_truth(f)?;
-        } else {
-            if let Some(origin) = origin {
-                let now = unix_now_ns();
-                sink.on_latency(input, now.saturating_sub(origin), now);
-            }
-            sink.on_frame(input, f)?;
+        let r = self.take(input, msg, out);
+        if let (Err(e), Some(sink)) = (&r, self.sink.as_mut()) {
+            // The summary written at the finish says why the frames stop there.
+            sink.note_failure(&format!("{e:#}"));
         }
-        Ok(Flow::Continue)
+        r
     }
 
     fn on_end(&mut self, input: &str, _count: u64, _out: &mut Outbox) -> eyre::Result<Flow> {
@@ -98,5 +108,86 @@ impl Stage for SinkStage {
         tracing::info!("summary written to {}", path.display());
         self.summary = Some(path);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::BitDepth;
+    use neuspike_schemas::FrameKind;
+    use neuspike_stage::Tally;
+
+    fn frame(seq: u64) -> Msg {
+        Frame {
+            kind: FrameKind::Reconstruction,
+            method: "tfp".into(),
+            t_ref_ns: seq as i64,
+            compute_ns: 1,
+            chosen: None,
+            budget_ns: None,
+            seq,
+            data: ndarray::Array2::from_elem((4, 5), 0.5),
+        }
+        .into()
+    }
+
+    fn stage(out: &std::path::Path) -> SinkStage {
+        let cfg = SinkConfig {
+            out: out.to_path_buf(),
+            bit_depth: BitDepth::Eight,
+            write_ground_truth: false,
+            truth_within_ns: 0,
+            write_every: 1,
+            score_every: 1,
+            delay_us: 0,
+        };
+        SinkStage::new(&cfg, &["tfp".to_string()]).expect("sink")
+    }
+
+    fn tallies(received: u64) -> Tallies {
+        Tallies(vec![(
+            "tfp".into(),
+            Tally {
+                announced: Some(3),
+                received,
+                ended: true,
+                ..Tally::default()
+            },
+        )])
+    }
+
+    #[test]
+    fn when_a_frame_cannot_be_written_the_summary_still_gives_the_counts_and_the_failure() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        // The folder of the method's PNGs is a file: the first frame cannot be written.
+        std::fs::write(dir.path().join("tfp"), "in the way").expect("write");
+        let mut s = stage(dir.path());
+        let mut out = Outbox::new();
+        let e = format!("{:#}", s.on_message("tfp", frame(0), &mut out).unwrap_err());
+        assert!(e.contains("tfp"), "{e}");
+        s.finish(&tallies(1), &mut out).expect("the summary fits");
+        let md = std::fs::read_to_string(dir.path().join("summary.md")).expect("summary");
+        assert!(md.contains("**The sink failed**"), "{md}");
+        assert!(md.contains("| tfp |"), "{md}");
+    }
+
+    #[test]
+    fn when_the_summary_cannot_be_written_its_counts_come_with_the_error() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let mut s = stage(dir.path());
+        let mut out = Outbox::new();
+        s.on_message("tfp", frame(0), &mut out).expect("frame 0");
+        s.on_message("tfp", frame(1), &mut out).expect("frame 1");
+        // A folder where the summary goes: the rename over it fails.
+        std::fs::create_dir(dir.path().join("summary.md")).expect("mkdir");
+        std::fs::write(dir.path().join("summary.md").join("x"), "x").expect("write");
+        let e = s.finish(&tallies(2), &mut out).unwrap_err().to_string();
+        assert!(!e.contains('\n'), "one line: {e}");
+        assert!(
+            e.contains("cannot write the summary")
+                && e.contains("tfp: 3 expected, 2 received, 2 written, 0 missing"),
+            "{e}"
+        );
     }
 }

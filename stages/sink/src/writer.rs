@@ -263,7 +263,12 @@ impl Sink {
         tallies: impl IntoIterator<Item = (&'a str, InputTally)>,
     ) -> Result<PathBuf, SinkError> {
         self.truth_closed = true;
-        self.drain_pending()?;
+        // What is still waiting may not fit (a full disk): the summary is written all the same,
+        // with the counts so far and the failure.
+        let drained = self.drain_pending();
+        if let Err(e) = &drained {
+            self.summary.set_failure(&one_line(e));
+        }
         for (name, t) in tallies {
             self.summary.set_counts(InputCounts {
                 input: name.to_string(),
@@ -278,9 +283,31 @@ impl Sink {
         self.summary
             .set_sampling(self.write_every, self.score_every);
         let path = self.out.join("summary.md");
-        self.summary.write(&path)?;
-        Ok(path)
+        if let Err(e) = self.summary.write(&path) {
+            return Err(SinkError::SummaryLost {
+                what: format!("cannot write the summary: {}", one_line(&e)),
+                counts: self.summary.counts_line(),
+            });
+        }
+        drained.map(|()| path)
     }
+
+    /// Records why the sink failed (a frame it could not write): the summary says so.
+    pub fn note_failure(&mut self, why: &str) {
+        self.summary.set_failure(why);
+    }
+}
+
+/// An error and its causes on one line.
+fn one_line(e: &SinkError) -> String {
+    let mut text = e.to_string();
+    let mut source = std::error::Error::source(e);
+    while let Some(s) = source {
+        text.push_str(": ");
+        text.push_str(&s.to_string());
+        source = s.source();
+    }
+    text
 }
 
 fn create_dir(dir: &Path) -> Result<(), SinkError> {
