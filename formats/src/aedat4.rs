@@ -53,14 +53,7 @@ use crate::header::resolve_resolution;
 
 /// The first bytes of every AEDAT 4 file.
 pub const MAGIC: &[u8; 14] = b"#!AER-DAT4.0\r\n";
-/// The most bytes one packet may take, stored or decompressed, unless
-/// [`ReadOptions::max_packet_bytes`] (or [`Aedat4Frames::with_max_packet_bytes`]) says otherwise:
-/// 64 MiB. A DV event packet holds thousands of 16-byte events (a million, 16 MB, at 100 million
-/// events a second in 10 ms packets) and a frame packet one APS frame (a DAVIS346 frame is
-/// 180 KB, a 4K BGRA frame 33 MB). A packet that claims more, or whose LZ4 or Zstd payload
-/// expands to more, is an error that names this limit: one bad packet header or one compressed
-/// bomb must not take a node's memory.
-pub const MAX_PACKET_BYTES: usize = 64 << 20;
+pub use crate::events::MAX_PACKET_BYTES;
 /// The most bytes the `IOHeader` may take: 16 MiB. It holds the XML description of the streams,
 /// a few KB in DV's files; a longer claim is an error naming this limit.
 pub const MAX_HEADER_BYTES: usize = 16 << 20;

@@ -54,6 +54,25 @@ pub enum UnknownWords {
     Skip,
 }
 
+/// An AEDAT 4 packet's limit (also `aedat4::MAX_PACKET_BYTES`).
+///
+/// The most bytes one packet may take, stored or decompressed, unless
+/// [`ReadOptions::max_packet_bytes`] (or `Aedat4Frames::with_max_packet_bytes`) says otherwise:
+/// 64 MiB. A DV event packet holds thousands of 16-byte events (a million, 16 MB, at 100 million
+/// events a second in 10 ms packets) and a frame packet one APS frame (a DAVIS346 frame is
+/// 180 KB, a 4K BGRA frame 33 MB). A packet that claims more, or whose LZ4 or Zstd payload
+/// expands to more, is an error that names this limit: one bad packet header or one compressed
+/// bomb must not take a node's memory.
+pub const MAX_PACKET_BYTES: usize = 64 << 20;
+
+/// A text recording's line limit (also `text::MAX_LINE_BYTES`).
+///
+/// The most bytes one line may hold before its line feed, unless
+/// [`ReadOptions::max_line_bytes`] says otherwise: 4 KiB. An event line is under 100 bytes
+/// (`1234567.123456789 65535 65535 1`); the limit keeps a file without a line feed (a binary
+/// file, a damaged one) from being read whole into one line.
+pub const MAX_LINE_BYTES: usize = 4 * 1024;
+
 /// How to read an event file.
 #[derive(Clone, Debug)]
 pub struct ReadOptions {
@@ -71,10 +90,10 @@ pub struct ReadOptions {
     pub allow_unknown_size: bool,
     /// AEDAT 4: the most bytes one packet may take, stored or decompressed; a packet that claims
     /// or expands to more is an error naming this limit. Default
-    /// [`crate::aedat4::MAX_PACKET_BYTES`]; raise it for recordings of very large APS frames.
+    /// [`MAX_PACKET_BYTES`]; raise it for recordings of very large APS frames.
     pub max_packet_bytes: usize,
     /// Text: the most bytes one line may take (its line feed excluded); a longer line, or a file
-    /// without a line feed, is an error naming the line. Default [`crate::text::MAX_LINE_BYTES`].
+    /// without a line feed, is an error naming the line. Default [`MAX_LINE_BYTES`].
     pub max_line_bytes: usize,
 }
 
@@ -85,8 +104,8 @@ impl Default for ReadOptions {
             disorder: Disorder::default(),
             unknown_words: UnknownWords::default(),
             allow_unknown_size: false,
-            max_packet_bytes: crate::aedat4::MAX_PACKET_BYTES,
-            max_line_bytes: crate::text::MAX_LINE_BYTES,
+            max_packet_bytes: MAX_PACKET_BYTES,
+            max_line_bytes: MAX_LINE_BYTES,
         }
     }
 }

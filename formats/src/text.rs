@@ -25,11 +25,7 @@ use crate::header::resolve_resolution;
 const NS_PER_S: i64 = 1_000_000_000;
 /// Longest quote of a bad line in an error message.
 const QUOTE_MAX: usize = 80;
-/// The most bytes one line may hold before its line feed, unless
-/// [`ReadOptions::max_line_bytes`] says otherwise: 4 KiB. An event line is under 100 bytes
-/// (`1234567.123456789 65535 65535 1`); the limit keeps a file without a line feed (a binary
-/// file, a damaged one) from being read whole into one line.
-pub const MAX_LINE_BYTES: usize = 4 * 1024;
+pub use crate::events::MAX_LINE_BYTES;
 
 /// Reads the next line of `r` (with its line feed) into `line` and returns its bytes, 0 at the
 /// end. A line of more than `max` bytes before its line feed is an error naming `line_no`, its
