@@ -152,6 +152,61 @@ pub fn put_message(
         .wait()
 }
 
+/// The publisher a stream follows, by its identity `Id` (a zenoh source identity, a ROS 2 GID;
+/// `None` inside for one that sends none): the first one, or, once that one has been silent for
+/// [`REJOIN_AFTER`], whoever sends next (a restarted camera). Samples from anyone else are
+/// counted and refused: they can neither end the stream nor move its sequence.
+#[derive(Debug)]
+pub struct Follower<Id> {
+    owner: Option<(Id, Instant)>,
+    foreign: u64,
+}
+
+impl<Id> Default for Follower<Id> {
+    fn default() -> Self {
+        Follower {
+            owner: None,
+            foreign: 0,
+        }
+    }
+}
+
+impl<Id: PartialEq + std::fmt::Debug> Follower<Id> {
+    /// Whether a sample from `id` is the stream's (`stream` names it in the logs).
+    pub fn follows(&mut self, id: Id, stream: &str) -> bool {
+        let now = Instant::now();
+        match &mut self.owner {
+            Some((owner, last)) if *owner == id => {
+                *last = now;
+                true
+            }
+            Some((owner, last)) if now.duration_since(*last) < REJOIN_AFTER => {
+                self.foreign += 1;
+                tracing::warn!(stream, from = ?id, following = ?owner, "a sample from another publisher: refused");
+                false
+            }
+            previous => {
+                if let Some((old, _)) = previous {
+                    tracing::warn!(stream, from = ?id, was = ?old, "the publisher went silent; following the new one");
+                }
+                *previous = Some((id, now));
+                true
+            }
+        }
+    }
+
+    /// Samples refused for coming from another publisher.
+    pub fn foreign(&self) -> u64 {
+        self.foreign
+    }
+}
+
+/// Whether `bad` malformed samples out of `arrived` are too many for a stream to go on: more than
+/// [`BAD_GRACE`], and more than [`BAD_SHARE`] of them.
+pub fn too_many_bad(bad: u64, arrived: u64) -> bool {
+    bad > BAD_GRACE && bad as f64 > BAD_SHARE * arrived as f64
+}
+
 /// A stream of neuspike messages of one type on one zenoh key.
 pub struct Remote {
     key: String,
@@ -161,11 +216,8 @@ pub struct Remote {
     arrived: u64,
     /// Samples refused as malformed.
     malformed: u64,
-    /// The publisher the stream follows (its zenoh source identity; `None` inside for one that
-    /// sends none), and when it last sent.
-    owner: Option<(Option<EntityGlobalId>, Instant)>,
-    /// Samples refused for coming from another publisher.
-    foreign: u64,
+    /// The publisher the stream follows, by its zenoh source identity.
+    owner: Follower<Option<EntityGlobalId>>,
     silence: Duration,
     last: Instant,
     /// Set once the first message came.
@@ -195,8 +247,7 @@ impl Remote {
             seq: SeqTracker::default(),
             arrived: 0,
             malformed: 0,
-            owner: None,
-            foreign: 0,
+            owner: Follower::default(),
             silence,
             last: Instant::now(),
             started: false,
@@ -227,7 +278,7 @@ impl Remote {
 
     /// Samples refused for coming from a publisher other than the one the stream follows.
     pub fn foreign(&self) -> u64 {
-        self.foreign
+        self.owner.foreign()
     }
 
     /// Whether the sample comes from the publisher the stream follows: the first one, or, once
@@ -236,25 +287,7 @@ impl Remote {
     /// its sequence.
     fn follows(&mut self, sample: &Sample) -> bool {
         let id = sample.source_info().map(|s| *s.source_id());
-        let now = Instant::now();
-        match &mut self.owner {
-            Some((owner, last)) if *owner == id => {
-                *last = now;
-                true
-            }
-            Some((owner, last)) if now.duration_since(*last) < REJOIN_AFTER => {
-                self.foreign += 1;
-                tracing::warn!(key = %self.key, from = ?id, following = ?owner, "a sample from another publisher: refused");
-                false
-            }
-            previous => {
-                if let Some((old, _)) = previous {
-                    tracing::warn!(key = %self.key, from = ?id, was = ?old, "the publisher went silent; following the new one");
-                }
-                *previous = Some((id, now));
-                true
-            }
-        }
+        self.owner.follows(id, &self.key)
     }
 
     /// Samples refused as malformed: not a neuspike message, another type, no sequence number,
@@ -271,7 +304,7 @@ impl Remote {
     pub fn reject(&mut self, why: RemoteError) -> Result<(), RemoteError> {
         self.malformed += 1;
         tracing::warn!(key = %self.key, "{why}: dropped");
-        if self.malformed > BAD_GRACE && self.malformed as f64 > BAD_SHARE * self.arrived as f64 {
+        if too_many_bad(self.malformed, self.arrived) {
             return Err(RemoteError::TooManyBad {
                 key: self.key.clone(),
                 bad: self.malformed,

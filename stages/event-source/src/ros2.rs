@@ -367,10 +367,8 @@ pub struct RosEvents {
     topic: String,
     sub: BoundedSubscriber,
     decoder: PacketDecoder,
-    /// The publisher followed (its GID, `None` inside for one without an attachment), and when
-    /// it last sent.
-    owner: Option<(Option<[u8; 16]>, Instant)>,
-    foreign: u64,
+    /// The publisher followed, by its GID.
+    owner: neuspike_net::remote::Follower<Option<[u8; 16]>>,
     malformed: u64,
     arrived: u64,
     silence: Duration,
@@ -423,8 +421,7 @@ impl RosEvents {
             topic: topic.to_string(),
             sub,
             decoder: PacketDecoder::new(topic),
-            owner: None,
-            foreign: 0,
+            owner: neuspike_net::remote::Follower::default(),
             malformed: 0,
             arrived: 0,
             silence,
@@ -453,7 +450,7 @@ impl RosEvents {
                     if let Some(last) = self.decoder.flush() {
                         return Ok(RosTaken::Batch(last, None));
                     }
-                    tracing::info!(topic = %self.topic, packets = self.decoder.packets(), lost = self.decoder.lost_packets(), foreign = self.foreign, malformed = self.malformed, "no packet for {} s: the stream ends", self.silence.as_secs());
+                    tracing::info!(topic = %self.topic, packets = self.decoder.packets(), lost = self.decoder.lost_packets(), foreign = self.owner.foreign(), malformed = self.malformed, "no packet for {} s: the stream ends", self.silence.as_secs());
                     return Ok(RosTaken::End);
                 }
                 return Err(RosError::Silent {
@@ -488,7 +485,7 @@ impl RosEvents {
 
     /// Packets refused for coming from a publisher other than the one the stream follows.
     pub fn foreign(&self) -> u64 {
-        self.foreign
+        self.owner.foreign()
     }
 
     /// Packets refused as malformed.
@@ -497,29 +494,9 @@ impl RosEvents {
     }
 
     /// Whether a packet from the publisher with `gid` (from its rmw_zenoh attachment; `None`
-    /// without one) is the stream's: the first publisher's, or, once that one has been silent
-    /// for [`neuspike_net::remote::REJOIN_AFTER`], the next one's (a restarted driver). Another
-    /// publisher's packets are counted and refused.
+    /// without one) is the stream's ([`neuspike_net::remote::Follower`]).
     fn follows(&mut self, gid: Option<[u8; 16]>) -> bool {
-        let now = Instant::now();
-        match &mut self.owner {
-            Some((owner, last)) if *owner == gid => {
-                *last = now;
-                true
-            }
-            Some((_, last)) if now.duration_since(*last) < neuspike_net::remote::REJOIN_AFTER => {
-                self.foreign += 1;
-                tracing::warn!(topic = %self.topic, "a packet from another publisher: refused");
-                false
-            }
-            previous => {
-                if previous.is_some() {
-                    tracing::warn!(topic = %self.topic, "the publisher went silent; following the new one");
-                }
-                *previous = Some((gid, now));
-                true
-            }
-        }
+        self.owner.follows(gid, &self.topic)
     }
 
     /// Counts a malformed packet and drops it; the stream fails once more than
@@ -528,9 +505,7 @@ impl RosEvents {
     fn reject(&mut self, why: RosError) -> Result<(), RosError> {
         self.malformed += 1;
         tracing::warn!(topic = %self.topic, "{why}: dropped");
-        if self.malformed > neuspike_net::remote::BAD_GRACE
-            && self.malformed as f64 > neuspike_net::remote::BAD_SHARE * self.arrived as f64
-        {
+        if neuspike_net::remote::too_many_bad(self.malformed, self.arrived) {
             return Err(RosError::TooManyBad {
                 topic: self.topic.clone(),
                 bad: self.malformed,
