@@ -4,12 +4,12 @@
 //! `cargo run --release --example tfp_vs_truth -- bright-slow docs/tfp-vs-truth.png`
 
 use ndarray::{Array2, Array3, s};
-use neuspike_infer::luminance_from_rate_into;
-use neuspike_represent::tfp_into;
+use neuspike_image::{BitDepth, write_frame_png};
+use neuspike_metrics::{psnr, ssim};
+use neuspike_reconstruction::luminance_from_rate_into;
+use neuspike_representations::tfp_into;
 use neuspike_scene::Scene;
-use neuspike_sink::metrics::{psnr, ssim};
-use neuspike_sink::png_out::{BitDepth, write_frame_png};
-use neuspike_spike_source::{CameraConfig, SpikeCamera};
+use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 
 /// Planes in the TFP window, centred on the reference plane.
 const WINDOW: usize = 33;

@@ -27,7 +27,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use eyre::{WrapErr, bail, eyre};
-use neuspike_event_source::{DvsConfig, DvsPixels};
+use neuspike_event_camera::{DvsConfig, DvsPixels};
 use neuspike_formats::aedat4::{Aedat4Frames, ApsFrame};
 use neuspike_formats::{EventReader, ReadOptions, open_events};
 use neuspike_schemas::{Event, EventBatch};
@@ -576,7 +576,7 @@ pub fn main(o: &ApsCheckOptions) -> eyre::Result<()> {
 mod tests {
     use super::*;
     use crate::record::{SimulateOptions, simulate};
-    use neuspike_spike_source::CameraConfig;
+    use neuspike_spike_camera::CameraConfig;
 
     /// A simulated recording of `bright-slow`: the spike camera `spike` in size, the DVS as
     /// `dvs` says, the truth every `every` planes (20 kHz), as APS frames where the sizes agree.

@@ -10,7 +10,7 @@ use std::time::Instant;
 use eyre::WrapErr;
 use ndarray::Array3;
 
-use neuspike_infer::learned::{ConvPath, LearnedModel, NodeTime, set_threads};
+use neuspike_reconstruction::learned::{ConvPath, LearnedModel, NodeTime, set_threads};
 
 /// Latency at one thread count.
 #[derive(Clone, Debug, PartialEq)]

@@ -2,7 +2,7 @@
 //!
 //! The recording's still pixels, in three bands of firing rate, give inter-spike-interval
 //! histograms; the model, lit pixel by pixel to the same rates, gives its own
-//! ([`neuspike_spike_source::calibrate`]). The command scores the paper's model, each per-interval
+//! ([`neuspike_spike_camera::calibrate`]). The command scores the paper's model, each per-interval
 //! term added alone, SCSim's values and the fitted model, writes the table (`calibration.md`),
 //! the histograms (`isi.png`) and the fitted profile (`profile.yml`, the file `--profile` reads).
 
@@ -10,8 +10,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use eyre::{WrapErr, bail, eyre};
-use neuspike_spike_source::calibrate::{self, BANDS, Histogram, Reference, Score};
-use neuspike_spike_source::noise::{Noise, ProfileFile};
+use neuspike_spike_camera::calibrate::{self, BANDS, Histogram, Reference, Score};
+use neuspike_spike_camera::noise::{Noise, ProfileFile};
 use plotters::prelude::*;
 
 /// The recording is read up to this many planes (the reader allocates what it is asked for).
@@ -354,7 +354,7 @@ mod tests {
         assert!(fitted.score.mean_kl < 0.8 * paper.mean_kl);
         assert!(fitted.noise.fire_sigma() > 0.02);
         let profile = out.path().join("profile.yml");
-        let loaded = neuspike_spike_source::noise::profile(profile.to_str().unwrap()).unwrap();
+        let loaded = neuspike_spike_camera::noise::profile(profile.to_str().unwrap()).unwrap();
         assert_eq!(loaded, fitted.noise);
         let md = std::fs::read_to_string(out.path().join("calibration.md")).unwrap();
         assert!(md.contains("the paper's model") && md.contains("W1 dark"));

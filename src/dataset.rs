@@ -41,13 +41,13 @@ use eyre::{WrapErr, bail, eyre};
 use ndarray::{Array2, Array3, Axis};
 use ndarray_npy::write_npy;
 use neuspike_align::{AlignConfig, AlignStage};
-use neuspike_event_source::{DvsConfig, EventCamera};
-use neuspike_infer::{luminance_from_isi_into, luminance_from_rate_into};
-use neuspike_represent::{RepresentConfig, RepresentStage, Representer};
+use neuspike_event_camera::{DvsConfig, EventCamera};
+use neuspike_reconstruction::{luminance_from_isi_into, luminance_from_rate_into};
+use neuspike_representations::{RepresentConfig, RepresentStage, Representer};
 use neuspike_scene::Scene;
 use neuspike_schemas::{AlignedWindow, EventBatch, Representation, RepresentationKind, SpikeChunk};
-use neuspike_spike_source::noise::{Noise, NoiseArgs};
-use neuspike_spike_source::{CameraConfig, SpikeCamera};
+use neuspike_spike_camera::noise::{Noise, NoiseArgs};
+use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 use neuspike_stage::{Chain, Msg, MsgType, Replay};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -1127,7 +1127,7 @@ mod tests {
         assert_ne!(a.spike, b.spike);
         assert_eq!(
             b.info.camera.noise,
-            neuspike_spike_source::noise::profile("vidar").unwrap()
+            neuspike_spike_camera::noise::profile("vidar").unwrap()
         );
         let bad = DatasetOptions {
             noise: profile_only("no-such-camera"),

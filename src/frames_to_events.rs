@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use eyre::{WrapErr, bail, eyre};
 use ndarray::{Array3, Axis};
-use neuspike_event_source::{DvsConfig, DvsPixels, sort_by_time};
+use neuspike_event_camera::{DvsConfig, DvsPixels, sort_by_time};
 use neuspike_formats::Resolution;
 use neuspike_formats::npy::NpyFrames;
 use neuspike_formats::text::TextWriter;

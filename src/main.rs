@@ -171,7 +171,7 @@ enum Command {
         /// How tract runs the convolutions: auto (as the infer node: time each path, keep the
         /// fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
         #[arg(long, default_value = "auto")]
-        conv: neuspike_infer::learned::ConvPath,
+        conv: neuspike_reconstruction::learned::ConvPath,
     },
     /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the
     /// output folder (`graph.yml`), e.g. `neuspike reconstruct --spikes car.dat --out out/car`.
@@ -259,7 +259,7 @@ enum Command {
 #[command(name = "--spike", no_binary_name = true)]
 struct SpikeSettings {
     #[command(flatten)]
-    camera: neuspike_spike_source::CameraConfig,
+    camera: neuspike_spike_camera::CameraConfig,
 }
 
 /// Event camera settings given as one string.
@@ -267,7 +267,7 @@ struct SpikeSettings {
 #[command(name = "--dvs", no_binary_name = true)]
 struct DvsSettings {
     #[command(flatten)]
-    camera: neuspike_event_source::DvsConfig,
+    camera: neuspike_event_camera::DvsConfig,
 }
 
 /// Splits a settings string on whitespace and parses it.

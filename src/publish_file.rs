@@ -16,12 +16,12 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use eyre::{WrapErr, bail, eyre};
-use neuspike_event_source::playback::{EventSource, EventSourceConfig};
+use neuspike_event_camera::playback::{EventSource, EventSourceConfig};
 use neuspike_net::ZenohArgs;
 use neuspike_runtime::{Pace, Pacer, unix_now_ns};
 use neuspike_schemas::meta::ORIGIN_UNIX_NS;
 use neuspike_schemas::{EventBatch, Message, MetaExt, SpikeChunk, end_of_stream, ipc};
-use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig};
+use neuspike_spike_camera::playback::{SpikeSource, SpikeSourceConfig};
 use zenoh::Wait;
 
 /// `neuspike publish-file`'s settings.

@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 use eyre::WrapErr;
 
 use crate::graph;
-use neuspike_infer::learned::{LearnedInput, LearnedModel};
+use neuspike_reconstruction::learned::{LearnedInput, LearnedModel};
 
 /// Reconstructions a recording can go through: the infer node's methods.
-pub use neuspike_infer::Method;
+pub use neuspike_reconstruction::Method;
 
 /// What the graph needs to know of a learned model: its file and the representations it reads.
 #[derive(Clone, Debug)]
@@ -65,11 +65,11 @@ impl AutoPlan {
     /// # Errors
     /// The policy does not load (the error names the file and field).
     pub fn new(policy: &Path, window_planes: Option<u32>) -> eyre::Result<AutoPlan> {
-        use neuspike_infer::policy::{MethodName, Policy};
+        use neuspike_reconstruction::policy::{MethodName, Policy};
         let policy = std::fs::canonicalize(crate::models::or_shipped(policy))
             .wrap_err_with(|| format!("--policy {}: cannot open", policy.display()))?;
         let p = Policy::read(&policy)?;
-        let stats = neuspike_infer::auto::STATS_PLANES as u32;
+        let stats = neuspike_reconstruction::auto::STATS_PLANES as u32;
         let longest = p
             .all_methods()
             .into_iter()
@@ -455,7 +455,7 @@ fn plane_period_ns(source_args: &str) -> i64 {
     let rate = rate
         .and_then(|r| r.parse::<f64>().ok())
         .filter(|r| r.is_finite() && *r > 0.0 && *r <= 1e9)
-        .unwrap_or(neuspike_spike_source::CameraConfig::default().rate_hz);
+        .unwrap_or(neuspike_spike_camera::CameraConfig::default().rate_hz);
     (1e9 / rate).round() as i64
 }
 

@@ -19,16 +19,16 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use eyre::WrapErr;
-use neuspike_event_source::{DvsConfig, EventCamera};
+use neuspike_event_camera::{DvsConfig, EventCamera};
 use neuspike_formats::aedat4::{Aedat4Writer, ApsFrame, Compression, FrameFormat};
 use neuspike_formats::evt2::Evt2Writer;
 use neuspike_formats::pku::{PkuGeometry, PkuWriter};
 use neuspike_formats::text::TextWriter;
 use neuspike_formats::truth::TruthListWriter;
 use neuspike_formats::{EventWriter, Resolution, WriteSummary};
+use neuspike_image::{BitDepth, grey_levels, write_frame_png};
 use neuspike_scene::Scene;
-use neuspike_sink::png_out::{BitDepth, grey_levels, write_frame_png};
-use neuspike_spike_source::{CameraConfig, SpikeCamera};
+use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 
 /// What to simulate.
 #[derive(Clone, Debug)]
@@ -369,7 +369,7 @@ mod tests {
         for (f, plane) in frames.iter().zip([0u64, 40, 80]) {
             assert_eq!(f.t_ns, plane as i64 * 50_000);
             assert_eq!((f.width, f.height, f.format), (40, 25, FrameFormat::Gray16));
-            let png = neuspike_sink::png_out::read_frame_png(
+            let png = neuspike_image::read_frame_png(
                 &dir.path().join(format!("ground-truth/{plane:08}.png")),
             )
             .unwrap();

@@ -76,9 +76,11 @@ fn a_small_grid_fits_a_policy_that_auto_then_runs_on_held_out_textures_and_runs_
     );
     // The policy: one row per class, the cheap TFP where it is bright and still, the network
     // where it is dark and fast.
-    let pol =
-        neuspike_infer::policy::Policy::load(&policy, &["tfp-33", "tfp-256", "neuspike-fused-8"])
-            .expect("the fitted policy loads");
+    let pol = neuspike_reconstruction::policy::Policy::load(
+        &policy,
+        &["tfp-33", "tfp-256", "neuspike-fused-8"],
+    )
+    .expect("the fitted policy loads");
     assert_eq!((pol.classes.len(), pol.rows.len()), (2, 2));
     assert!(pol.provenance.command.contains("--fit-policy"));
     assert!(pol.provenance.data.contains("train"));

@@ -133,6 +133,66 @@ fn pngs(dir: &Path) -> BTreeMap<String, Vec<u8>> {
     out
 }
 
+/// SHA-256 of the demo's frames: every PNG `graphs/demo.yml` writes, as [`frames_digest`] reads
+/// them. The frames of `neuspike demo` stay these, byte for byte, whatever the code around them
+/// becomes; a change that moves them has to say why here.
+const DEMO_FRAMES_SHA256: &str = "f43271d6fe54e0de0fe37da3101c2964922f4c5520b81426561569f2cf77fb1c";
+
+/// SHA-256 over the frames in `dir` (as [`pngs`] finds them), in name order: each name, a zero
+/// byte, the file's length as 8 little-endian bytes, then its bytes.
+fn frames_digest(dir: &Path) -> (usize, String) {
+    use sha2::Digest;
+    let frames = pngs(dir);
+    let mut hash = sha2::Sha256::new();
+    for (name, bytes) in &frames {
+        hash.update(name.as_bytes());
+        hash.update([0u8]);
+        hash.update((bytes.len() as u64).to_le_bytes());
+        hash.update(bytes);
+    }
+    let hex = hash.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    (frames.len(), hex)
+}
+
+/// The demo's frames are the recorded ones ([`DEMO_FRAMES_SHA256`]), computed by the program on
+/// every instruction set this CPU has (`NEUSPIKE_ISA`): the fast kernels and the scalar ones give
+/// the same frames, and so does every machine.
+#[test]
+fn the_demo_frames_are_the_recorded_ones_on_every_instruction_set() {
+    for isa in neuspike_simd::Isa::ALL {
+        if !isa.is_supported() {
+            continue;
+        }
+        let out = tempfile::tempdir().expect("tempdir");
+        let run = {
+            let _one = one_graph();
+            std::process::Command::new(env!("CARGO_BIN_EXE_neuspike"))
+                .arg("run")
+                .arg("--in-process")
+                .arg(graph("demo.yml"))
+                .arg("--set")
+                .arg(format!("sink=--out {}", out.path().display()))
+                .env(neuspike_simd::ISA_VAR, isa.name())
+                .output()
+                .expect("neuspike run")
+        };
+        assert!(
+            run.status.success(),
+            "{}: {}",
+            isa.name(),
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let (frames, digest) = frames_digest(out.path());
+        assert!(frames >= 80, "{}: {frames} frames", isa.name());
+        assert_eq!(
+            digest,
+            DEMO_FRAMES_SHA256,
+            "{}: the demo's {frames} frames changed",
+            isa.name()
+        );
+    }
+}
+
 /// The demo graph under dora (its processes as it ships) and in process (one chain of the same
 /// stages, no dora) writes the same frames, byte for byte, and loses nothing either way: the stages are
 /// one code path whichever driver runs them.
@@ -442,7 +502,7 @@ fn fusion_graph_runs_on_a_rig_of_two_sensor_sizes_and_clocks() {
 /// (the DVS's thresholds `theta`), ground truth every 20 planes.
 fn paired_recording(dir: &Path, scene: &str, theta: f64) -> PathBuf {
     let rec = dir.join("rec");
-    let dvs = neuspike_event_source::DvsConfig {
+    let dvs = neuspike_event_camera::DvsConfig {
         width: 400,
         height: 250,
         theta_on: theta,

@@ -8,10 +8,10 @@ mod common;
 
 use ndarray::Array2;
 use neuspike_align::{AlignConfig, Aligner};
-use neuspike_event_source::{DvsConfig, EventCamera};
+use neuspike_event_camera::{DvsConfig, EventCamera};
 use neuspike_geometry::Homography;
 use neuspike_scene::Scene;
-use neuspike_spike_source::{CameraConfig, SpikeCamera};
+use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 
 const W: usize = 160;
 const H: usize = 100;

@@ -90,8 +90,7 @@ fn a_node_killed_mid_run_ends_the_run_within_seconds_naming_it() {
         let fields: Vec<&str> = line.split(',').collect();
         assert_eq!(fields.len(), 9, "a cut row: {line}");
         if !fields[8].is_empty() {
-            neuspike_sink::png_out::read_frame_png(&out.path().join(fields[8]))
-                .expect("a readable PNG");
+            neuspike_image::read_frame_png(&out.path().join(fields[8])).expect("a readable PNG");
             pngs += 1;
         }
     }

@@ -121,7 +121,7 @@ def main() -> None:
         else f"- Loss: {l2_text(cfg)} only (the comparison run for the auxiliary term).",
         f"- PyTorch {cfg['torch']}; exported and checked against onnxruntime (max |diff| < 1e-4) by "
         "`training/export.py`; `models/" + name + ".ref/` is the reference tract must reproduce "
-        "(`stages/infer/tests/learned.rs`).",
+        "(`stages/reconstruction/tests/learned.rs`).",
     ] + ([f"- {args.note}"] if args.note else []) + [
         "",
         "## Accuracy (held-out set)",

@@ -14,7 +14,7 @@ project was not tuned to):
     python training/evaluate.py --test outside/<sim>-set models/neuspike-spike-8.onnx
 
 A window is 33 ticks around a reference tick; its spike representation is the represent node's
-(`stages/represent/src/spike.rs`): channel 0 is `1 / ISI` at the reference (the last spike at or
+(`stages/representations/src/spike.rs`): channel 0 is `1 / ISI` at the reference (the last spike at or
 before it to the first after; a side with no spike taken as the nearest tick outside the
 window), channels 1-31 the raw planes around it. TFP (the window's rate) and TFI are the classical
 baselines, calibrated like the network by `lum_per_rate`: the simulator's luminance per spike a

@@ -1,7 +1,7 @@
 //! The checks of the fuzz targets, as plain functions ([`formats`], [`ipc`], [`ros2`],
 //! [`scene`]): the targets call them on what libFuzzer makes, and the regular tests replay the
 //! committed corpus (`corpus-min/`) through them without libFuzzer (`formats/tests/corpus.rs`,
-//! `schemas/tests/corpus.rs`, `scene/tests/corpus.rs`, `stages/event-source/tests/corpus.rs`).
+//! `schemas/tests/corpus.rs`, `scene/tests/corpus.rs`, `stages/event-camera/tests/corpus.rs`).
 
 pub mod formats;
 pub mod ipc;

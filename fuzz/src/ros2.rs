@@ -1,8 +1,8 @@
 //! What the `ros2_cdr` fuzz target checks, as a plain function:
-//! `stages/event-source/tests/corpus.rs` replays the committed corpus through it without
+//! `stages/event-camera/tests/corpus.rs` replays the committed corpus through it without
 //! libFuzzer.
 
-use neuspike_event_source::ros2::PacketDecoder;
+use neuspike_event_camera::ros2::PacketDecoder;
 use neuspike_net::ros2::{parse_attachment, parse_event_packet, parse_image};
 
 /// ROS 2 samples as they arrive over rmw_zenoh (an `Image`, an `EventPacket`, an attachment):

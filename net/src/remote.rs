@@ -590,6 +590,17 @@ mod tests {
         // Another publisher's chunk and its end marker: refused, the stream goes on.
         put(&bad, chunk(1));
         put(&bad, end_of_stream::<SpikeChunk>(2));
+        // Two sessions' samples arrive in no set order: let the intruder's be counted first, so
+        // that the camera's end marker does not end the stream before them.
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while remote.foreign() < 2 {
+            assert!(
+                Instant::now() < deadline,
+                "the intruder's samples never arrived"
+            );
+            let t = remote.next(Duration::from_millis(50)).expect("next");
+            assert!(matches!(t, Taken::Idle), "{t:?}");
+        }
         put(&cam, chunk(1));
         put(&cam, end_of_stream::<SpikeChunk>(2));
         let mut seqs = Vec::new();

@@ -3,12 +3,12 @@
 use clap::Parser;
 use eyre::{WrapErr, eyre};
 use neuspike_align::{AlignConfig, AlignStage};
-use neuspike_event_source::playback::{EventSource, EventSourceConfig, EventSourceStage};
-use neuspike_infer::{InferConfig, InferStage};
-use neuspike_represent::{RepresentConfig, RepresentStage, Representer};
+use neuspike_event_camera::playback::{EventSource, EventSourceConfig, EventSourceStage};
+use neuspike_reconstruction::{InferConfig, InferStage};
+use neuspike_representations::{RepresentConfig, RepresentStage, Representer};
 use neuspike_schemas::RepresentationKind;
 use neuspike_sink::{SinkConfig, SinkStage};
-use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig, SpikeSourceStage};
+use neuspike_spike_camera::playback::{SpikeSource, SpikeSourceConfig, SpikeSourceStage};
 use neuspike_stage::{Pace, Pacer, Stage};
 
 /// The stages [`make_stage`] makes, by the name their node binaries carry after `neuspike-`.

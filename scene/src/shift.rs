@@ -1,6 +1,6 @@
 //! Moving a rendered image by a fraction of a pixel: the motion-compensated interpolation a
 //! camera uses to make the images between two renders of a moving scene (see
-//! `neuspike-spike-source`'s `--warp-step-ticks`).
+//! the spike camera's `--warp-step-ticks`).
 //!
 //! [`shift_into`] writes `dst[r][c] = src(c + margin - dx, r + margin - dy)`, `src` interpolated
 //! with the Catmull-Rom cubic (separable, 4 x 4 taps): the image content moved by `(dx, dy)`

@@ -12,8 +12,8 @@ use std::path::Path;
 
 use eyre::{WrapErr, bail, eyre};
 use ndarray::Array2;
-use neuspike_infer::policy::{Policy, Provenance};
-use neuspike_represent::WindowStats;
+use neuspike_reconstruction::policy::{Policy, Provenance};
+use neuspike_representations::WindowStats;
 
 use super::BenchOptions;
 use super::run::{MethodSpec, Recording};
@@ -159,14 +159,14 @@ pub fn budget_name(budget_ms: f64) -> String {
     format!("{NAME}-{budget_ms}ms")
 }
 
-/// Budget mode on one recording, run by the infer node's own stage ([`neuspike_infer::auto`])
+/// Budget mode on one recording, run by the infer node's own stage ([`neuspike_reconstruction::auto`])
 /// on one thread, as a node runs it ([`stage_row`]); a frame is late when its cost exceeds the
 /// budget.
 ///
 /// # Errors
 /// The stage refused a window.
 pub fn budget_row(
-    stage: &mut neuspike_infer::auto::Auto,
+    stage: &mut neuspike_reconstruction::auto::Auto,
     budget_ms: f64,
     rec: &Recording,
     template: &Row,
@@ -184,7 +184,7 @@ pub fn budget_row(
 /// # Errors
 /// The stage refused a window.
 pub fn stage_row(
-    stage: &mut neuspike_infer::auto::Auto,
+    stage: &mut neuspike_reconstruction::auto::Auto,
     name: &str,
     rec: &Recording,
     template: &Row,
@@ -194,7 +194,7 @@ pub fn stage_row(
         .num_threads(1)
         .build()
         .wrap_err("cannot start a thread pool")?;
-    neuspike_infer::learned::set_threads(1);
+    neuspike_reconstruction::learned::set_threads(1);
     let last = rec.scored.last().copied().unwrap_or(0);
     let refs: Vec<u64> = (140..=last)
         .step_by(super::grid::STRIDE_PLANES as usize)
@@ -282,11 +282,11 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
     // whose state lives across windows in the infer stage.
     let runnable = |m: &str| {
         !matches!(
-            neuspike_infer::policy::MethodName::parse(m),
-            Ok(neuspike_infer::policy::MethodName::Hf
-                | neuspike_infer::policy::MethodName::Cf
-                | neuspike_infer::policy::MethodName::Fusion
-                | neuspike_infer::policy::MethodName::FusionTfp)
+            neuspike_reconstruction::policy::MethodName::parse(m),
+            Ok(neuspike_reconstruction::policy::MethodName::Hf
+                | neuspike_reconstruction::policy::MethodName::Cf
+                | neuspike_reconstruction::policy::MethodName::Fusion
+                | neuspike_reconstruction::policy::MethodName::FusionTfp)
                 | Err(_)
         )
     };
@@ -311,7 +311,7 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
                 (m.clone(), s.psnr, s.p50_1t_ms)
             })
             .collect();
-        let Some(pick) = neuspike_infer::policy::best_value(&cands, opts.db_per_ms) else {
+        let Some(pick) = neuspike_reconstruction::policy::best_value(&cands, opts.db_per_ms) else {
             continue;
         };
         let best = cands
@@ -319,17 +319,17 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
             .map(|c| c.1)
             .filter(|v| v.is_finite())
             .fold(f64::NAN, f64::max);
-        let mut ranked: Vec<neuspike_infer::policy::Ranked> = cands
+        let mut ranked: Vec<neuspike_reconstruction::policy::Ranked> = cands
             .iter()
             .filter(|c| c.1.is_finite() && c.2.is_finite())
-            .map(|c| neuspike_infer::policy::Ranked {
+            .map(|c| neuspike_reconstruction::policy::Ranked {
                 method: c.0.clone(),
                 psnr_db: round2(c.1),
                 ms: (c.2 * 1_000.0).round() / 1_000.0,
             })
             .collect();
         ranked.sort_by(|a, b| b.psnr_db.total_cmp(&a.psnr_db));
-        classes.push(neuspike_infer::policy::Class {
+        classes.push(neuspike_reconstruction::policy::Class {
             class: class.clone(),
             method: pick.0.clone(),
             psnr_db: round2(pick.1),
@@ -343,7 +343,7 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
             if !seen.insert(r.texture) {
                 continue;
             }
-            out.push(neuspike_infer::policy::Row {
+            out.push(neuspike_reconstruction::policy::Row {
                 class: class.clone(),
                 texture: r.label.clone(),
                 rate: round6(r.rate),

@@ -22,7 +22,7 @@ use std::time::Instant;
 
 use eyre::{WrapErr, eyre};
 use ndarray::ArrayView2;
-use neuspike_sink::metrics;
+use neuspike_metrics as metrics;
 
 pub mod auto;
 pub mod grid;
@@ -60,7 +60,7 @@ pub struct BenchOptions {
     /// how the methods fare when the camera differs from the one the networks were trained on.
     /// Give each setting its own `--out`.
     #[command(flatten)]
-    pub noise: neuspike_spike_source::NoiseArgs,
+    pub noise: neuspike_spike_camera::NoiseArgs,
     /// The event camera as a sensor of its own, as in a real rig: a DAVIS346 (346x260) seeing
     /// the scene through a homography (1.16 spike pixels a pixel, turned 0.5 degree), its clock
     /// 3 ms ahead; its events reach the methods through align's mapping onto the spike grid and
@@ -204,7 +204,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             .policy
             .clone()
             .unwrap_or_else(|| opts.models.join(auto::DEFAULT_POLICY));
-        policy_used = neuspike_infer::policy::Policy::read(&path).ok();
+        policy_used = neuspike_reconstruction::policy::Policy::read(&path).ok();
     } else {
         let mut methods = run::methods(&opts.models)?;
         let installed = methods.clone();
@@ -223,12 +223,12 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
         // Budget mode runs the infer node's own stage, loaded once (its networks planned once).
         let mut stage = match &loaded {
             Some((path, _)) => Some(
-                neuspike_infer::auto::Auto::new(
+                neuspike_reconstruction::auto::Auto::new(
                     path,
                     &opts.models,
                     Some(opts.budget_ms),
                     None,
-                    neuspike_infer::learned::ConvPath::Auto,
+                    neuspike_reconstruction::learned::ConvPath::Auto,
                 )
                 .map_err(|e| eyre!("--policy: {e}"))?,
             ),
@@ -238,12 +238,12 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
         // Per-region auto: the same stage, choosing per tile.
         let mut regions = match &loaded {
             Some((path, _)) => Some(
-                neuspike_infer::auto::Auto::new(
+                neuspike_reconstruction::auto::Auto::new(
                     path,
                     &opts.models,
                     None,
                     None,
-                    neuspike_infer::learned::ConvPath::Auto,
+                    neuspike_reconstruction::learned::ConvPath::Auto,
                 )
                 .and_then(|a| a.with_regions(auto::REGIONS_TILE.0, auto::REGIONS_TILE.1))
                 .map_err(|e| eyre!("--policy: {e}"))?,
@@ -526,8 +526,8 @@ fn empty_row() -> Row {
 }
 
 /// The row template's statistics: the mean over the scored windows.
-fn with_stats(mut row: Row, stats: &[(neuspike_represent::WindowStats, f64)]) -> Row {
-    let m = |f: fn(&neuspike_represent::WindowStats) -> f64| {
+fn with_stats(mut row: Row, stats: &[(neuspike_representations::WindowStats, f64)]) -> Row {
+    let m = |f: fn(&neuspike_representations::WindowStats) -> f64| {
         table::mean(stats.iter().map(|(s, _)| f(s)))
     };
     row.rate = m(|s| s.rate);

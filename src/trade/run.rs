@@ -10,14 +10,14 @@ use std::time::Instant;
 use eyre::{WrapErr, bail, eyre};
 use ndarray::Array2;
 use neuspike_align::{AlignConfig, AlignStage};
-use neuspike_event_source::{DvsConfig, EventCamera};
-use neuspike_infer::learned::LearnedModel;
-use neuspike_infer::{EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor};
-use neuspike_represent::{RepresentConfig, Representer, WindowStats};
+use neuspike_event_camera::{DvsConfig, EventCamera};
+use neuspike_reconstruction::learned::LearnedModel;
+use neuspike_reconstruction::{EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor};
+use neuspike_representations::{RepresentConfig, Representer, WindowStats};
 use neuspike_schemas::{
     AlignedWindow, EventBatch, RepresentationKind, SpikeChunk, bytes_per_plane,
 };
-use neuspike_spike_source::{CameraConfig, SpikeCamera};
+use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 use neuspike_stage::{Chain, Msg, MsgType, Replay};
 
 use super::grid::{self, SceneClass, TextureSet};
@@ -237,7 +237,7 @@ pub const LONGEST_PLANES: u32 = 256;
 
 /// The statistics of each scored window, as `auto` sees them (its 33 central planes, the event
 /// rate also over the [`LONGEST_PLANES`] around it where the recording holds them:
-/// [`neuspike_represent::choice_stats`]), and the milliseconds each took.
+/// [`neuspike_representations::choice_stats`]), and the milliseconds each took.
 ///
 /// # Errors
 /// Align did not cut a scored window.
@@ -254,7 +254,7 @@ pub fn window_stats(rec: &Recording) -> eyre::Result<Vec<(WindowStats, f64)>> {
             let [cut] = <[_; 1]>::try_from(rec.windows(n, &[c], false)?)
                 .map_err(|_| eyre!("align: no window at plane {c}"))?;
             let start = Instant::now();
-            let s = neuspike_represent::choice_stats(
+            let s = neuspike_representations::choice_stats(
                 &cut.window,
                 WINDOW_PLANES as usize,
                 LONGEST_PLANES as usize,
@@ -306,7 +306,7 @@ pub fn simulate(
     class: &SceneClass,
     set: TextureSet,
     texture: usize,
-    noise: &neuspike_spike_source::NoiseArgs,
+    noise: &neuspike_spike_camera::NoiseArgs,
     rig: bool,
 ) -> eyre::Result<(Recording, String)> {
     let (scene, label) = grid::scene(class, set, texture)?;
@@ -577,7 +577,7 @@ pub fn pass(
         .num_threads(threads)
         .build()
         .wrap_err("cannot start a thread pool")?;
-    neuspike_infer::learned::set_threads(threads);
+    neuspike_reconstruction::learned::set_threads(threads);
     pool.install(|| pass_on_this_pool(spec, rec, threads, cache))
 }
 

@@ -58,7 +58,7 @@ pub struct Row {
     pub windows: usize,
     /// Peak heap, MiB (NaN where not measured).
     pub peak_mib: f64,
-    /// The recording's window statistics (`neuspike_represent::window_stats`, mean over the
+    /// The recording's window statistics (`neuspike_representations::window_stats`, mean over the
     /// scored windows): spikes per pixel per plane.
     pub rate: f64,
     /// Events per pixel per plane.

@@ -2,7 +2,7 @@
 //! (EventBatch), one batch per `--batch-ns` interval, empty batches included, so a receiver always
 //! knows how far time went (a gap in a recording longer than two intervals is one empty batch
 //! across it). The stage itself (the settings, the scene or the recording, the
-//! batches) is `neuspike_event_source::playback`.
+//! batches) is `neuspike_event_camera::playback`.
 //!
 //! A recording that turns out bad part-way has every batch before the fault sent, then the
 //! end-of-stream marker, and the node fails naming the file and the byte offset or line. A
@@ -19,8 +19,8 @@
 use dora_node_api::{DoraNode, EventStream};
 use std::time::Duration;
 
-use neuspike_event_source::playback::{EventSource, EventSourceConfig, EventSourceStage};
-use neuspike_event_source::ros2::{RosEvents, RosTaken};
+use neuspike_event_camera::playback::{EventSource, EventSourceConfig, EventSourceStage};
+use neuspike_event_camera::ros2::{RosEvents, RosTaken};
 use neuspike_net::{Remote, ZenohArgs};
 use neuspike_runtime::{Arrival, Link, Pace, Pacer, relay, relay_remote};
 use neuspike_schemas::{EventBatch, Message};

@@ -2,18 +2,18 @@
 //! `representation` (Representation: `tfp`, `isi` or `stp`) and `events` (EventBatch: the `align`
 //! node's event stream, cut at each window's `t_ref`). Output `frames` (Frame). The two inputs of
 //! one window carry the window's sequence number; a window is reconstructed when both have
-//! arrived, in order (`neuspike_infer::Reconstructor`).
+//! arrived, in order (`neuspike_reconstruction::Reconstructor`).
 //!
 //! `--method auto` reads align's windows on its input `windows` and chooses the method of each
-//! window from `--policy` (`neuspike_infer::auto`): its frames say which in their `chosen` key.
+//! window from `--policy` (`neuspike_reconstruction::auto`): its frames say which in their `chosen` key.
 //!
-//! `--method learned --model FILE` runs a NeuSpike-Net exported to ONNX (`neuspike_infer::learned`)
+//! `--method learned --model FILE` runs a NeuSpike-Net exported to ONNX (`neuspike_reconstruction::learned`)
 //! on the representations it reads, each its own input named as the represent output that makes
 //! it: `spike_repr` and/or `event_integration`. The model is loaded, checked against the graph's
 //! inputs and planned before the first message is read.
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_infer::{InferConfig, InferStage, Reconstructor};
+use neuspike_reconstruction::{InferConfig, InferStage, Reconstructor};
 use neuspike_runtime::graph_inputs;
 
 /// tract allocates every intermediate tensor afresh on each run; with the system allocator those

@@ -2,8 +2,8 @@
 
 use super::*;
 use ndarray::{Array3, Axis};
-use neuspike_infer::Method;
-use neuspike_infer::learned::{LearnedInput, LearnedModel, LearnedOutput};
+use neuspike_reconstruction::Method;
+use neuspike_reconstruction::learned::{LearnedInput, LearnedModel, LearnedOutput};
 use neuspike_runtime::testing::{CannedInputs, output_ids};
 #[allow(unused_imports)]
 use neuspike_schemas::{AlignedWindow, EventBatch, Frame, Message, Representation};

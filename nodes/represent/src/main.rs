@@ -8,7 +8,7 @@
 //! their last spike there, and the count travels as the `gaps` parameter.
 
 use dora_node_api::{DoraNode, EventStream};
-use neuspike_represent::{RepresentConfig, RepresentStage, Representer};
+use neuspike_representations::{RepresentConfig, RepresentStage, Representer};
 use neuspike_runtime::graph_outputs;
 use neuspike_schemas::RepresentationKind;
 

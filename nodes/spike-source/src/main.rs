@@ -1,7 +1,7 @@
 //! dora node: the spike camera, simulated or played from a recording. Output `spikes`
 //! (SpikeChunk) and, when simulating and asked, or playing a recording with its ground truth,
 //! `ground_truth` (Frame). The stage itself (the settings, the scene or the PKU `.dat` file, the
-//! chunks and their ground truth) is `neuspike_spike_source::playback`.
+//! chunks and their ground truth) is `neuspike_spike_camera::playback`.
 //!
 //! A relative `--file` is resolved against the node's working directory: under `neuspike run`
 //! (dora), the graph's folder. The chunks of a recording carry `lum_per_rate` = `--lum-per-rate`,
@@ -25,7 +25,7 @@ use dora_node_api::{DoraNode, EventStream};
 use neuspike_net::{Remote, ZenohArgs};
 use neuspike_runtime::{Link, Pace, Pacer, Resume, relay_remote};
 use neuspike_schemas::{Message, SpikeChunk};
-use neuspike_spike_source::playback::{SpikeSource, SpikeSourceConfig, SpikeSourceStage};
+use neuspike_spike_camera::playback::{SpikeSource, SpikeSourceConfig, SpikeSourceStage};
 
 /// Node arguments (the graph's `args:`).
 #[derive(Debug, clap::Parser)]

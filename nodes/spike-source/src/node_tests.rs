@@ -8,7 +8,7 @@ use neuspike_formats::pku::PkuGeometry;
 use neuspike_formats::pku::PkuWriter;
 use neuspike_runtime::testing::{CannedInputs, output_ids, payload_len};
 use neuspike_schemas::bytes_per_plane;
-use neuspike_spike_source::playback::DEFAULT_FILE_LUM_PER_RATE;
+use neuspike_spike_camera::playback::DEFAULT_FILE_LUM_PER_RATE;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 

@@ -1,9 +1,9 @@
 //! Frames as ROS 2 images: the pixel encodings of `sensor_msgs/msg/Image` (the CDR, keys and
 //! tokens are `neuspike_net::ros2`).
 
+use neuspike_image::{BitDepth, grey_levels};
 use neuspike_net::ros2::image_cdr;
 use neuspike_schemas::Frame;
-use neuspike_sink::png_out::{BitDepth, grey_levels};
 
 /// How a frame's pixels go into an Image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

@@ -6,8 +6,8 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::Array2;
-use neuspike_sink::metrics::{entropy_2d, psnr, psnr_after_gain, ssim};
-use neuspike_sink::png_out::{BitDepth, write_frame_png};
+use neuspike_image::{BitDepth, write_frame_png};
+use neuspike_metrics::{entropy_2d, psnr, psnr_after_gain, ssim};
 use std::hint::black_box;
 
 fn frame(seed: u32) -> Array2<f32> {

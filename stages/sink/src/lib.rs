@@ -1,35 +1,19 @@
-//! The pure library behind neuspike's sink node: image-quality metrics, PNG frame output and the
-//! run report. Nothing here knows about dora; the node binary (`main.rs`) decodes its inputs and
-//! hands the frames to a [`Sink`], which writes, scores and summarises them.
+//! The sink stage: frames written as PNG, scored against the ground truth and summarised. Nothing
+//! here knows about dora; the node binary (`main.rs`) decodes its inputs and hands the frames to a
+//! [`Sink`], which writes, scores and summarises them with `neuspike-image` (PNG) and
+//! `neuspike-metrics` (PSNR, SSIM, 2D entropy).
 //!
-//! - [`metrics`]: PSNR, PSNR after a least-squares gain, SSIM and 2D entropy, exactly as defined
-//!   in `docs/definitions.md` (f64 accumulation throughout).
-//! - [`png_out`]: grey 8- or 16-bit PNG frames, written atomically, and read back.
 //! - [`report`]: `metrics.csv` (one row a frame, flushed each row) and the per-method summary.
-//!
-//! ```
-//! use ndarray::Array2;
-//! use neuspike_sink::metrics;
-//!
-//! let gt = Array2::<f32>::from_elem((16, 16), 0.25);
-//! let x = Array2::<f32>::from_elem((16, 16), 0.75);
-//! metrics::check_same_shape(x.view(), gt.view()).expect("same shape");
-//! // MSE = 0.25, so PSNR = 10 log10(4)
-//! assert!((metrics::psnr(x.view(), gt.view()) - 10.0 * 4f64.log10()).abs() < 1e-12);
-//! assert_eq!(metrics::psnr(gt.view(), gt.view()), f64::INFINITY);
-//! ```
 #![deny(missing_docs)]
 
 use std::path::PathBuf;
 
-pub mod metrics;
-pub mod png_out;
 pub mod report;
 mod stage;
 mod writer;
 
-pub use metrics::MetricsError;
-pub use png_out::BitDepth;
+pub use neuspike_image::BitDepth;
+pub use neuspike_metrics::MetricsError;
 pub use report::{FrameMetrics, MetricsCsv, Summary};
 pub use stage::SinkStage;
 pub use writer::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
@@ -47,33 +31,9 @@ pub enum SinkError {
         #[source]
         source: std::io::Error,
     },
-    /// Encoding or decoding a PNG failed.
-    #[error("PNG error on {}", path.display())]
-    Png {
-        /// The file being encoded or decoded.
-        path: PathBuf,
-        /// The underlying error.
-        #[source]
-        source: image::ImageError,
-    },
-    /// A frame that a PNG cannot hold: zero rows or columns, or a side above `u32::MAX`.
-    #[error("cannot write {}: frame of {rows}x{cols} pixels has no PNG form", path.display())]
-    BadShape {
-        /// The file that was to be written.
-        path: PathBuf,
-        /// Rows of the frame.
-        rows: usize,
-        /// Columns of the frame.
-        cols: usize,
-    },
-    /// A PNG that is not single-channel grey (8 or 16 bit).
-    #[error("{} is not a grey PNG (colour type {color})", path.display())]
-    NotGrey {
-        /// The file read.
-        path: PathBuf,
-        /// The colour type found, as `image` names it.
-        color: String,
-    },
+    /// Writing a frame as a PNG, or reading one back, failed.
+    #[error(transparent)]
+    Image(#[from] neuspike_image::Error),
     /// Two images given to a metric differ in shape.
     #[error(transparent)]
     Metrics(#[from] MetricsError),

@@ -11,7 +11,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use crate::SinkError;
-use crate::png_out::write_atomically;
+use neuspike_image::write_atomically;
 
 /// Header line of `metrics.csv` (without the newline).
 pub const CSV_HEADER: &str =

@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use neuspike_schemas::Frame;
 
 use crate::SinkError;
-use crate::metrics::{check_same_shape, entropy_2d, psnr, psnr_after_gain, ssim};
-use crate::png_out::{BitDepth, write_frame_png};
 use crate::report::{FrameMetrics, InputCounts, MetricsCsv, Summary};
+use neuspike_image::{BitDepth, write_frame_png};
+use neuspike_metrics::{check_same_shape, entropy_2d, psnr, psnr_after_gain, ssim};
 
 /// The sink's settings (the node's `args:`).
 #[derive(Clone, Debug, clap::Args)]
@@ -426,7 +426,7 @@ mod tests {
                 "left behind: {}",
                 path.display()
             );
-            crate::png_out::read_frame_png(&path).expect("a whole PNG");
+            neuspike_image::read_frame_png(&path).expect("a whole PNG");
             pngs += 1;
         }
         assert!(pngs >= 1, "no PNG fitted");

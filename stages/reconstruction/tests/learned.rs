@@ -1,0 +1,421 @@
+//! The shipped ONNX models under tract: each reproduces the PyTorch output `training/export.py`
+//! saved beside it, and bad models and bad inputs give errors that name the file.
+
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array3, Array4, ArrayView3, Axis, s};
+use ndarray_npy::read_npy;
+use neuspike_reconstruction::InferError;
+use neuspike_reconstruction::learned::{
+    ConvPath, LearnedInput, LearnedModel, LearnedOutput, STRIDE, pad_edge,
+};
+use prost::Message;
+use tract_onnx::prelude::Framework;
+
+fn models_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models")
+}
+
+/// Every `models/*.onnx`, sorted.
+fn shipped() -> Vec<PathBuf> {
+    let mut out: Vec<PathBuf> = std::fs::read_dir(models_dir())
+        .expect("models/")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "onnx"))
+        .collect();
+    out.sort();
+    out
+}
+
+fn reference(model: &Path, name: &str) -> Array4<f32> {
+    let path = model.with_extension("ref").join(format!("{name}.npy"));
+    read_npy(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// The reference input of each of the model's inputs, `[1, C, H, W]`.
+fn reference_inputs(model: &LearnedModel, path: &Path) -> Vec<Array4<f32>> {
+    model
+        .inputs()
+        .iter()
+        .map(|i| reference(path, i.onnx_name()))
+        .collect()
+}
+
+fn max_diff<'a>(a: impl IntoIterator<Item = &'a f32>, b: impl IntoIterator<Item = &'a f32>) -> f32 {
+    a.into_iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0f32, f32::max)
+}
+
+#[test]
+fn every_shipped_model_reproduces_its_pytorch_reference() {
+    let models = shipped();
+    assert!(
+        !models.is_empty(),
+        "no models in {}",
+        models_dir().display()
+    );
+    for path in models {
+        let mut model = LearnedModel::load(&path).expect("load");
+        let inputs = reference_inputs(&model, &path);
+        let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
+        let want = reference(&path, model.output().onnx_name());
+        let got = model.run(&views).expect("run");
+        assert_eq!(
+            got.dim(),
+            (want.shape()[2], want.shape()[3]),
+            "{}",
+            path.display()
+        );
+        let diff = max_diff(&got, &want);
+        assert!(
+            diff < 1e-4,
+            "{}: tract differs from PyTorch by {diff}",
+            path.display()
+        );
+        // Rates and luminances both come out of a sigmoid: in [0, 1], and not all the same.
+        assert!(got.iter().all(|r| (0.0..=1.0).contains(r)));
+        let (lo, hi) = got
+            .iter()
+            .fold((1.0f32, 0.0f32), |(l, h), &r| (l.min(r), h.max(r)));
+        assert!(hi - lo > 1e-3, "{}: a flat output", path.display());
+    }
+}
+
+#[test]
+fn sizes_that_are_not_multiples_of_the_stride_are_padded_and_cropped() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let inputs = reference_inputs(&model, path);
+    // 13 x 21 of the 16 x 24 reference: the network sees it padded back to 16 x 24 by repeating
+    // the last row and column, so the output is that of the padded input, cropped.
+    let cut: Vec<Array3<f32>> = inputs
+        .iter()
+        .map(|a| a.slice(s![0, .., ..13, ..21]).to_owned())
+        .collect();
+    let views: Vec<ArrayView3<f32>> = cut.iter().map(|a| a.view()).collect();
+    let got = model.run(&views).expect("run 13x21");
+    assert_eq!(got.dim(), (13, 21));
+    let padded: Vec<Array3<f32>> = cut
+        .iter()
+        .map(|a| {
+            let c = a.dim().0;
+            Array3::from_shape_vec((c, 16, 24), pad_edge(a.view(), 16, 24)).expect("shape")
+        })
+        .collect();
+    let views: Vec<ArrayView3<f32>> = padded.iter().map(|a| a.view()).collect();
+    let full = model.run(&views).expect("run 16x24");
+    let diff = full
+        .slice(s![..13, ..21])
+        .iter()
+        .zip(got.iter())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(diff < 1e-6, "crop differs by {diff}");
+    // A second size replans, and going back still works.
+    let small: Vec<Array3<f32>> = inputs
+        .iter()
+        .map(|a| a.slice(s![0, .., ..8, ..8]).to_owned())
+        .collect();
+    let views: Vec<ArrayView3<f32>> = small.iter().map(|a| a.view()).collect();
+    assert_eq!(model.run(&views).expect("8x8").dim(), (8, 8));
+    assert_eq!(STRIDE, 8);
+}
+
+#[test]
+fn pad_edge_repeats_the_last_row_and_column() {
+    let x = Array3::from_shape_fn((2, 2, 3), |(c, y, x)| (c * 100 + y * 10 + x) as f32);
+    let p = pad_edge(x.view(), 3, 4);
+    let p = Array3::from_shape_vec((2, 3, 4), p).expect("shape");
+    assert_eq!(p[[1, 0, 0]], 100.0);
+    assert_eq!(p[[0, 1, 3]], 12.0);
+    assert_eq!(p[[0, 2, 1]], 11.0);
+    assert_eq!(p[[1, 2, 3]], 112.0);
+}
+
+fn model_error(e: InferError) -> (PathBuf, String) {
+    match e {
+        InferError::Model { path, reason } => (path, reason),
+        other => panic!("expected a model error, got {other}"),
+    }
+}
+
+#[test]
+fn a_missing_or_corrupt_file_is_refused_by_name() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("nope.onnx");
+    let (path, reason) = model_error(LearnedModel::load(&missing).expect_err("missing"));
+    assert_eq!(path, missing);
+    assert!(reason.contains("cannot read"), "{reason}");
+
+    let bytes = std::fs::read(&shipped()[0]).expect("read");
+    for (name, data) in [
+        ("empty.onnx", Vec::new()),
+        ("truncated.onnx", bytes[..bytes.len() / 3].to_vec()),
+        ("text.onnx", b"not a model at all".to_vec()),
+    ] {
+        let p = dir.path().join(name);
+        std::fs::write(&p, &data).expect("write");
+        let err = LearnedModel::load(&p).expect_err(name);
+        let msg = err.to_string();
+        assert!(msg.contains(name), "{name}: {msg}");
+    }
+}
+
+enum Io {
+    Input,
+    Output,
+}
+
+/// The first shipped model with its first input or output renamed to `name`, written into `dir`.
+fn renamed(dir: &Path, io: Io, name: &str) -> PathBuf {
+    let mut proto = tract_onnx::onnx()
+        .proto_model_for_path(&shipped()[0])
+        .expect("proto");
+    let graph = proto.graph.as_mut().expect("graph");
+    let slot = match io {
+        Io::Input => &mut graph.input[0],
+        Io::Output => &mut graph.output[0],
+    };
+    let old = std::mem::replace(&mut slot.name, name.into());
+    for node in &mut graph.node {
+        for wire in node.input.iter_mut().chain(node.output.iter_mut()) {
+            if *wire == old {
+                *wire = name.into();
+            }
+        }
+    }
+    let p = dir.join(format!("{name}.onnx"));
+    std::fs::write(&p, proto.encode_to_vec()).expect("write");
+    p
+}
+
+/// Loading the renamed model fails naming the file, the name, and `hint` (what it should be).
+fn refused_when_renamed(io: Io, name: &str, hint: &str) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = renamed(dir.path(), io, name);
+    let (path, reason) = model_error(LearnedModel::load(&p).expect_err(name));
+    assert_eq!(path, p);
+    assert!(
+        reason.contains(&format!("`{name}`")) && reason.contains(hint),
+        "{reason}"
+    );
+}
+
+#[test]
+fn a_model_whose_inputs_are_not_the_representations_is_refused() {
+    refused_when_renamed(Io::Input, "voxels", "spike");
+}
+
+#[test]
+fn representations_of_the_wrong_shape_are_refused_before_running() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let n = model.inputs().len();
+    let c = model.channels()[0];
+    // Wrong channel count.
+    let x = Array3::<f32>::zeros((c + 1, 16, 16));
+    let views: Vec<ArrayView3<f32>> = (0..n).map(|_| x.view()).collect();
+    let (_, reason) = model_error(model.run(&views).expect_err("channels"));
+    assert!(
+        reason.contains(&format!("[{}, 16, 16]", c + 1)) || reason.contains("shape"),
+        "{reason}"
+    );
+    // Too few inputs.
+    let ok = Array3::<f32>::zeros((c, 16, 16));
+    if n > 1 {
+        let (_, reason) = model_error(model.run(&[ok.view()]).expect_err("count"));
+        assert!(reason.contains("1 representations given"), "{reason}");
+    }
+    // Inputs of different sizes.
+    if n > 1 {
+        let other = Array3::<f32>::zeros((model.channels()[1], 16, 24));
+        let (_, reason) = model_error(model.run(&[ok.view(), other.view()]).expect_err("sizes"));
+        assert!(
+            reason.contains("[32, 16, 24]") || reason.contains("wants"),
+            "{reason}"
+        );
+    }
+    // The inputs name the representations the represent node makes.
+    for i in model.inputs() {
+        assert!(matches!(i, LearnedInput::Spike | LearnedInput::Events));
+        assert_eq!(i.input_id(), i.representation().name());
+        assert!(["spike_repr", "event_integration"].contains(&i.input_id()));
+    }
+}
+
+#[test]
+fn the_output_name_says_its_unit_and_an_unknown_one_is_refused() {
+    // Networks that read spikes predict a rate; the event-only one predicts luminance.
+    for path in shipped() {
+        let model = LearnedModel::load(&path).expect("load");
+        let want = if model.inputs().contains(&LearnedInput::Spike) {
+            LearnedOutput::Rate
+        } else {
+            LearnedOutput::Luminance
+        };
+        assert_eq!(model.output(), want, "{}", path.display());
+    }
+    refused_when_renamed(Io::Output, "depth", "luminance");
+}
+
+#[test]
+fn both_convolution_paths_reproduce_the_reference_and_auto_keeps_one() {
+    for path in shipped() {
+        let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
+        let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
+        for conv in [
+            ConvPath::Direct,
+            ConvPath::Im2col,
+            ConvPath::Blocked,
+            ConvPath::Auto,
+        ] {
+            let mut model = LearnedModel::load(&path).expect("load");
+            model.set_conv_path(conv);
+            assert_eq!(model.conv_path_in_use(), None);
+            let want = reference(&path, model.output().onnx_name());
+            let got = model.run(&views).expect("run");
+            let diff = max_diff(&got, &want);
+            assert!(
+                diff < 1e-4,
+                "{} ({conv}): differs by {diff}",
+                path.display()
+            );
+            let used = model.conv_path_in_use().expect("planned");
+            if conv == ConvPath::Auto {
+                assert_ne!(used, ConvPath::Auto);
+            } else {
+                assert_eq!(used, conv);
+            }
+        }
+    }
+    assert_eq!("im2col".parse::<ConvPath>(), Ok(ConvPath::Im2col));
+    assert_eq!("blocked".parse::<ConvPath>(), Ok(ConvPath::Blocked));
+    assert_eq!(ConvPath::default().to_string(), "auto");
+    let err = "fast".parse::<ConvPath>().unwrap_err();
+    assert!(err.contains("`fast`") && err.contains("im2col"), "{err}");
+}
+
+#[test]
+fn neuspikes_convolution_computes_what_tracts_does_on_wide_frames() {
+    // The reference frames are 24 wide, narrower than the rows `conv3x3` takes over: repeat
+    // them to 336 so the full- and half-resolution layers run on it.
+    for path in shipped() {
+        let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
+        let wide: Vec<Array3<f32>> = inputs
+            .iter()
+            .map(|a| {
+                let a = a.index_axis(Axis(0), 0);
+                let tiles: Vec<_> = (0..14).map(|_| a.view()).collect();
+                ndarray::concatenate(Axis(2), &tiles).expect("tiles")
+            })
+            .collect();
+        // Also 13x333, neither a multiple of the stride: the first convolution, which reads the
+        // representation in place (not a padded copy), pads it.
+        for (h, w) in [(16, 336), (13, 333)] {
+            let views: Vec<ArrayView3<f32>> =
+                wide.iter().map(|a| a.slice(s![.., ..h, ..w])).collect();
+            same_on_both_paths(&path, &views);
+        }
+    }
+}
+
+/// `path`'s image on `views` is the same whether tract or neuspike computes the convolutions.
+fn same_on_both_paths(path: &Path, views: &[ArrayView3<f32>]) {
+    let mut outputs = Vec::new();
+    for conv in [ConvPath::Direct, ConvPath::Blocked] {
+        let mut model = LearnedModel::load(path).expect("load");
+        model.set_conv_path(conv);
+        let ops: Vec<String> = model
+            .profile(views)
+            .expect("profile")
+            .into_iter()
+            .map(|t| t.op)
+            .collect();
+        let ours = ops.iter().filter(|op| *op == "NeuspikeConv3x3").count();
+        // The decoder's three upsamplings and the attention of its three skip connections,
+        // whatever the width.
+        let count = |name: &str| ops.iter().filter(|op| *op == name).count();
+        let want = if conv == ConvPath::Blocked { 3 } else { 0 };
+        for name in ["NeuspikeDeconv2x2", "NeuspikeSpatialAttention"] {
+            assert_eq!(count(name), want, "{name} in {} ({conv})", path.display());
+        }
+        // The channel attention of each of the four fusions (one path or two, summed).
+        let sums = count("NeuspikeScaledSum");
+        assert_eq!(
+            sums,
+            if conv == ConvPath::Blocked { 4 } else { 0 },
+            "{}",
+            path.display()
+        );
+        // The merges read their two inputs in place; the attention's maps are its own: no
+        // concatenation is left.
+        if conv == ConvPath::Blocked {
+            assert_eq!(count("Concat"), 0, "{}", path.display());
+        } else {
+            assert!(count("Concat") >= 6, "{}", path.display());
+        }
+        if conv == ConvPath::Blocked {
+            assert!(
+                ours >= 3,
+                "{}: {ours} convolutions of neuspike's",
+                path.display()
+            );
+        } else {
+            assert_eq!(ours, 0);
+        }
+        outputs.push(model.run(views).expect("run"));
+    }
+    let diff = max_diff(&outputs[0], &outputs[1]);
+    assert!(
+        diff < 1e-4,
+        "{} at {:?}: blocked differs from direct by {diff}",
+        path.display(),
+        views[0].shape()
+    );
+}
+
+#[test]
+fn a_profile_times_every_node_of_the_plan_and_the_padding() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let inputs = reference_inputs(&model, path);
+    let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
+    let nodes = model.profile(&views).expect("profile");
+    assert_eq!(nodes[0].op, "(inputs)");
+    assert!(nodes.iter().all(|n| n.ms >= 0.0 && n.ms.is_finite()));
+    // A network of convolutions: most of the plan is convolution or matrix product nodes.
+    let convs = nodes
+        .iter()
+        .filter(|n| n.op.contains("Conv") || n.op.contains("MatMul"))
+        .count();
+    assert!(convs >= 10, "{convs} convolution nodes of {}", nodes.len());
+}
+
+#[test]
+fn reused_input_tensors_never_leak_one_frame_into_the_next() {
+    let path = &shipped()[0];
+    let mut model = LearnedModel::load(path).expect("load");
+    let a = reference_inputs(&model, path);
+    let b: Vec<Array4<f32>> = a.iter().map(|x| x.mapv(|v| 1.0 - v)).collect();
+    let view = |xs: &[Array4<f32>]| -> Vec<Array3<f32>> {
+        xs.iter()
+            .map(|x| x.index_axis(Axis(0), 0).to_owned())
+            .collect()
+    };
+    let (a3, b3) = (view(&a), view(&b));
+    let run = |m: &mut LearnedModel, xs: &[Array3<f32>]| {
+        let v: Vec<ArrayView3<f32>> = xs.iter().map(|x| x.view()).collect();
+        m.run(&v).expect("run")
+    };
+    let first = run(&mut model, &a3);
+    let other = run(&mut model, &b3);
+    let again = run(&mut model, &a3);
+    assert_eq!(first, again);
+    assert_ne!(first, other);
+    // A clone shares nothing it could overwrite under the original.
+    let mut copy = model.clone();
+    assert_eq!(run(&mut copy, &b3), other);
+    assert_eq!(run(&mut model, &a3), first);
+}
