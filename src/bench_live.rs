@@ -32,6 +32,11 @@ pub struct LiveBenchOptions {
     /// Built-in scene the simulated camera sees.
     #[arg(long, default_value = "bright-static")]
     pub scene: String,
+    /// The camera simulates its first N planes once and sends them again and again (the spike
+    /// source's `--repeat-planes`): the graph then pays for the stages after the camera, as with
+    /// a real camera, not for simulating one. 0: every plane simulated as it is sent.
+    #[arg(long, default_value_t = 0)]
+    pub repeat_planes: u64,
     /// The sink writes a PNG of one frame in N (every frame is received and counted).
     #[arg(long, default_value_t = 10)]
     pub write_every: u64,
@@ -157,10 +162,14 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
     let text = serde_yaml::to_string(&g)?;
     graph::write_built_in(&text, &out, "neuspike bench-live", |id, _| match id {
         "spike-source" => Some(format!(
-            "--scene {} --rate-hz {} --chunk-planes {} --max-planes {planes} --seed 1 --pace realtime",
+            "--scene {} --rate-hz {} --chunk-planes {} --max-planes {planes} --seed 1 --pace realtime{}",
             opts.scene,
             opts.rate_hz,
-            opts.rate_hz / 1000
+            opts.rate_hz / 1000,
+            match opts.repeat_planes {
+                0 => String::new(),
+                n => format!(" --repeat-planes {n}"),
+            }
         )),
         "align" => Some(format!(
             "--window-planes {} --stride-planes {stride}",
@@ -230,9 +239,14 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
                 "-".into()
             };
             println!(
-                "| {} | {} kHz | {} | {:.1} | {:.2} | {vs} | {:.3}x | {}/{} | {} | {p50} | {p99} |",
+                "| {} | {} kHz{} | {} | {:.1} | {:.2} | {vs} | {:.3}x | {}/{} | {} | {p50} | {p99} |",
                 layout.name(),
                 opts.rate_hz / 1000,
+                if opts.repeat_planes > 0 {
+                    ", repeated"
+                } else {
+                    ""
+                },
                 opts.fps,
                 r.camera_s,
                 r.wall_s,
@@ -287,6 +301,7 @@ mod tests {
             fps: 200,
             window_planes: 33,
             scene: "bright-static".into(),
+            repeat_planes: 0,
             write_every: 10,
             runs: 1,
             processes: vec![Layout::Nodes, Layout::One],

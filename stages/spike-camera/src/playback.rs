@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use neuspike_formats::FormatError;
 use neuspike_formats::pku::{HEAD_COLUMNS, PkuGeometry, PkuOptions, PkuReader};
 use neuspike_scene::{Scene, SceneError};
-use neuspike_schemas::{Frame, FrameKind, SpikeChunk};
+use neuspike_schemas::{Frame, FrameKind, SpikeChunk, bytes_per_plane};
 use neuspike_stage::{Flow, Msg, MsgType, Outbox, Pacer, Port, Stage, Tallies};
 
 use crate::truth::Truth;
@@ -69,10 +69,20 @@ pub struct SpikeSourceConfig {
     /// Stop after this many planes (default: the scene's duration, or the whole recording).
     #[arg(long)]
     pub max_planes: Option<u64>,
+    /// Simulate the first N planes once (rounded up to whole chunks), then send them again and
+    /// again, numbered and timed as a live camera's: a camera that costs next to nothing to run,
+    /// for timing the stages after it (a real camera does not simulate). A static scene repeats
+    /// without a seam in its light; the spikes restart their phase at each turn.
+    #[arg(long, conflicts_with_all = ["file", "gt_every_planes"],
+          value_parser = clap::value_parser!(u64).range(1..=MAX_REPEAT_PLANES))]
+    pub repeat_planes: Option<u64>,
     /// The spike camera model's settings.
     #[command(flatten)]
     pub camera: CameraConfig,
 }
+
+/// The most planes `--repeat-planes` holds in memory: 2^16 (800 MiB of 400x250 planes).
+pub const MAX_REPEAT_PLANES: u64 = 1 << 16;
 
 fn parse_head_columns(s: &str) -> Result<usize, String> {
     match s.parse::<usize>() {
@@ -138,12 +148,12 @@ impl SpikeSource {
         let period_ns = cfg.camera.validate()?;
         let Some(path) = &cfg.file else {
             let cam = SpikeCamera::new(Scene::load(&cfg.scene)?, cfg.camera.clone())?;
-            return Ok(SpikeSource::Scene(Box::new(ScenePlayback::new(
-                cam,
-                cfg.max_planes,
-                cfg.chunk_planes,
-                cfg.gt_every_planes,
-            ))));
+            let mut playback =
+                ScenePlayback::new(cam, cfg.max_planes, cfg.chunk_planes, cfg.gt_every_planes);
+            if let Some(planes) = cfg.repeat_planes {
+                playback.repeat(planes);
+            }
+            return Ok(SpikeSource::Scene(Box::new(playback)));
         };
         let lum_per_rate = cfg.lum_per_rate.unwrap_or(DEFAULT_FILE_LUM_PER_RATE);
         if !(lum_per_rate.is_finite() && lum_per_rate > 0.0) {
@@ -190,10 +200,7 @@ impl SpikeSource {
     /// The recording could not be read up to there.
     pub fn skip_to(&mut self, plane: u64) -> Result<u64, SourceError> {
         match self {
-            SpikeSource::Scene(s) => {
-                s.skip_to(plane);
-                Ok(s.cam.tick())
-            }
+            SpikeSource::Scene(s) => Ok(s.skip_to(plane)),
             SpikeSource::File(f) => {
                 while f.sent < plane {
                     if f.next_step()?.is_none() {
@@ -247,6 +254,20 @@ pub struct ScenePlayback {
     gt_every: u64,
     seq: u64,
     gt_seq: u64,
+    tape: Option<Tape>,
+}
+
+/// The first planes of a camera, simulated once and played again and again
+/// ([`ScenePlayback::repeat`]).
+struct Tape {
+    /// The first chunk's header: geometry, clock and calibration.
+    header: SpikeChunk,
+    /// `planes` packed planes.
+    bits: Vec<u8>,
+    /// Planes on the tape (at least one).
+    planes: u64,
+    /// The next plane to send, counted from the first plane played.
+    next: u64,
 }
 
 impl ScenePlayback {
@@ -265,7 +286,31 @@ impl ScenePlayback {
             gt_every,
             seq: 0,
             gt_seq: 0,
+            tape: None,
         }
+    }
+
+    /// Simulates the next `planes` planes (rounded up to whole chunks, at least one chunk, at
+    /// most the planes to play) now, and from then on sends them in a loop instead of simulating
+    /// (`--repeat-planes`). Ground truth is not sent while repeating.
+    pub fn repeat(&mut self, planes: u64) {
+        let chunk = u64::from(self.chunk_planes);
+        let planes = planes
+            .max(1)
+            .div_ceil(chunk)
+            .saturating_mul(chunk)
+            .min(self.total.saturating_sub(self.cam.tick()))
+            .max(1);
+        let first = self.cam.tick();
+        let n = usize::try_from(planes).unwrap_or(usize::MAX);
+        let taped = self.cam.next_chunk(n, 0);
+        self.gt_every = 0;
+        self.tape = Some(Tape {
+            header: taped.header_only(),
+            bits: taped.bits,
+            planes,
+            next: first,
+        });
     }
 
     fn log_start(&self) {
@@ -280,18 +325,58 @@ impl ScenePlayback {
     /// Moves to the chunk boundary at or after plane `plane`, numbering chunks and ground truth
     /// as if every plane before had been sent: a camera switched back on (see
     /// [`SpikeCamera::jump_to`]).
-    fn skip_to(&mut self, plane: u64) {
+    fn skip_to(&mut self, plane: u64) -> u64 {
         let chunk = u64::from(self.chunk_planes);
         let plane = plane.div_ceil(chunk).saturating_mul(chunk);
-        self.cam.jump_to(plane);
         self.seq = plane / chunk;
+        if let Some(tape) = &mut self.tape {
+            tape.next = plane;
+            return plane;
+        }
+        self.cam.jump_to(plane);
         if self.gt_every > 0 {
             self.gt_seq = plane.div_ceil(self.gt_every);
         }
+        self.cam.tick()
+    }
+
+    /// The next chunk from the tape ([`ScenePlayback::repeat`]).
+    fn replay(&mut self) -> Option<SpikeStep> {
+        let tape = self.tape.as_mut()?;
+        if tape.next >= self.total {
+            return None;
+        }
+        let first = tape.next;
+        let n = (self.total - first).min(u64::from(self.chunk_planes));
+        let per = bytes_per_plane(tape.header.width, tape.header.height);
+        let mut bits = Vec::with_capacity(n as usize * per);
+        for k in first..first + n {
+            // k % planes < planes <= the tape's planes: in bounds
+            let at = (k % tape.planes) as usize * per;
+            bits.extend_from_slice(&tape.bits[at..at + per]);
+        }
+        let chunk = SpikeChunk {
+            first_plane: first,
+            n_planes: n as usize,
+            t_first_ns: self.cam.plane_time_ns(first),
+            seq: self.seq,
+            bits,
+            ..tape.header.header_only()
+        };
+        tape.next += n;
+        self.seq += 1;
+        Some(SpikeStep {
+            due_ns: chunk_due_ns(&chunk),
+            chunk,
+            truth: Vec::new(),
+        })
     }
 
     /// The next chunk and the ground truth at its planes, or `None` after the last plane.
     pub fn next_step(&mut self) -> Option<SpikeStep> {
+        if self.tape.is_some() {
+            return self.replay();
+        }
         let cam = &mut self.cam;
         if cam.tick() >= self.total {
             return None;
@@ -693,7 +778,6 @@ impl Stage for SpikeSourceStage {
 mod tests {
     use super::*;
     use neuspike_formats::pku::PkuWriter;
-    use neuspike_schemas::bytes_per_plane;
 
     fn config(file: Option<PathBuf>) -> SpikeSourceConfig {
         SpikeSourceConfig {
@@ -708,6 +792,7 @@ mod tests {
             chunk_planes: 20,
             gt_every_planes: 20,
             max_planes: Some(45),
+            repeat_planes: None,
             camera: CameraConfig {
                 width: 16,
                 height: 8,
@@ -718,6 +803,60 @@ mod tests {
 
     fn steps(source: &mut SpikeSource) -> Vec<SpikeStep> {
         std::iter::from_fn(|| source.next_step().expect("step")).collect()
+    }
+
+    /// `--repeat-planes`: the first planes simulated once, then sent in a loop with the clock,
+    /// plane numbers and sequence of a live camera, no ground truth; the last chunk short.
+    #[test]
+    fn a_repeating_camera_sends_its_tape_again_on_the_cameras_clock() {
+        let mut cfg = config(None);
+        cfg.gt_every_planes = 0;
+        cfg.max_planes = Some(105);
+        let simulated = steps(&mut SpikeSource::open(&cfg).expect("open"));
+        cfg.repeat_planes = Some(25); // rounded up to two chunks of 20
+        let mut source = SpikeSource::open(&cfg).expect("open");
+        assert!(!source.sends_truth());
+        let repeated = steps(&mut source);
+        assert_eq!(repeated.len(), simulated.len());
+        let per = bytes_per_plane(16, 8);
+        let tape: Vec<u8> = simulated[..2]
+            .iter()
+            .flat_map(|s| s.chunk.bits.clone())
+            .collect();
+        for (r, s) in repeated.iter().zip(&simulated) {
+            let (r, s) = (&r.chunk, &s.chunk);
+            assert_eq!(
+                (
+                    r.seq,
+                    r.first_plane,
+                    r.n_planes,
+                    r.t_first_ns,
+                    r.plane_period_ns
+                ),
+                (
+                    s.seq,
+                    s.first_plane,
+                    s.n_planes,
+                    s.t_first_ns,
+                    s.plane_period_ns
+                )
+            );
+            assert_eq!(r.lum_per_rate, s.lum_per_rate);
+            for i in 0..r.n_planes {
+                let k = (r.first_plane as usize + i) % 40;
+                assert_eq!(r.plane_bits(i), &tape[k * per..(k + 1) * per], "plane {k}");
+            }
+        }
+        assert_eq!(repeated.last().map(|s| s.chunk.n_planes), Some(5));
+        assert!(repeated.iter().all(|s| s.truth.is_empty()));
+        // the tape is not all dark: the loop repeats real spikes
+        assert!(tape.iter().any(|&b| b != 0));
+        // a restarted camera goes on from a plane on the tape's clock
+        let mut source = SpikeSource::open(&cfg).expect("open");
+        assert_eq!(source.skip_to(50).expect("skip"), 60);
+        let next = source.next_step().expect("step").expect("a chunk");
+        assert_eq!((next.chunk.seq, next.chunk.first_plane), (3, 60));
+        assert_eq!(next.chunk.plane_bits(0), &tape[20 * per..21 * per]);
     }
 
     #[test]
