@@ -78,10 +78,26 @@ impl ZenohArgs {
     /// The file cannot be read or is not a zenoh configuration; an endpoint is malformed.
     pub fn config(&self) -> Result<zenoh::Config, SessionError> {
         if let Some(path) = &self.zenoh_config {
-            return zenoh::Config::from_file(path).map_err(|e| SessionError::File {
+            let mut c = zenoh::Config::from_file(path).map_err(|e| SessionError::File {
                 path: path.clone(),
                 reason: e.to_string(),
-            });
+            })?;
+            // The file's own limit on a message stands, unless it is zenoh's default (1 GiB) or
+            // --max-message-bytes says otherwise.
+            let key = "transport/link/rx/max_message_size";
+            let zenoh_default = zenoh::Config::default().get_json(key).ok();
+            if self.max_message_bytes.is_some() || c.get_json(key).ok() == zenoh_default {
+                let v = self
+                    .max_message_bytes
+                    .unwrap_or(MAX_MESSAGE_BYTES)
+                    .to_string();
+                c.insert_json5(key, &v).map_err(|e| SessionError::Setting {
+                    key: key.to_string(),
+                    value: v,
+                    reason: e.to_string(),
+                })?;
+            }
+            return Ok(c);
         }
         let list = |v: &[String], default: &str| -> String {
             if v.is_empty() {
@@ -192,6 +208,35 @@ mod tests {
             e.starts_with("/nonexistent/z.json5: not a zenoh configuration"),
             "{e}"
         );
+    }
+
+    /// A configuration file that leaves zenoh's 1 GiB limit on a message gets neuspike's;
+    /// one that sets its own keeps it, unless `--max-message-bytes` is given.
+    #[test]
+    fn a_configuration_file_gets_the_message_limit_unless_it_sets_one() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (bare, own) = (dir.path().join("bare.json5"), dir.path().join("own.json5"));
+        std::fs::write(&bare, "{ mode: \"peer\" }").expect("write");
+        std::fs::write(
+            &own,
+            "{ mode: \"peer\", transport: { link: { rx: { max_message_size: 1000 } } } }",
+        )
+        .expect("write");
+        let limit = |path: &std::path::Path, flag: Option<usize>| {
+            ZenohArgs {
+                zenoh_config: Some(path.to_path_buf()),
+                max_message_bytes: flag,
+                ..ZenohArgs::default()
+            }
+            .config()
+            .expect("config")
+            .get_json("transport/link/rx/max_message_size")
+            .expect("limit")
+        };
+        assert_eq!(limit(&bare, None), MAX_MESSAGE_BYTES.to_string());
+        assert_eq!(limit(&own, None), "1000");
+        assert_eq!(limit(&own, Some(5000)), "5000");
+        assert_eq!(limit(&bare, Some(5000)), "5000");
     }
 
     /// Two sessions on loopback, the second dialling the first.
