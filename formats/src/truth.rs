@@ -4,7 +4,7 @@
 //! allowed), planes strictly increasing, each file a name inside the folder. `neuspike simulate`
 //! writes such a folder (`ground-truth/`); the spike source plays it beside the planes.
 
-use std::io::Write;
+use std::io::{Read, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
@@ -12,6 +12,9 @@ use std::path::{Path, PathBuf};
 pub const LIST: &str = "timestamps.txt";
 /// The list's first line, naming its columns.
 pub const HEADER: &str = "# plane t_ns file";
+/// The largest list read: 64 MiB, over a million frames' lines. A longer file is refused before
+/// it is read whole.
+pub const MAX_LIST_BYTES: u64 = 64 << 20;
 
 /// Why a ground-truth list could not be read. Each names the file, and the line with its text.
 #[derive(Debug, thiserror::Error)]
@@ -24,6 +27,14 @@ pub enum TruthError {
         /// The I/O error.
         #[source]
         source: std::io::Error,
+    },
+    /// The list is longer than [`MAX_LIST_BYTES`].
+    #[error("{}: longer than {limit} bytes, the most a ground-truth list may hold", path.display())]
+    TooLong {
+        /// `timestamps.txt`.
+        path: PathBuf,
+        /// [`MAX_LIST_BYTES`].
+        limit: u64,
     },
     /// A line that is not a valid entry.
     #[error("{} line {line}: `{text}`: {why}", path.display())]
@@ -53,10 +64,20 @@ impl TruthList {
     /// increase, or a file name leaving the folder is an error naming the line and its text.
     pub fn open(dir: &Path) -> Result<Self, TruthError> {
         let path = dir.join(LIST);
-        let text = std::fs::read_to_string(&path).map_err(|source| TruthError::Read {
+        let read_error = |source| TruthError::Read {
             path: path.clone(),
             source,
-        })?;
+        };
+        let mut text = String::new();
+        std::fs::File::open(&path)
+            .and_then(|f| f.take(MAX_LIST_BYTES + 1).read_to_string(&mut text))
+            .map_err(read_error)?;
+        if text.len() as u64 > MAX_LIST_BYTES {
+            return Err(TruthError::TooLong {
+                path,
+                limit: MAX_LIST_BYTES,
+            });
+        }
         let mut frames: Vec<(u64, PathBuf)> = Vec::new();
         for (i, line) in text.lines().enumerate() {
             let line = line.trim();
@@ -161,6 +182,28 @@ mod tests {
                 (20, dir.path().join("000020.png"))
             ]
         );
+    }
+
+    #[test]
+    fn a_list_longer_than_the_limit_is_refused_by_name() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let f = std::fs::File::create(dir.path().join(LIST)).expect("create");
+        // sparse: the bytes read are what the limit lets through, not what the file claims
+        f.set_len(MAX_LIST_BYTES + 1).expect("length");
+        let e = TruthList::open(dir.path())
+            .expect_err("too long")
+            .to_string();
+        assert!(
+            e.ends_with(
+                "timestamps.txt: longer than 67108864 bytes, the most a ground-truth list may hold"
+            ),
+            "{e}"
+        );
+        f.set_len(10).expect("length");
+        let e = TruthList::open(dir.path())
+            .expect_err("NUL bytes are not a line")
+            .to_string();
+        assert!(e.contains("line 1"), "{e}");
     }
 
     #[test]

@@ -33,7 +33,7 @@ impl Truth {
                 .map(Truth::Folder)
                 .map_err(|e| match &e {
                     TruthError::Read { source, .. } => format!("{e}: {source}"),
-                    TruthError::Line { .. } => e.to_string(),
+                    TruthError::Line { .. } | TruthError::TooLong { .. } => e.to_string(),
                 });
         }
         match sniff(path).map_err(|e| e.to_string())? {
