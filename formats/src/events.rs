@@ -73,6 +73,13 @@ pub const MAX_PACKET_BYTES: usize = 64 << 20;
 /// file, a damaged one) from being read whole into one line.
 pub const MAX_LINE_BYTES: usize = 4 * 1024;
 
+/// The most events one packet of a word stream may hold unless
+/// [`ReadOptions::max_events_per_packet`] says otherwise: 2^22 (4,194,304; 54 MB of events). A
+/// camera's driver sends a packet every millisecond or so, a few thousand to a few hundred thousand
+/// events; EVT 3.0 vector words can make 6 events of each byte, so without it one 64 MiB message
+/// would make 400 million.
+pub const MAX_EVENTS_PER_PACKET: usize = 1 << 22;
+
 /// How to read an event file.
 #[derive(Clone, Debug)]
 pub struct ReadOptions {
@@ -95,6 +102,10 @@ pub struct ReadOptions {
     /// Text: the most bytes one line may take (its line feed excluded); a longer line, or a file
     /// without a line feed, is an error naming the line. Default [`MAX_LINE_BYTES`].
     pub max_line_bytes: usize,
+    /// Packets of a word stream (EVT 3.0 in ROS 2 `EventPacket`s): the most events one packet
+    /// may hold; a packet that holds more is an error naming this limit. Default
+    /// [`MAX_EVENTS_PER_PACKET`].
+    pub max_events_per_packet: usize,
 }
 
 impl Default for ReadOptions {
@@ -106,6 +117,7 @@ impl Default for ReadOptions {
             allow_unknown_size: false,
             max_packet_bytes: MAX_PACKET_BYTES,
             max_line_bytes: MAX_LINE_BYTES,
+            max_events_per_packet: MAX_EVENTS_PER_PACKET,
         }
     }
 }

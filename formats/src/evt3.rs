@@ -399,6 +399,8 @@ impl Evt3Decoder {
     }
 }
 
+pub use crate::events::MAX_EVENTS_PER_PACKET;
+
 /// Pixels one `VECT_BASE_X, VECT_12, VECT_12, VECT_8` group covers.
 const VECTOR_SPAN: u16 = 32;
 
@@ -410,7 +412,12 @@ pub struct Evt3Stream {
     decoder: Evt3Decoder,
     sink: Sink,
     offset: u64,
+    max_events: usize,
 }
+
+/// Bytes of a packet decoded at a time, the events checked against the packet's limit between
+/// them: at most 6 events a byte, so a packet stops within 393,216 events of its limit.
+const STREAM_SLICE_BYTES: usize = 1 << 16;
 
 impl Evt3Stream {
     /// A stream from a sensor of `resolution`, named `name` in errors.
@@ -423,10 +430,14 @@ impl Evt3Stream {
             decoder: Evt3Decoder::default(),
             sink: Sink::new(name.into(), crate::events::Bounds::Sensor(resolution), opts),
             offset: 0,
+            max_events: opts.max_events_per_packet,
         }
     }
 
     /// Decodes the whole words of `packet`, appending their events to `out`; returns how many.
+    /// The packet is decoded a slice at a time and refused once it holds more events than
+    /// [`crate::ReadOptions::max_events_per_packet`]: as with every error here, the events
+    /// decoded before it are returned first and the error on the next call.
     ///
     /// # Errors
     /// A packet of an odd length, an event outside the sensor, time running backwards (under
@@ -444,16 +455,30 @@ impl Evt3Stream {
             decoder,
             sink,
             offset,
+            max_events,
         } = self;
-        let start = *offset;
+        let (start, max_events) = (*offset, *max_events);
         let n = sink.read_with(out, usize::MAX, |sink, out| {
+            let first = out.len();
             let mut pos = 0usize;
             while pos < packet.len() {
-                let used = decoder.decode(&packet[pos..], start + pos as u64, sink, out)?;
+                let end = pos.saturating_add(STREAM_SLICE_BYTES).min(packet.len());
+                let used = decoder.decode(&packet[pos..end], start + pos as u64, sink, out)?;
                 if used == 0 {
                     break;
                 }
                 pos += used;
+                if out.len() - first > max_events {
+                    return Err(crate::FormatError::Corrupt {
+                        path: sink.path.clone(),
+                        offset: start + pos as u64,
+                        what: format!(
+                            "a packet of {} bytes holds more than {max_events} events, the most \
+                             a packet may hold (ReadOptions::max_events_per_packet)",
+                            packet.len()
+                        ),
+                    });
+                }
             }
             Ok(())
         })?;
@@ -848,6 +873,61 @@ mod tests {
             .expect_err("odd")
             .to_string();
         assert!(e.contains("ros2:/events") && e.contains("3 bytes"), "{e}");
+    }
+
+    /// A packet may hold at most `max_events_per_packet` events: one more is an error naming the
+    /// limit, found within a slice of the packet (the memory taken is bounded by the limit, not by
+    /// the packet); a packet larger than a slice decodes as the whole.
+    #[test]
+    fn a_packet_holds_at_most_its_limit_of_events() {
+        let res = Resolution::new(320, 240);
+        let mut batch = EventBatch::empty(320, 240, 0, 10_000_000, 0);
+        // Full rows: 320 events at each of 5,000 instants, in vector words.
+        for t in 0..5_000i64 {
+            for x in 0..320u16 {
+                batch.push(Event {
+                    t_ns: 1_000 * t,
+                    x,
+                    y: (t % 240) as u16,
+                    polarity: 1,
+                });
+            }
+        }
+        let words = packet_words(&batch, res).expect("words");
+        assert!(
+            words.len() > 2 * STREAM_SLICE_BYTES,
+            "{} bytes",
+            words.len()
+        );
+        let opts = |max| crate::ReadOptions {
+            max_events_per_packet: max,
+            ..crate::ReadOptions::default()
+        };
+        let mut out = EventBatch::empty(320, 240, 0, 0, 0);
+        let n = Evt3Stream::new("p", res, &opts(batch.len()))
+            .decode(&words, &mut out)
+            .expect("exactly the limit");
+        assert_eq!((n, &out.x, &out.t_ns), (batch.len(), &batch.x, &batch.t_ns));
+        // Over the limit: what was decoded up to the slice that crossed it is kept (as with any
+        // error of a stream), then the error, and the stream is over.
+        let mut out = EventBatch::empty(320, 240, 0, 0, 0);
+        let mut stream = Evt3Stream::new("ros2:/events", res, &opts(10_000));
+        let n = stream
+            .decode(&words, &mut out)
+            .expect("the events before the error");
+        assert!(
+            n > 10_000 && n <= 10_000 + 6 * STREAM_SLICE_BYTES,
+            "{n} events held"
+        );
+        let e = stream
+            .decode(&words, &mut out)
+            .expect_err("over the limit")
+            .to_string();
+        assert!(
+            e.starts_with("ros2:/events: byte ") && e.contains("more than 10000 events"),
+            "{e}"
+        );
+        assert_eq!(out.len(), n);
     }
 
     #[test]
