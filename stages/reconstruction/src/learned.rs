@@ -184,11 +184,105 @@ pub struct LearnedModel {
     buffers: Vec<Arc<Tensor>>,
 }
 
+/// `f()`, with a panic inside it (tract on a file it does not expect) turned into an
+/// [`InferError::Model`] naming the file, what was being done and the panic's message.
+fn caught<T>(
+    path: &Path,
+    doing: &str,
+    f: impl FnOnce() -> Result<T, InferError>,
+) -> Result<T, InferError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|panic| {
+        let why = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "no message".into());
+        Err(model_error(path, format!("tract failed {doing}: {why}")))
+    })
+}
+
 fn model_error(path: &Path, reason: impl std::fmt::Display) -> InferError {
     InferError::Model {
         path: path.to_path_buf(),
         reason: reason.to_string(),
     }
+}
+
+/// The largest model file read: 512 MiB (the shipped networks take 1 to 10 MB). A larger file is
+/// refused before it is read whole.
+pub const MAX_MODEL_BYTES: u64 = 512 << 20;
+
+/// Bytes of one element of an ONNX tensor type: FLOAT16/BFLOAT16 2, the 8-bit types 1, the rest
+/// up to 16 (COMPLEX128); an unknown type counts 1, so that no claim is underestimated.
+fn element_bytes(data_type: i32) -> u128 {
+    match data_type {
+        11 | 7 | 13 | 14 => 8, // DOUBLE, INT64, UINT64, COMPLEX64
+        1 | 6 | 12 => 4,       // FLOAT, INT32, UINT32
+        10 | 16 | 5 | 4 => 2,  // FLOAT16, BFLOAT16, INT16, UINT16
+        15 => 16,              // COMPLEX128
+        _ => 1,
+    }
+}
+
+/// Checks that every tensor stored in `graph` (initializers, and tensors in node attributes,
+/// subgraphs included) holds the bytes its dimensions claim, and that none is stored outside
+/// the file or sparse: what tract would otherwise allocate from a claim (a few bytes claiming a
+/// tensor of terabytes) is refused first, naming the tensor.
+fn check_tensors(graph: &tract_onnx::pb::GraphProto) -> Result<(), String> {
+    let check = |t: &tract_onnx::pb::TensorProto| -> Result<(), String> {
+        let name = if t.name.is_empty() {
+            "(unnamed)"
+        } else {
+            t.name.as_str()
+        };
+        if !t.external_data.is_empty() || t.data_location == Some(1) {
+            return Err(format!(
+                "tensor `{name}` is stored outside the file; neuspike reads one file"
+            ));
+        }
+        let mut elements: u128 = 1;
+        for &d in &t.dims {
+            let d = u128::try_from(d).map_err(|_| format!("tensor `{name}` has dimension {d}"))?;
+            elements = elements.saturating_mul(d);
+        }
+        let held = t.raw_data.len() as u128
+            + 4 * (t.float_data.len() + t.int32_data.len()) as u128
+            + 8 * (t.int64_data.len() + t.double_data.len() + t.uint64_data.len()) as u128
+            + t.string_data
+                .iter()
+                .map(|s| s.len() as u128 + 1)
+                .sum::<u128>();
+        let claimed = elements.saturating_mul(element_bytes(t.data_type));
+        // int32_data packs the 1- and 2-byte types one element to 4 bytes: never fewer bytes
+        // held than claimed for a genuine tensor.
+        if claimed > held {
+            return Err(format!(
+                "tensor `{name}` claims {:?} ({claimed} bytes) but holds {held} bytes",
+                t.dims
+            ));
+        }
+        Ok(())
+    };
+    if !graph.sparse_initializer.is_empty() {
+        return Err("sparse initializers are not read".into());
+    }
+    for t in &graph.initializer {
+        check(t)?;
+    }
+    for node in &graph.node {
+        for a in &node.attribute {
+            if a.sparse_tensor.is_some() || !a.sparse_tensors.is_empty() {
+                return Err(format!("node `{}`: sparse tensors are not read", node.name));
+            }
+            for t in a.t.iter().chain(&a.tensors) {
+                check(t)?;
+            }
+            for g in a.g.iter().chain(&a.graphs) {
+                check_tensors(g)?;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// `f` of an error chain, one line.
@@ -203,11 +297,41 @@ impl LearnedModel {
     /// # Errors
     /// [`InferError::Model`] naming the file and the problem.
     pub fn load(path: &Path) -> Result<LearnedModel, InferError> {
-        let bytes =
-            std::fs::read(path).map_err(|e| model_error(path, format!("cannot read: {e}")))?;
-        let model = tract_onnx::onnx()
-            .model_for_read(&mut bytes.as_slice())
-            .map_err(|e| model_error(path, format!("not a readable ONNX model: {}", chain(&e))))?;
+        Self::load_at_most(path, MAX_MODEL_BYTES)
+    }
+
+    /// [`LearnedModel::load`] with a limit on the file's size other than [`MAX_MODEL_BYTES`].
+    /// The file is untrusted: it is read up to the limit, every stored tensor must hold the bytes
+    /// its dimensions claim, and a panic inside tract while it is read is an error naming the
+    /// file, not the end of the program.
+    ///
+    /// # Errors
+    /// [`InferError::Model`] naming the file and the problem.
+    pub fn load_at_most(path: &Path, max_bytes: u64) -> Result<LearnedModel, InferError> {
+        use std::io::Read;
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(max_bytes.saturating_add(1)).read_to_end(&mut bytes))
+            .map_err(|e| model_error(path, format!("cannot read: {e}")))?;
+        if bytes.len() as u64 > max_bytes {
+            return Err(model_error(
+                path,
+                format!("larger than {max_bytes} bytes, the most a model file may be"),
+            ));
+        }
+        let model = caught(path, "reading it", || {
+            let onnx = tract_onnx::onnx();
+            let unreadable = |e: TractError| {
+                model_error(path, format!("not a readable ONNX model: {}", chain(&e)))
+            };
+            let proto = onnx
+                .proto_model_for_read(&mut bytes.as_slice())
+                .map_err(unreadable)?;
+            if let Some(graph) = &proto.graph {
+                check_tensors(graph).map_err(|r| model_error(path, r))?;
+            }
+            onnx.model_for_proto_model(&proto).map_err(unreadable)
+        })?;
         let mut inputs = Vec::new();
         let mut channels = Vec::new();
         for (i, outlet) in model
@@ -351,28 +475,31 @@ impl LearnedModel {
         )])
         .map_err(|e| model_error(&self.path, chain(&e)))?;
         let n_inputs = self.inputs.len();
-        let (runnable, first) = scope
-            .enter(|| {
-                let mut model = model.into_typed()?.into_decluttered()?;
-                let mut first = vec![None; n_inputs];
-                if path == ConvPath::Blocked {
-                    neuspike_tract_ops::conv3x3::use_conv3x3(
-                        &mut model,
-                        neuspike_tract_ops::conv3x3::MIN_WIDTH,
-                    )?;
-                    neuspike_tract_ops::deconv2x2::use_deconv2x2(&mut model)?;
-                    neuspike_tract_ops::attention::use_spatial_attention(&mut model)?;
-                    neuspike_tract_ops::attention::use_scaled_sums(&mut model)?;
-                    first = neuspike_tract_ops::conv3x3::take_first_convolutions(&mut model)?;
-                }
-                Ok((model.into_optimized()?.into_runnable()?, first))
-            })
-            .map_err(|e: TractError| {
-                model_error(
-                    &self.path,
-                    format!("cannot be planned at {h}x{w} ({path}): {}", chain(&e)),
-                )
-            })?;
+        let doing = format!("planning it at {h}x{w}");
+        let (runnable, first) = caught(&self.path, &doing, || {
+            scope
+                .enter(|| {
+                    let mut model = model.into_typed()?.into_decluttered()?;
+                    let mut first = vec![None; n_inputs];
+                    if path == ConvPath::Blocked {
+                        neuspike_tract_ops::conv3x3::use_conv3x3(
+                            &mut model,
+                            neuspike_tract_ops::conv3x3::MIN_WIDTH,
+                        )?;
+                        neuspike_tract_ops::deconv2x2::use_deconv2x2(&mut model)?;
+                        neuspike_tract_ops::attention::use_spatial_attention(&mut model)?;
+                        neuspike_tract_ops::attention::use_scaled_sums(&mut model)?;
+                        first = neuspike_tract_ops::conv3x3::take_first_convolutions(&mut model)?;
+                    }
+                    Ok((model.into_optimized()?.into_runnable()?, first))
+                })
+                .map_err(|e: TractError| {
+                    model_error(
+                        &self.path,
+                        format!("cannot be planned at {h}x{w} ({path}): {}", chain(&e)),
+                    )
+                })
+        })?;
         Ok(Arc::new(Planned { runnable, first }))
     }
 

@@ -163,6 +163,36 @@ fn a_missing_or_corrupt_file_is_refused_by_name() {
     }
 }
 
+/// A model file is untrusted: a tensor that claims more bytes than it holds (here 4 TiB from none)
+/// is refused by name before tract allocates it, and a file over the size limit is refused
+/// before it is read whole.
+#[test]
+fn a_model_is_read_within_what_its_bytes_hold() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut proto = tract_onnx::onnx()
+        .proto_model_for_path(&shipped()[0])
+        .expect("proto");
+    let graph = proto.graph.as_mut().expect("graph");
+    let t = graph.initializer.first_mut().expect("an initializer");
+    t.dims = vec![1 << 20, 1 << 20];
+    let name = t.name.clone();
+    let p = dir.path().join("claims.onnx");
+    std::fs::write(&p, proto.encode_to_vec()).expect("write");
+    let (path, reason) = model_error(LearnedModel::load(&p).expect_err("a forged tensor"));
+    assert_eq!(path, p);
+    assert!(
+        reason.contains(&format!("tensor `{name}` claims [1048576, 1048576]"))
+            && reason.contains("4398046511104 bytes"),
+        "{reason}"
+    );
+    let size = std::fs::metadata(&shipped()[0]).expect("size").len();
+    let (_, reason) = model_error(
+        LearnedModel::load_at_most(&shipped()[0], size - 1).expect_err("one byte too many"),
+    );
+    assert!(reason.contains(&format!("larger than {} bytes", size - 1)), "{reason}");
+    LearnedModel::load_at_most(&shipped()[0], size).expect("exactly the limit");
+}
+
 enum Io {
     Input,
     Output,
