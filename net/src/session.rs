@@ -77,6 +77,18 @@ impl ZenohArgs {
     /// # Errors
     /// The file cannot be read or is not a zenoh configuration; an endpoint is malformed.
     pub fn config(&self) -> Result<zenoh::Config, SessionError> {
+        let set = |c: &mut zenoh::Config, k: &str, v: &str| {
+            c.insert_json5(k, v).map_err(|e| SessionError::Setting {
+                key: k.to_string(),
+                value: v.to_string(),
+                reason: e.to_string(),
+            })
+        };
+        let max_message = "transport/link/rx/max_message_size";
+        let max_message_bytes = self
+            .max_message_bytes
+            .unwrap_or(MAX_MESSAGE_BYTES)
+            .to_string();
         if let Some(path) = &self.zenoh_config {
             let mut c = zenoh::Config::from_file(path).map_err(|e| SessionError::File {
                 path: path.clone(),
@@ -84,18 +96,9 @@ impl ZenohArgs {
             })?;
             // The file's own limit on a message stands, unless it is zenoh's default (1 GiB) or
             // --max-message-bytes says otherwise.
-            let key = "transport/link/rx/max_message_size";
-            let zenoh_default = zenoh::Config::default().get_json(key).ok();
-            if self.max_message_bytes.is_some() || c.get_json(key).ok() == zenoh_default {
-                let v = self
-                    .max_message_bytes
-                    .unwrap_or(MAX_MESSAGE_BYTES)
-                    .to_string();
-                c.insert_json5(key, &v).map_err(|e| SessionError::Setting {
-                    key: key.to_string(),
-                    value: v,
-                    reason: e.to_string(),
-                })?;
+            let zenoh_default = zenoh::Config::default().get_json(max_message).ok();
+            if self.max_message_bytes.is_some() || c.get_json(max_message).ok() == zenoh_default {
+                set(&mut c, max_message, &max_message_bytes)?;
             }
             return Ok(c);
         }
@@ -107,28 +110,21 @@ impl ZenohArgs {
             }
         };
         let mut c = zenoh::Config::default();
-        let mut set = |k: &str, v: &str| {
-            c.insert_json5(k, v).map_err(|e| SessionError::Setting {
-                key: k.to_string(),
-                value: v.to_string(),
-                reason: e.to_string(),
-            })
-        };
-        set("mode", "\"peer\"")?;
-        set("listen/endpoints", &list(&self.listen, "tcp/127.0.0.1:0"))?;
+        set(&mut c, "mode", "\"peer\"")?;
         set(
+            &mut c,
+            "listen/endpoints",
+            &list(&self.listen, "tcp/127.0.0.1:0"),
+        )?;
+        set(
+            &mut c,
             "connect/endpoints",
             &list(&self.connect, "tcp/127.0.0.1:7447"),
         )?;
-        set("scouting/multicast/enabled", "false")?;
+        set(&mut c, "scouting/multicast/enabled", "false")?;
+        set(&mut c, max_message, &max_message_bytes)?;
         set(
-            "transport/link/rx/max_message_size",
-            &self
-                .max_message_bytes
-                .unwrap_or(MAX_MESSAGE_BYTES)
-                .to_string(),
-        )?;
-        set(
+            &mut c,
             "transport/link/tx/queue/congestion_control/block/wait_before_close",
             &(BLOCK_WAIT_S * 1_000_000).to_string(),
         )?;

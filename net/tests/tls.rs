@@ -32,10 +32,15 @@ fn authority(name: &str) -> Authority {
     }
 }
 
-/// Writes `<name>.pem` and `<name>.key` in `dir`: a certificate for the host `localhost` whose
-/// common name is `name`, signed by `ca`.
-fn machine(dir: &Path, ca: &Authority, name: &str) {
-    let mut params = CertificateParams::new(vec!["localhost".to_string()]).expect("params");
+/// Writes `<name>.pem` and `<name>.key` in `dir`: a certificate for the host `localhost` (and the
+/// address `at`, where given) whose common name is `name`, signed by `ca`.
+fn machine(dir: &Path, ca: &Authority, name: &str, at: Option<&str>) {
+    let hosts: Vec<String> = ["localhost"]
+        .into_iter()
+        .chain(at)
+        .map(String::from)
+        .collect();
+    let mut params = CertificateParams::new(hosts).expect("params");
     params.distinguished_name.push(DnType::CommonName, name);
     let key = KeyPair::generate().expect("key");
     let cert = params.signed_by(&key, &ca.issuer).expect("certificate");
@@ -64,7 +69,7 @@ fn session(
     .config()
     .expect("the shipped configuration");
     let path = |f: String| format!("{:?}", dir.join(f).display().to_string());
-    let json = |v: &[String]| serde_list(v);
+    let json = |v: &[String]| format!("{v:?}");
     for (k, v) in [
         (
             "transport/link/tls/root_ca_certificate",
@@ -95,11 +100,6 @@ fn session(
     zenoh::open(c).wait().expect("the session opens")
 }
 
-fn serde_list(v: &[String]) -> String {
-    let items: Vec<String> = v.iter().map(|s| format!("{s:?}")).collect();
-    format!("[{}]", items.join(","))
-}
-
 /// What `sub` received within `wait`, as text.
 fn received(
     sub: &zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
@@ -126,14 +126,14 @@ fn only_the_rigs_compute_machine_reads_and_only_its_camera_publishes() {
     let rig = authority("rig");
     std::fs::write(dir.path().join("rig-ca.pem"), &rig.pem).expect("write");
     for name in ["camera", "compute", "viewer"] {
-        machine(dir.path(), &rig, name);
+        machine(dir.path(), &rig, name, None);
     }
     // An intruder with a certificate of its own authority, named as the compute machine.
     let own = authority("intruder");
     std::fs::write(dir.path().join("own-ca.pem"), &own.pem).expect("write");
     let intruder_dir = dir.path().join("intruder");
     std::fs::create_dir(&intruder_dir).expect("mkdir");
-    machine(&intruder_dir, &own, "compute");
+    machine(&intruder_dir, &own, "compute", None);
     std::fs::copy(
         dir.path().join("own-ca.pem"),
         intruder_dir.join("own-ca.pem"),
@@ -380,20 +380,13 @@ fn across_a_network_link_an_unauthenticated_peer_neither_publishes_nor_reads() {
     let rig = authority("rig");
     std::fs::write(dir.path().join("rig-ca.pem"), &rig.pem).expect("write");
     for name in ["camera", "compute"] {
-        let mut params =
-            CertificateParams::new(vec![hosts.camera_addr.clone(), "localhost".into()])
-                .expect("params");
-        params.distinguished_name.push(DnType::CommonName, name);
-        let key = KeyPair::generate().expect("key");
-        let cert = params.signed_by(&key, &rig.issuer).expect("certificate");
-        std::fs::write(dir.path().join(format!("{name}.pem")), cert.pem()).expect("write");
-        std::fs::write(dir.path().join(format!("{name}.key")), key.serialize_pem()).expect("write");
+        machine(dir.path(), &rig, name, Some(&hosts.camera_addr));
     }
     let own = authority("intruder");
     let intruder_dir = dir.path().join("intruder");
     std::fs::create_dir(&intruder_dir).expect("mkdir");
     std::fs::write(intruder_dir.join("own-ca.pem"), &own.pem).expect("write");
-    machine(&intruder_dir, &own, "compute");
+    machine(&intruder_dir, &own, "compute", None);
     let at = format!("tls/{}:7450", hosts.camera_addr);
     let exe = std::env::current_exe().expect("the test program");
     let spawn = |ns: &str, role: &str| {

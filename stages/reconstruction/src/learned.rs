@@ -213,7 +213,8 @@ fn model_error(path: &Path, reason: impl std::fmt::Display) -> InferError {
 pub const MAX_MODEL_BYTES: u64 = 512 << 20;
 
 /// Bytes of one element of an ONNX tensor type: FLOAT16/BFLOAT16 2, the 8-bit types 1, the rest
-/// up to 16 (COMPLEX128); an unknown type counts 1, so that no claim is underestimated.
+/// up to 16 (COMPLEX128); an unknown type counts 1, the least, so that no genuine tensor is
+/// refused.
 fn element_bytes(data_type: i32) -> u128 {
     match data_type {
         11 | 7 | 13 | 14 => 8, // DOUBLE, INT64, UINT64, COMPLEX64

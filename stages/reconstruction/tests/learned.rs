@@ -189,7 +189,10 @@ fn a_model_is_read_within_what_its_bytes_hold() {
     let (_, reason) = model_error(
         LearnedModel::load_at_most(&shipped()[0], size - 1).expect_err("one byte too many"),
     );
-    assert!(reason.contains(&format!("larger than {} bytes", size - 1)), "{reason}");
+    assert!(
+        reason.contains(&format!("larger than {} bytes", size - 1)),
+        "{reason}"
+    );
     LearnedModel::load_at_most(&shipped()[0], size).expect("exactly the limit");
 }
 
