@@ -117,6 +117,48 @@ def ros2() -> None:
         put("ros2_cdr", name, bytes(store.serialize_cdr(p, "event_camera_msgs/msg/EventPacket")))
 
 
+def yaml() -> None:
+    """The graphs and the policy shipped, and graphs of the shapes `neuspike run` derives: one
+    process for several stages, a foreign node with declared types, credits written out."""
+    for f in sorted((ROOT / "graphs").glob("*.yml")) + sorted((ROOT / "examples").glob("*/graph.yml")):
+        put("graph", f"{f.parent.name}-{f.name}", f.read_bytes())
+    put("graph", "processes.yml", b"""nodes:
+  - id: camera
+    path: neuspike-spike-source
+    args: --scene bright-slow
+  - id: align
+    path: neuspike-align
+    inputs: {spikes: camera/spikes}
+  - id: represent
+    path: neuspike-represent
+    inputs: {windows: align/windows}
+  - id: viewer
+    path: python3
+    args: view.py
+    inputs: {frames: {source: represent/tfp, queue_size: 2}}
+    input_types: {frames: neuspike/messages/v1/Frame}
+processes:
+  core: [camera, align, represent]
+""")
+    put("policy", "policy.yml", (ROOT / "models" / "policy.yml").read_bytes())
+    put("policy", "small.yml", b"""version: 2
+provenance: {command: fuzz, data: none, date: '2026-12-05'}
+db_per_ms: 0.5
+scale: [0.3, 0.3, 1.0, 0.3, 0.3]
+neighbours: 3
+classes:
+  - class: dark
+    method: tfp-33
+    psnr_db: 20.0
+    best_psnr_db: 24.0
+    ranked:
+      - {method: tfp-33, psnr_db: 20.0, ms: 1.0}
+      - {method: neuspike-spike-8, psnr_db: 24.0, ms: 10.0}
+rows:
+  - {class: dark, rate: 0.01, event_rate: 0.0, change: 0.1, spread_decades: 1.0, edge: 0.1}
+""")
+
+
 if __name__ == "__main__":
     shutil.rmtree(HERE / "corpus", ignore_errors=True)
     recordings()
@@ -124,5 +166,6 @@ if __name__ == "__main__":
     npy()
     messages()
     ros2()
+    yaml()
     for d in sorted((HERE / "corpus").iterdir()):
         print(d.name, len(list(d.iterdir())))

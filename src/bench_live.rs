@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use eyre::{WrapErr, bail};
-use neuspike_sink::report::{LatencyWindow, SummaryFile};
+use neuspike_sink::report::LatencyWindow;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -188,10 +188,7 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
 /// Reads a run's figures from the sink's `summary.yml` in `frames`.
 pub fn figures(frames: &Path, camera_s: f64, wall_s: f64) -> eyre::Result<LiveRun> {
     let path = frames.join("summary.yml");
-    let text = std::fs::read_to_string(&path)
-        .wrap_err_with(|| format!("the sink wrote no {}", path.display()))?;
-    let file: SummaryFile = serde_yaml::from_str(&text)
-        .wrap_err_with(|| format!("{}: not a summary", path.display()))?;
+    let file = neuspike_sink::read_run(frames)?;
     let Some(tfp) = file.inputs.get("tfp") else {
         bail!("{}: no input `tfp`", path.display());
     };
@@ -367,18 +364,20 @@ mod tests {
     #[test]
     fn figures_come_from_the_sinks_summary_file() {
         let dir = tempfile::tempdir().expect("tempdir");
+        std::fs::write(dir.path().join("metrics.csv"), "header\nrow\n").expect("write");
         std::fs::write(
             dir.path().join("summary.yml"),
-            "inputs:\n  tfp:\n    input: tfp\n    expected: 10\n    received: 9\n    written: 1\n    missing: 1\n    ended: true\n    latency:\n      frames: 9\n      p50_ms: 2.0\n      p99_ms: 5.5\n      max_ms: 6.0\n",
+            "metrics_rows: 1\ninputs:\n  tfp:\n    input: tfp\n    expected: 10\n    received: 9\n    written: 1\n    missing: 1\n    ended: true\n    latency:\n      frames: 9\n      p50_ms: 2.0\n      p99_ms: 5.5\n      max_ms: 6.0\n",
         )
         .expect("write");
         let r = figures(dir.path(), 1.0, 1.25).expect("figures");
         assert_eq!((r.expected, r.received, r.missing), (10, 9, 1));
         assert_eq!(r.latency_ms, Some((2.0, 5.5)));
         assert_eq!(r.real_time(), 0.8);
-        let e = figures(&dir.path().join("none"), 1.0, 1.0)
+        std::fs::remove_file(dir.path().join("summary.yml")).expect("remove");
+        let e = figures(dir.path(), 1.0, 1.0)
             .expect_err("no summary")
             .to_string();
-        assert!(e.contains("summary.yml"), "{e}");
+        assert!(e.contains("no summary.yml: the run did not finish"), "{e}");
     }
 }

@@ -116,10 +116,7 @@ pub fn machines(graph: &Value, path: &Path) -> eyre::Result<Vec<String>> {
 /// # Errors
 /// The file cannot be read or parsed, or places some nodes and not others.
 pub fn places_nodes(path: &Path) -> eyre::Result<bool> {
-    let text = std::fs::read_to_string(path)
-        .wrap_err_with(|| format!("cannot read the graph {}", path.display()))?;
-    let g: Value = serde_yaml::from_str(&text)
-        .wrap_err_with(|| format!("{}: not a valid YAML graph", path.display()))?;
+    let g = neuspike_pipeline::read_graph(path)?;
     Ok(!machines(&g, path)?.is_empty())
 }
 

@@ -153,10 +153,7 @@ pub fn parse_override(s: &str) -> eyre::Result<(String, String)> {
 }
 
 fn read_graph(path: &Path) -> eyre::Result<Value> {
-    let text = std::fs::read_to_string(path)
-        .wrap_err_with(|| format!("cannot read the graph {}", path.display()))?;
-    serde_yaml::from_str(&text)
-        .wrap_err_with(|| format!("{}: not a valid YAML graph", path.display()))
+    neuspike_pipeline::read_graph(path)
 }
 
 fn nodes(graph: &Value) -> impl Iterator<Item = &Value> {
@@ -193,7 +190,7 @@ pub fn write_built_in(
             map.insert("args".into(), new.into());
         }
     }
-    crate::derive::derive(&mut g, crate::derive::CREDIT_WINDOW, None)
+    neuspike_pipeline::derive::derive(&mut g, neuspike_pipeline::derive::CREDIT_WINDOW, None)
         .wrap_err_with(|| format!("{by}: the built-in graph"))?;
     // Built beforehand when the program runs from its sources; never from `out`.
     let list = g.get_mut("nodes").and_then(Value::as_sequence_mut);
@@ -289,7 +286,9 @@ fn apply_override(graph: &mut Value, id: &str, extra: &str) -> eyre::Result<()> 
 pub fn sink_out_dirs(graph_path: &Path, graph: &Value) -> Vec<PathBuf> {
     let dir = graph_path.parent().unwrap_or(Path::new("."));
     // A sink may run inside a fused node.
-    let inner: Vec<Value> = nodes(graph).flat_map(crate::derive::fused_nodes).collect();
+    let inner: Vec<Value> = nodes(graph)
+        .flat_map(neuspike_pipeline::derive::fused_nodes)
+        .collect();
     nodes(graph)
         .chain(inner.iter())
         .filter(|n| {
@@ -419,7 +418,8 @@ impl Report {
     }
 
     /// What this run's sinks say was lost or cut: `<folder>: <input>: N missing, cut short,
-    /// never ended` for each input that did not come whole (none when no sink wrote a summary).
+    /// never ended` for each input that did not come whole, and a `metrics.csv` that does not
+    /// hold the rows its summary counts (none when no sink wrote a summary).
     pub fn losses(&self) -> Vec<String> {
         let mut out = Vec::new();
         for dir in &self.out_dirs {
@@ -447,6 +447,13 @@ impl Report {
                     what.push("never ended".into());
                 }
                 out.push(format!("{}: {input}: {}", dir.display(), what.join(", ")));
+            }
+            // A sink that failed says so as a failed node; otherwise its metrics.csv must hold
+            // every row its summary counts.
+            if file.failure.is_none()
+                && let Err(e) = neuspike_sink::read_run(dir)
+            {
+                out.push(e.to_string());
             }
         }
         out
@@ -482,7 +489,7 @@ fn restarts_nodes(graph: &Value) -> bool {
 
 /// Reads the graph at `graph_path` (canonical), appends the `--set` overrides to its nodes'
 /// arguments, derives what the runtime needs beyond its nodes, arguments and data edges
-/// ([`crate::derive::derive`]), runs its build commands (when `build_first`) and points its
+/// ([`neuspike_pipeline::derive::derive`]), runs its build commands (when `build_first`) and points its
 /// nodes at the node binaries; the `build:` keys are removed (done).
 ///
 /// # Errors
@@ -497,9 +504,9 @@ pub fn prepare(
     for (id, extra) in overrides {
         apply_override(&mut graph, id, extra)?;
     }
-    crate::derive::derive(
+    neuspike_pipeline::derive::derive(
         &mut graph,
-        crate::derive::CREDIT_WINDOW,
+        neuspike_pipeline::derive::CREDIT_WINDOW,
         build_command().as_deref(),
     )
     .wrap_err_with(|| format!("{}", graph_path.display()))?;
@@ -675,7 +682,7 @@ mod tests {
             "nodes:\n  - id: src\n    outputs: [a, b, v]\n  - id: mid\n    inputs: { a: { source: src/a, queue_size: 1000 }, t: dora/timer/millis/10 }\n    outputs: [c]\n  - id: sink\n    inputs: { c: mid/c, b: src/b }\n  - id: viewer\n    inputs: { v: { source: src/v, queue_policy: backpressure } }\n",
         )
         .expect("yaml");
-        crate::derive::wire_credits(&mut g, 8);
+        neuspike_pipeline::derive::wire_credits(&mut g, 8);
         let node = |id: &str| {
             nodes(&g)
                 .find(|n| n.get("id").and_then(Value::as_str) == Some(id))
@@ -712,7 +719,7 @@ mod tests {
         );
         // Twice is once.
         let before = g.clone();
-        crate::derive::wire_credits(&mut g, 8);
+        neuspike_pipeline::derive::wire_credits(&mut g, 8);
         assert_eq!(g, before);
     }
 

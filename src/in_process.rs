@@ -30,11 +30,7 @@ pub fn run(
             .ok_or_else(|| eyre!("--set {id}: `{extra}` has an unclosed quote"))?;
         g.append_args(id, &words)?;
     }
-    let yaml: serde_yaml::Value = serde_yaml::from_str(
-        &std::fs::read_to_string(&graph_path)
-            .wrap_err_with(|| format!("cannot read {}", graph_path.display()))?,
-    )
-    .wrap_err_with(|| format!("{}: not YAML", graph_path.display()))?;
+    let yaml = neuspike_pipeline::read_graph(&graph_path)?;
     let out_dirs = sink_out_dirs(&graph_path, &yaml);
     let started_at = std::time::SystemTime::now();
     let chain = g

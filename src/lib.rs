@@ -11,7 +11,6 @@ pub mod bench_model;
 pub mod calibrate;
 pub mod cluster;
 pub mod dataset;
-pub mod derive;
 pub mod frames_to_events;
 pub mod graph;
 pub mod in_process;

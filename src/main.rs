@@ -578,7 +578,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 .canonicalize()
                 .wrap_err_with(|| format!("graph {} not found", graph.display()))?;
             let mut g = graph::prepare(&graph, &overrides, false)?;
-            print!("{}", neuspike::derive::draw(&g)?);
+            print!("{}", neuspike_pipeline::derive::draw(&g)?);
             if let Some(out) = out {
                 graph::write_full(&mut g, &graph, &out)?;
                 println!(

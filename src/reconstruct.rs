@@ -149,7 +149,7 @@ pub fn graph_yaml(
     let bins = graph::node_dir().unwrap_or_default();
     let bin = |name: &str| bins.join(format!("neuspike-{name}"));
     let build = graph::build_command().map_or(String::new(), |cmd| format!("\n    build: {cmd}"));
-    let queue = format!("queue_size: {}", crate::derive::CREDIT_WINDOW);
+    let queue = format!("queue_size: {}", neuspike_pipeline::derive::CREDIT_WINDOW);
     let m = opts.method.as_str();
     let mut y = String::new();
     let _ = writeln!(
@@ -420,13 +420,13 @@ pub fn recorded_lum_per_rate(spikes: &Path) -> Option<f64> {
 /// Planes per window of the methods that do not choose their own.
 pub const DEFAULT_WINDOW_PLANES: u32 = 33;
 
-/// `yaml` with neuspike's credit flow control wired in ([`crate::derive::wire_credits`]), its first
+/// `yaml` with neuspike's credit flow control wired in ([`neuspike_pipeline::derive::wire_credits`]), its first
 /// comment line kept.
 fn with_credits(yaml: &str) -> String {
     let Ok(mut g) = serde_yaml::from_str::<serde_yaml::Value>(yaml) else {
         return yaml.to_string();
     };
-    crate::derive::wire_credits(&mut g, crate::derive::CREDIT_WINDOW);
+    neuspike_pipeline::derive::wire_credits(&mut g, neuspike_pipeline::derive::CREDIT_WINDOW);
     let comment: String = yaml
         .lines()
         .take_while(|l| l.starts_with('#'))
@@ -516,6 +516,18 @@ pub fn reconstruct(opts: &ReconstructOptions) -> eyre::Result<graph::Report> {
     };
     if let Some(dir) = &truth {
         tracing::info!(truth = %dir.display(), "scoring against the recorded ground truth");
+    }
+    // `neuspike simulate` writes its recording.yml last: a folder of its files without it is a
+    // simulation that did not finish.
+    if let Some(folder) = spikes.parent()
+        && folder.join("ground-truth").join("timestamps.txt").is_file()
+        && !folder.join("recording.yml").exists()
+    {
+        tracing::warn!(
+            "{}: no recording.yml beside the spikes and their ground truth: if `neuspike \
+             simulate` made this folder, it did not finish, and its files may stop short",
+            folder.display()
+        );
     }
     // The calibration `neuspike simulate` recorded beside the spikes, unless given.
     let mut opts = opts.clone();
@@ -616,7 +628,7 @@ mod tests {
             let sink = find(&nodes, "sink");
             assert_eq!(
                 sink["inputs"][m]["queue_size"].as_u64(),
-                Some(crate::derive::CREDIT_WINDOW)
+                Some(neuspike_pipeline::derive::CREDIT_WINDOW)
             );
             assert_eq!(sink["outputs"][0].as_str(), Some("credits"));
             assert_eq!(

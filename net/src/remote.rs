@@ -160,14 +160,40 @@ pub fn put_message(
 pub struct Follower<Id> {
     owner: Option<(Id, Instant)>,
     foreign: u64,
+    rejoin_after: Duration,
+    /// The last sample followed came from a new publisher, after another.
+    switched: bool,
 }
 
 impl<Id> Default for Follower<Id> {
     fn default() -> Self {
+        Follower::rejoining_after(REJOIN_AFTER)
+    }
+}
+
+impl<Id> Follower<Id> {
+    /// A follower that lets another publisher take the stream once the followed one has been
+    /// silent for `rejoin_after`: [`REJOIN_AFTER`], or zero where the link authenticates
+    /// every publisher ([`crate::session::ZenohArgs::authenticates`]: whoever may publish is the
+    /// camera, and a restarted one rejoins at once).
+    pub fn rejoining_after(rejoin_after: Duration) -> Self {
         Follower {
             owner: None,
             foreign: 0,
+            rejoin_after,
+            switched: false,
         }
+    }
+
+    /// Whether the last sample followed came from a new publisher taking over from another
+    /// (cleared by asking): its numbering may start afresh.
+    pub fn take_switched(&mut self) -> bool {
+        std::mem::take(&mut self.switched)
+    }
+
+    /// Samples refused for coming from another publisher.
+    pub fn foreign(&self) -> u64 {
+        self.foreign
     }
 }
 
@@ -180,7 +206,7 @@ impl<Id: PartialEq + std::fmt::Debug> Follower<Id> {
                 *last = now;
                 true
             }
-            Some((owner, last)) if now.duration_since(*last) < REJOIN_AFTER => {
+            Some((owner, last)) if now.duration_since(*last) < self.rejoin_after => {
                 self.foreign += 1;
                 tracing::warn!(stream, from = ?id, following = ?owner, "a sample from another publisher: refused");
                 false
@@ -188,16 +214,12 @@ impl<Id: PartialEq + std::fmt::Debug> Follower<Id> {
             previous => {
                 if let Some((old, _)) = previous {
                     tracing::warn!(stream, from = ?id, was = ?old, "the publisher went silent; following the new one");
+                    self.switched = true;
                 }
                 *previous = Some((id, now));
                 true
             }
         }
-    }
-
-    /// Samples refused for coming from another publisher.
-    pub fn foreign(&self) -> u64 {
-        self.foreign
     }
 }
 
@@ -287,7 +309,25 @@ impl Remote {
     /// its sequence.
     fn follows(&mut self, sample: &Sample) -> bool {
         let id = sample.source_info().map(|s| *s.source_id());
-        self.owner.follows(id, &self.key)
+        let follows = self.owner.follows(id, &self.key);
+        if self.owner.take_switched() {
+            // A restarted camera may number from 0 again: followed, not taken as stale.
+            self.seq.rejoin();
+        }
+        follows
+    }
+
+    /// Lets another publisher take the stream once the followed one has been silent for
+    /// `after` ([`Follower::rejoining_after`]; [`REJOIN_AFTER`] unless set).
+    #[must_use]
+    pub fn rejoining_after(mut self, after: Duration) -> Self {
+        self.owner = Follower::rejoining_after(after);
+        self
+    }
+
+    /// Times a new publisher took the stream numbering afresh (a restarted camera).
+    pub fn restarts(&self) -> u64 {
+        self.seq.restarts()
     }
 
     /// Samples refused as malformed: not a neuspike message, another type, no sequence number,
@@ -395,6 +435,9 @@ impl Remote {
                 }
                 SeqStatus::Resynced { jump } => {
                     tracing::warn!(key = %self.key, seq, jump, "the remote stream was renumbered: following it");
+                }
+                SeqStatus::Restarted { expected } => {
+                    tracing::warn!(key = %self.key, seq, expected, "the camera restarted and numbers afresh: following it");
                 }
             }
             if !self.started {
@@ -620,6 +663,78 @@ mod tests {
         assert_eq!(
             (remote.received(), remote.missing(), remote.foreign()),
             (2, 0, 2)
+        );
+    }
+
+    #[test]
+    fn a_restarted_camera_rejoins_once_the_old_one_is_silent_numbering_afresh() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("port")
+            .port();
+        let a = session(&format!("tcp/127.0.0.1:{port}"), "");
+        let dial = format!("\"tcp/127.0.0.1:{port}\"");
+        let rejoin = Duration::from_millis(400);
+        let mut remote = Remote::subscribe(
+            &a,
+            "test/restart",
+            SpikeChunk::TYPE_URN,
+            Duration::from_secs(10),
+        )
+        .expect("subscribe")
+        .rejoining_after(rejoin);
+        let declare = |s: &zenoh::Session| {
+            let p = s
+                .declare_publisher("test/restart")
+                .wait()
+                .expect("publisher");
+            let deadline = Instant::now() + Duration::from_secs(10);
+            while !p.matching_status().wait().expect("status").matching() {
+                assert!(Instant::now() < deadline, "the subscriber never matched");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            p
+        };
+        let put = |p: &zenoh::pubsub::Publisher<'_>, (m, d): (Meta, ArrayRef)| {
+            let bytes = ipc::encode(SpikeChunk::TYPE_URN, &m, &d).expect("encode");
+            put_message(p, bytes, 0).expect("put");
+        };
+        let mut seqs = Vec::new();
+        let take = |remote: &mut Remote, seqs: &mut Vec<u64>| match next_taken(remote) {
+            Taken::Message(m, d) => seqs.push(SpikeChunk::from_arrow(&m, &d).expect("chunk").seq),
+            t => panic!("{t:?}"),
+        };
+        {
+            let first = session("tcp/127.0.0.1:0", &dial);
+            let cam = declare(&first);
+            for seq in 0..3 {
+                put(&cam, chunk(seq));
+                take(&mut remote, &mut seqs);
+            }
+        }
+        // The camera restarted as a new process: it numbers from 0 again, and is followed
+        // once the old one has been silent for the rejoin time.
+        std::thread::sleep(rejoin + Duration::from_millis(100));
+        let second = session("tcp/127.0.0.1:0", &dial);
+        let cam = declare(&second);
+        put(&cam, chunk(0));
+        put(&cam, chunk(1));
+        put(&cam, end_of_stream::<SpikeChunk>(2));
+        take(&mut remote, &mut seqs);
+        take(&mut remote, &mut seqs);
+        assert!(matches!(
+            next_taken(&mut remote),
+            Taken::End { count: 2, .. }
+        ));
+        assert_eq!(seqs, [0, 1, 2, 0, 1]);
+        assert_eq!(
+            (
+                remote.received(),
+                remote.missing(),
+                remote.restarts(),
+                remote.foreign()
+            ),
+            (5, 0, 1, 0)
         );
     }
 

@@ -131,6 +131,50 @@ impl ZenohArgs {
         Ok(c)
     }
 
+    /// Whether every link of the session authenticates its peer, so that whoever may publish
+    /// on a key was let in by name: a configuration file with mutual TLS
+    /// (`transport.link.tls.enable_mtls`), every endpoint it listens on or dials a TLS one
+    /// (`tls/`, `quic/`), and access control that denies what it does not allow
+    /// (`access_control`: `enabled`, `default_permission: "deny"`), as `examples/mtls/` sets.
+    /// A remote stream then follows a new publisher at once (a restarted camera rejoins without
+    /// waiting for [`crate::remote::REJOIN_AFTER`]).
+    ///
+    /// # Errors
+    /// As [`ZenohArgs::config`].
+    pub fn authenticates(&self) -> Result<bool, SessionError> {
+        if self.zenoh_config.is_none() {
+            return Ok(false);
+        }
+        let c = self.config()?;
+        let get = |k: &str| c.get_json(k).unwrap_or_default();
+        let endpoints = format!("{} {}", get("listen/endpoints"), get("connect/endpoints"));
+        // The quoted strings holding a `/` are endpoints (a per-mode map's keys are not).
+        let all_tls = endpoints
+            .split('"')
+            .skip(1)
+            .step_by(2)
+            .filter(|e| e.contains('/'))
+            .all(|e| e.starts_with("tls/") || e.starts_with("quic/"));
+        Ok(get("transport/link/tls/enable_mtls") == "true"
+            && all_tls
+            && get("access_control/enabled") == "true"
+            && get("access_control/default_permission") == "\"deny\"")
+    }
+
+    /// How long a followed publisher must be silent before another may take its stream: zero
+    /// where the links authenticate every publisher ([`Self::authenticates`]), else
+    /// [`crate::remote::REJOIN_AFTER`].
+    ///
+    /// # Errors
+    /// As [`ZenohArgs::config`].
+    pub fn rejoin_after(&self) -> Result<Duration, SessionError> {
+        Ok(if self.authenticates()? {
+            Duration::ZERO
+        } else {
+            crate::remote::REJOIN_AFTER
+        })
+    }
+
     /// Opens the session.
     ///
     /// # Errors
@@ -204,6 +248,53 @@ mod tests {
             e.starts_with("/nonexistent/z.json5: not a zenoh configuration"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn only_mutual_tls_on_every_link_with_access_control_authenticates() {
+        let args = |path: &std::path::Path| ZenohArgs {
+            zenoh_config: Some(path.to_path_buf()),
+            ..ZenohArgs::default()
+        };
+        let examples = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/mtls");
+        for f in ["camera.json5", "compute.json5"] {
+            let a = args(&examples.join(f));
+            assert!(a.authenticates().expect(f), "{f}");
+            assert_eq!(a.rejoin_after().expect(f), Duration::ZERO);
+        }
+        assert!(!ZenohArgs::default().authenticates().expect("default"));
+        assert_eq!(
+            ZenohArgs::default().rejoin_after().expect("default"),
+            crate::remote::REJOIN_AFTER
+        );
+        // The camera's file with one plain TCP endpoint more, or without access control.
+        let camera = std::fs::read_to_string(examples.join("camera.json5")).expect("camera");
+        let dir = tempfile::tempdir().expect("tempdir");
+        for (name, text) in [
+            (
+                "tcp.json5",
+                camera.replace(
+                    "[\"tls/0.0.0.0:7450\"]",
+                    "[\"tls/0.0.0.0:7450\", \"tcp/0.0.0.0:7451\"]",
+                ),
+            ),
+            (
+                "open.json5",
+                camera.replace(
+                    "enabled: true,\n    default",
+                    "enabled: false,\n    default",
+                ),
+            ),
+            (
+                "no-mtls.json5",
+                camera.replace("enable_mtls: true", "enable_mtls: false"),
+            ),
+        ] {
+            assert_ne!(text, camera, "{name}: the change applies");
+            let path = dir.path().join(name);
+            std::fs::write(&path, text).expect("write");
+            assert!(!args(&path).authenticates().expect(name), "{name}");
+        }
     }
 
     /// A configuration file that leaves zenoh's 1 GiB limit on a message gets neuspike's;

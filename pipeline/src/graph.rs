@@ -12,6 +12,60 @@ use crate::registry::{make_stage, stage_kind};
 /// ([`fused_stage`]).
 pub const FUSED_STAGES: &str = "NEUSPIKE_STAGES";
 
+/// The largest graph file read: 4 MiB (the shipped graphs are a few KiB each).
+pub const MAX_GRAPH_BYTES: u64 = 4 << 20;
+
+/// The graph file at `path` as YAML, read up to [`MAX_GRAPH_BYTES`].
+///
+/// # Errors
+/// The file cannot be read, is longer than the limit, or is not YAML: one line naming the file.
+pub fn read_graph(path: &Path) -> eyre::Result<Value> {
+    let text = read_graph_text(path)?;
+    serde_yaml::from_str(&text)
+        .map_err(|e| eyre!("{}: not a valid YAML graph: {e}", path.display()))
+}
+
+/// The text of the graph file at `path`, read up to [`MAX_GRAPH_BYTES`].
+///
+/// # Errors
+/// The file cannot be read, is not UTF-8, or is longer than the limit.
+pub fn read_graph_text(path: &Path) -> eyre::Result<String> {
+    use std::io::Read;
+    let cannot = |e: std::io::Error| eyre!("cannot read the graph {}: {e}", path.display());
+    let file = std::fs::File::open(path).map_err(cannot)?;
+    let mut bytes = Vec::new();
+    file.take(MAX_GRAPH_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(cannot)?;
+    if bytes.len() as u64 > MAX_GRAPH_BYTES {
+        bail!(
+            "{}: longer than {MAX_GRAPH_BYTES} bytes, the most a graph file may hold",
+            path.display()
+        );
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        eyre!(
+            "{}: not UTF-8 text (byte {})",
+            path.display(),
+            e.utf8_error().valid_up_to()
+        )
+    })
+}
+
+/// Checks a node's id: not empty, and without a `/` (an input names its source
+/// `node/output`, so an id holding one could not be told from its output).
+///
+/// # Errors
+/// One line naming the id.
+pub(crate) fn check_id(id: &str) -> eyre::Result<()> {
+    if id.is_empty() || id.contains('/') {
+        bail!(
+            "node id `{id}`: an id must not be empty nor hold a `/` (an input reads `node/output`)"
+        );
+    }
+    Ok(())
+}
+
 /// The port of a fused node that stands for `node/port` inside it: `node.port`.
 pub fn fused_port(address: &str) -> String {
     address.replacen('/', ".", 1)
@@ -84,8 +138,7 @@ impl GraphChain {
     /// # Errors
     /// The file cannot be read, or is not a graph of neuspike stages (see [`Self::from_yaml`]).
     pub fn read(path: &Path) -> eyre::Result<Self> {
-        let s = std::fs::read_to_string(path)
-            .wrap_err_with(|| format!("cannot read graph {}", path.display()))?;
+        let s = read_graph_text(path)?;
         Self::from_yaml(&s).wrap_err_with(|| format!("{}", path.display()))
     }
 
@@ -104,6 +157,7 @@ impl GraphChain {
         let mut nodes: Vec<GraphNode> = Vec::new();
         for (i, n) in list.iter().enumerate() {
             let id = text(n, "id").ok_or_else(|| eyre!("node {i}: no `id`"))?;
+            check_id(id)?;
             if nodes.iter().any(|m| m.id == id) {
                 bail!("node id `{id}` is used twice");
             }

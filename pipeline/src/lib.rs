@@ -7,12 +7,18 @@
 //!   same wiring and the same rules for order, loss and the end of a stream, without dora.
 //! - [`fused_stage`]: some of a graph's nodes as one stage ([`neuspike_stage::Fused`]), which
 //!   the `neuspike-fused` node runs: several stages in one process.
+//! - [`derive`]: a graph as a user writes it made into the graph dora runs (port types, credit
+//!   edges, `build:` and `env:`, the processes it asks for), every fault one line naming the edge.
 #![deny(missing_docs)]
 
+pub mod derive;
 mod graph;
 mod ports;
 mod registry;
 
-pub use graph::{FUSED_STAGES, GraphChain, GraphNode, data_inputs, fused_port, fused_stage};
+pub use graph::{
+    FUSED_STAGES, GraphChain, GraphNode, MAX_GRAPH_BYTES, data_inputs, fused_port, fused_stage,
+    read_graph, read_graph_text,
+};
 pub use ports::{Side, port_type};
 pub use registry::{STAGES, make_stage, stage_kind};

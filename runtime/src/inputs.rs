@@ -270,6 +270,10 @@ impl Inputs {
                 tracing::warn!(input, seq, jump, "the stream was renumbered");
                 0
             }
+            SeqStatus::Restarted { expected } => {
+                tracing::warn!(input, seq, expected, "the stream's sender restarted");
+                0
+            }
         };
         // The credits of messages lost on the way: a gap in the sender's count of what it sent
         // (messages never made, a gap in `seq` alone, took none). A sender that does not count

@@ -663,7 +663,9 @@ pub fn relay_remote<M: Message>(
         received = remote.received(),
         lost = remote.missing(),
         refused = remote.refused(),
+        foreign = remote.foreign(),
         malformed = remote.malformed(),
+        restarts = remote.restarts(),
         "the remote stream ended"
     );
     relayed

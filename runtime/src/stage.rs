@@ -14,7 +14,9 @@ use crate::{Inputs, Link, Received, receive};
 /// loop's accounting ([`receive`]), what it sends sent through the node's [`Link`] (credits,
 /// sequence numbers, origin stamps), and, once its inputs ended, [`Stage::finish`] and every
 /// output's end-of-stream marker. A source (no inputs) steps until it stops or a stop is asked
-/// for; its outputs end whatever happened, cut short after an error.
+/// for; its outputs end whatever happened, cut short after an error. A stage with inputs is
+/// finished after its own failure too (a sink still writes its summary), and its failure comes
+/// first in the error.
 ///
 /// # Errors
 /// A message that is not of its input's type (named with the stage and the input), the stage's
@@ -35,7 +37,7 @@ pub fn run_stage<S: Stage + ?Sized>(
     }
     let name = stage.name().to_string();
     let mut inputs = Inputs::new(ports.iter().map(|p| p.id.as_str()));
-    receive(&mut link, &mut inputs, |link, msg| {
+    let received = receive(&mut link, &mut inputs, |link, msg| {
         let flow = match msg {
             Received::Message { input, meta, data } => {
                 let ty = ports
@@ -56,21 +58,27 @@ pub fn run_stage<S: Stage + ?Sized>(
         };
         flush(link, &mut out)?;
         Ok(flow)
-    })?;
+    });
     let tallies = Tallies(
         inputs
             .iter()
             .map(|(id, s)| (id.to_string(), Tally::from_seq(&s.seq, s.ended, s.broken)))
             .collect(),
     );
-    // What the stage sent before a failed finish still goes out, and every output ends (cut
-    // short after a failure), so that the nodes after it keep what they took whole.
+    // The stage is finished whatever happened: after its own failure too, so that what it keeps
+    // (a sink's summary: the counts so far and the failure) is still written. What it sent
+    // before a failure still goes out, and every output ends (cut short after a failure), so
+    // that the nodes after it keep what they took whole.
     let finished = stage.finish(&tallies, &mut out);
-    if finished.is_err() {
+    if received.is_err() || finished.is_err() {
         out.mark_cut();
     }
     let flushed = flush(&mut link, &mut out);
     let ended = link.end_all();
+    let finished = match (received, finished) {
+        (Err(first), Err(then)) => Err(eyre!("{first:#}; then, finishing: {then:#}")),
+        (received, finished) => received.and(finished),
+    };
     finished.and(flushed).and(ended)
 }
 

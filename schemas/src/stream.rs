@@ -60,6 +60,13 @@ pub enum SeqStatus {
         /// How far past the previously expected number the stream resumed.
         jump: u64,
     },
+    /// The first number from a new sender ([`SeqTracker::rejoin`]) behind the stream's: the
+    /// sender restarted and numbers afresh. The tracker follows it from here; what the sender
+    /// lost while it was down cannot be told from the numbers, and is counted as one restart.
+    Restarted {
+        /// The number the stream expected.
+        expected: u64,
+    },
 }
 
 /// How far past the next expected sequence number a message may be and still be taken, the
@@ -83,11 +90,22 @@ pub struct SeqTracker {
     /// A run of anomalies each one past the last: the number it expects next, and its length.
     run: Option<(u64, u64)>,
     announced: Option<u64>,
+    /// The next number comes from a new sender ([`Self::rejoin`]).
+    rejoining: bool,
+    restarts: u64,
 }
 
 impl SeqTracker {
     /// Records a received sequence number.
     pub fn observe(&mut self, seq: u64) -> SeqStatus {
+        if std::mem::take(&mut self.rejoining) && seq < self.next {
+            let expected = self.next;
+            self.run = None;
+            self.restarts += 1;
+            self.received += 1;
+            self.next = seq.saturating_add(1);
+            return SeqStatus::Restarted { expected };
+        }
         if seq < self.next {
             self.stale += 1;
             return SeqStatus::Stale;
@@ -144,6 +162,18 @@ impl SeqTracker {
         self.anomalies
     }
 
+    /// The stream's sender changed (a camera restarted as a new process): its next number
+    /// may start afresh. One behind the stream's is followed ([`SeqStatus::Restarted`]); one at
+    /// or past it is taken as any other (a gap counted as lost, a jump too far refused).
+    pub fn rejoin(&mut self) {
+        self.rejoining = true;
+    }
+
+    /// Times a new sender numbered afresh ([`SeqStatus::Restarted`]).
+    pub fn restarts(&self) -> u64 {
+        self.restarts
+    }
+
     /// Times the stream was renumbered ([`SeqStatus::Resynced`]).
     pub fn resyncs(&self) -> u64 {
         self.resyncs
@@ -186,6 +216,26 @@ mod tests {
             (t.received(), t.missing(), t.stale(), t.announced()),
             (2, 4, 1, Some(6))
         );
+    }
+
+    #[test]
+    fn a_new_sender_numbering_afresh_is_followed_and_one_continuing_has_its_gap_counted() {
+        let mut t = SeqTracker::default();
+        for seq in 0..10 {
+            t.observe(seq);
+        }
+        // Without a rejoin, numbers from behind are stale.
+        assert_eq!(t.observe(0), SeqStatus::Stale);
+        t.rejoin();
+        assert_eq!(t.observe(0), SeqStatus::Restarted { expected: 10 });
+        assert_eq!(t.observe(1), SeqStatus::InOrder);
+        assert_eq!((t.received(), t.missing(), t.restarts()), (12, 0, 1));
+        // A restarted sender that numbers as if it had sent everything: its gap is lost.
+        t.rejoin();
+        assert_eq!(t.observe(7), SeqStatus::Gap { missing: 5 });
+        assert_eq!((t.missing(), t.restarts()), (5, 1));
+        // The rejoin holds for one number only.
+        assert_eq!(t.observe(3), SeqStatus::Stale);
     }
 
     #[test]

@@ -448,7 +448,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
     let new_rows = rows.len() - before;
     if let Some(out) = &opts.fit_policy {
         let p = auto::fit(&rows, opts, &csv_path)?;
-        p.save(out)
+        neuspike_formats::atomic::write(out, p.to_yaml())
             .wrap_err_with(|| format!("--fit-policy {}: cannot write", out.display()))?;
     }
     let mut md = summary(&rows, opts, started.elapsed().as_secs_f64(), new_rows);

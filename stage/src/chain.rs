@@ -987,6 +987,15 @@ impl<'a> Chain<'a> {
                     "the stream was renumbered"
                 );
             }
+            SeqStatus::Restarted { expected } => {
+                tracing::warn!(
+                    stage = slot.id,
+                    input,
+                    seq,
+                    expected,
+                    "the stream's sender restarted"
+                );
+            }
         }
         slot.received += 1;
         slot.origin = Some(slot.origin.map_or(origin, |o| o.max(origin)));

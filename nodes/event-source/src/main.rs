@@ -94,13 +94,15 @@ fn run_network(node: DoraNode, events: EventStream, args: &Args) -> eyre::Result
     let mut out = Link::new(node, events)?;
     out.declare::<EventBatch>("events");
     if let Some(key) = &args.from_zenoh {
-        let mut remote = Remote::subscribe(&session, key, EventBatch::TYPE_URN, silence)?;
+        let mut remote = Remote::subscribe(&session, key, EventBatch::TYPE_URN, silence)?
+            .rejoining_after(args.zenoh.rejoin_after()?);
         tracing::info!(key, "waiting for event batches");
         return relay_remote::<EventBatch>(&mut out, "events", &mut remote);
     }
     let topic = args.from_ros2.as_deref().unwrap_or_default();
     let mut ros =
-        RosEvents::subscribe(&session, topic, args.ros_domain, "neuspike_events", silence)?;
+        RosEvents::subscribe(&session, topic, args.ros_domain, "neuspike_events", silence)?
+            .rejoining_after(args.zenoh.rejoin_after()?);
     tracing::info!(topic, "waiting for event packets");
     let relayed = relay(&mut out, "events", |wait| {
         Ok(match ros.next(wait)? {

@@ -88,7 +88,8 @@ fn run_remote(node: DoraNode, events: EventStream, key: &str, args: &Args) -> ey
     let mut out = Link::new(node, events)?;
     out.declare::<SpikeChunk>("spikes");
     let silence = Duration::from_secs(args.silence_s);
-    let mut remote = Remote::subscribe(&session, key, SpikeChunk::TYPE_URN, silence)?;
+    let mut remote = Remote::subscribe(&session, key, SpikeChunk::TYPE_URN, silence)?
+        .rejoining_after(args.zenoh.rejoin_after()?);
     tracing::info!(key, "waiting for spike chunks");
     relay_remote::<SpikeChunk>(&mut out, "spikes", &mut remote)
 }

@@ -488,6 +488,14 @@ impl RosEvents {
         self.owner.foreign()
     }
 
+    /// Lets another publisher take the topic once the followed one has been silent for `after`
+    /// ([`neuspike_net::remote::Follower::rejoining_after`]; 2 s unless set).
+    #[must_use]
+    pub fn rejoining_after(mut self, after: Duration) -> Self {
+        self.owner = neuspike_net::remote::Follower::rejoining_after(after);
+        self
+    }
+
     /// Packets refused as malformed.
     pub fn malformed(&self) -> u64 {
         self.malformed

@@ -4,8 +4,10 @@
 //! bytes; neuspike's own messages are channels too, named by their zenoh key, their samples the
 //! same Arrow IPC bytes (message encoding `neuspike/messages/v1`).
 //!
-//! The file is written as it goes and finished (its summary and index) when the node ends; a
-//! node killed before that leaves a file whose messages a reader still recovers by scanning.
+//! The file is written as it goes, as `<name>.partial`, and finished (its summary and index,
+//! synced) and renamed to its name when the node ends: a bag under its own name is whole. A node
+//! killed or failed before that leaves `<name>.partial`, whose messages a reader still recovers
+//! by scanning.
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -50,14 +52,18 @@ pub struct BagError {
 
 /// An MCAP file being written.
 pub struct Bag {
+    /// Its name once finished.
     path: PathBuf,
+    /// Where it is written until then ([`partial_path`]).
+    partial: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
     channels: HashMap<String, (u16, u32)>,
     messages: u64,
 }
 
 impl Bag {
-    /// Creates `path` (its folder too).
+    /// Starts the bag `path` (its folder too): written as [`partial_path`] until
+    /// [`Self::finish`].
     ///
     /// # Errors
     /// The file cannot be created.
@@ -69,7 +75,8 @@ impl Bag {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| err(&e))?;
         }
-        let file = File::create(path).map_err(|e| err(&e))?;
+        let partial = partial_path(path);
+        let file = File::create(&partial).map_err(|e| err(&e))?;
         let writer = mcap::WriteOptions::new()
             .profile("ros2")
             .compression(None)
@@ -77,6 +84,7 @@ impl Bag {
             .map_err(|e| err(&e))?;
         Ok(Bag {
             path: path.to_path_buf(),
+            partial,
             writer,
             channels: HashMap::new(),
             messages: 0,
@@ -182,14 +190,39 @@ impl Bag {
         self.messages
     }
 
-    /// Writes the summary and the index, and closes the file.
+    /// Writes the summary and the index, syncs the file and renames it to its name.
     ///
     /// # Errors
-    /// The file could not be written.
+    /// The file could not be written, synced or renamed; it is then left as
+    /// [`partial_path`].
     pub fn finish(mut self) -> Result<PathBuf, BagError> {
         self.writer.finish().map_err(|e| self.err(e))?;
-        Ok(self.path)
+        let Bag {
+            path,
+            partial,
+            writer,
+            ..
+        } = self;
+        let err = |e: &dyn std::fmt::Display| BagError {
+            path: partial.clone(),
+            reason: e.to_string(),
+        };
+        let file = writer
+            .into_inner()
+            .into_inner()
+            .map_err(|e| err(e.error()))?;
+        file.sync_all().map_err(|e| err(&e))?;
+        drop(file);
+        std::fs::rename(&partial, &path).map_err(|e| err(&e))?;
+        Ok(path)
     }
+}
+
+/// Where the bag `path` is written until it is finished: `<path>.partial`.
+pub fn partial_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_os_string();
+    name.push(".partial");
+    PathBuf::from(name)
 }
 
 #[cfg(test)]
@@ -246,5 +279,26 @@ mod tests {
         assert_eq!(seen[3].1, NEUSPIKE_ENCODING);
         assert_eq!(seen[3].2, None);
         assert!(image.contains("MSG: builtin_interfaces/Time"));
+        assert!(!partial_path(&dir.path().join("sub/run.mcap")).exists());
+    }
+
+    #[test]
+    fn a_bag_not_finished_keeps_its_partial_name_and_its_messages() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("run.mcap");
+        let mut bag = Bag::create(&path).expect("bag");
+        for i in 0..3 {
+            bag.neuspike("neuspike/live/tfp", b"arrow", 1_000 + i)
+                .expect("arrow");
+        }
+        // The node failed: the bag is dropped, never finished.
+        drop(bag);
+        assert!(!path.exists(), "an unfinished bag under its own name");
+        let bytes = std::fs::read(partial_path(&path)).expect("the partial bag");
+        let recovered = mcap::MessageStream::new(&bytes)
+            .expect("mcap")
+            .filter(Result::is_ok)
+            .count();
+        assert_eq!(recovered, 3);
     }
 }

@@ -63,7 +63,8 @@ pub struct PublishConfig {
     pub congestion: Congestion,
     /// Also record the run into this MCAP file, as a ROS 2 bag (`ros2 bag play` reads it):
     /// every ROS 2 topic the node publishes, and neuspike's own messages under their keys. A
-    /// relative path is relative to the graph's folder.
+    /// relative path is relative to the graph's folder. Written as `<FILE>.partial` and renamed
+    /// to FILE when the run ends: a bag under its own name is whole.
     #[arg(long)]
     pub mcap: Option<std::path::PathBuf>,
     /// After the graph's end, wait up to this many seconds for the subscribers to leave (they

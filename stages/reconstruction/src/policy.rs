@@ -249,7 +249,21 @@ impl Policy {
             )));
         }
         let text = std::fs::read_to_string(path).map_err(read)?;
-        let p: Policy = serde_yaml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+        Policy::from_yaml(&text, &name)
+    }
+
+    /// A policy from the text of a file (`name` is what errors call it), checked as
+    /// [`Self::read`] checks it: format, version, finite values, at least one row, every row's
+    /// class among the classes.
+    ///
+    /// # Errors
+    /// [`PolicyError::Invalid`] naming `name`, and the field and value at fault.
+    pub fn from_yaml(text: &str, name: &str) -> Result<Policy, PolicyError> {
+        let invalid = |what: String| PolicyError::Invalid {
+            path: name.to_string(),
+            what,
+        };
+        let p: Policy = serde_yaml::from_str(text).map_err(|e| invalid(e.to_string()))?;
         p.check(None).map_err(invalid)?;
         Ok(p)
     }
@@ -380,18 +394,14 @@ impl Policy {
         Ok(p)
     }
 
-    /// Writes the policy as YAML, with a comment saying what it is.
-    ///
-    /// # Errors
-    /// The file cannot be written.
-    pub fn save(&self, path: &Path) -> std::io::Result<()> {
-        let yaml = serde_yaml::to_string(self).map_err(std::io::Error::other)?;
-        std::fs::write(
-            path,
-            format!(
-                "# neuspike --method auto: each window takes the method most of its nearest rows \
-                 choose, on the scaled features of its statistics (see neuspike_reconstruction::policy).\n{yaml}"
-            ),
+    /// The policy as the text of its file: YAML, after a comment saying what it is (the caller
+    /// writes it whole, e.g. through `neuspike_formats::atomic`).
+    pub fn to_yaml(&self) -> String {
+        // A policy is plain data (strings, finite numbers, lists): it always serialises.
+        let yaml = serde_yaml::to_string(self).unwrap_or_default();
+        format!(
+            "# neuspike --method auto: each window takes the method most of its nearest rows \
+             choose, on the scaled features of its statistics (see neuspike_reconstruction::policy).\n{yaml}"
         )
     }
 
@@ -727,7 +737,7 @@ mod tests {
         let path = dir.path().join("policy.yml");
         let mut p = policy();
         p.neighbours = 1;
-        p.save(&path).expect("save");
+        std::fs::write(&path, p.to_yaml()).expect("save");
         let installed = ["tfp-256", "neuspike-fused-8", "tfi"];
         let q = Policy::load(&path, &installed).expect("load");
         assert_eq!(p, q);
@@ -758,7 +768,7 @@ mod tests {
     fn a_policy_that_does_not_fit_the_installation_or_the_format_is_refused_by_name() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("policy.yml");
-        policy().save(&path).expect("save");
+        std::fs::write(&path, policy().to_yaml()).expect("save");
         let e = Policy::load(&path, &["tfp-256"])
             .expect_err("missing method")
             .to_string();

@@ -14,7 +14,7 @@ mod writer;
 
 pub use neuspike_image::BitDepth;
 pub use neuspike_metrics::MetricsError;
-pub use report::{FrameMetrics, MetricsCsv, Summary};
+pub use report::{FrameMetrics, MetricsCsv, Summary, SummaryFile, read_run};
 pub use stage::SinkStage;
 pub use writer::{GROUND_TRUTH, InputTally, Sink, SinkConfig};
 
@@ -45,5 +45,14 @@ pub enum SinkError {
         what: String,
         /// Every input's counts, one line.
         counts: String,
+    },
+    /// A run's output read back is not whole: the run did not finish, failed, or its
+    /// `metrics.csv` was cut ([`report::read_run`]).
+    #[error("{}: {what}", dir.display())]
+    NotWhole {
+        /// The sink's folder.
+        dir: PathBuf,
+        /// What is missing or cut, and why.
+        what: String,
     },
 }

@@ -88,6 +88,7 @@ pub fn csv_line(row: &FrameMetrics) -> String {
 pub struct MetricsCsv {
     path: PathBuf,
     out: BufWriter<File>,
+    rows: u64,
 }
 
 impl MetricsCsv {
@@ -101,6 +102,7 @@ impl MetricsCsv {
         let mut csv = Self {
             path: path.to_owned(),
             out: BufWriter::new(file),
+            rows: 0,
         };
         csv.write_flushed(&format!("{CSV_HEADER}\n"))?;
         Ok(csv)
@@ -108,7 +110,14 @@ impl MetricsCsv {
 
     /// Appends one row and flushes it. `None` figures are empty fields; infinite PSNR is `inf`.
     pub fn append(&mut self, row: &FrameMetrics) -> Result<(), SinkError> {
-        self.write_flushed(&csv_line(row))
+        self.write_flushed(&csv_line(row))?;
+        self.rows += 1;
+        Ok(())
+    }
+
+    /// Rows appended whole so far (the header not counted).
+    pub fn rows(&self) -> u64 {
+        self.rows
     }
 
     /// The file being written.
@@ -278,6 +287,8 @@ pub struct Summary {
     budget: BTreeMap<String, (i64, u64, u64)>,
     /// Why the sink failed, if it did: the figures above cover what came before.
     failure: Option<String>,
+    /// Rows written whole to `metrics.csv`.
+    metrics_rows: u64,
 }
 
 /// Frames one method of `auto` made.
@@ -686,6 +697,11 @@ impl Summary {
         )
     }
 
+    /// Records how many rows `metrics.csv` holds whole (`summary.yml` says so).
+    pub fn set_metrics_rows(&mut self, rows: u64) {
+        self.metrics_rows = rows;
+    }
+
     /// Records why the sink failed (the first reason is kept).
     pub fn set_failure(&mut self, why: &str) {
         self.failure.get_or_insert_with(|| why.to_string());
@@ -720,6 +736,8 @@ impl Summary {
     pub fn to_file(&self) -> SummaryFile {
         let latency: BTreeMap<String, Latency> = self.latencies().into_iter().collect();
         SummaryFile {
+            metrics_rows: self.metrics_rows,
+            failure: self.failure.clone(),
             inputs: self
                 .counts
                 .values()
@@ -777,11 +795,96 @@ pub struct InputFigures {
     pub latency_by_minute: Vec<LatencyWindow>,
 }
 
-/// `summary.yml`: what a program reads of a run (the Markdown summary is for people).
+/// `summary.yml`: what a program reads of a run (the Markdown summary is for people). The sink
+/// writes it last, when the run ends, and removes an earlier run's when it starts: a folder whose
+/// `metrics.csv` has no `summary.yml` beside it holds a run that did not finish.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SummaryFile {
+    /// Rows written whole to `metrics.csv` (the header not counted).
+    #[serde(default)]
+    pub metrics_rows: u64,
+    /// Why the sink failed, if it did: the figures cover what came before.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub failure: Option<String>,
     /// By input.
     pub inputs: BTreeMap<String, InputFigures>,
+}
+
+/// The largest `summary.yml` [`read_run`] reads: 16 MiB (a run's is a few KiB).
+pub const MAX_SUMMARY_BYTES: u64 = 16 << 20;
+
+/// A run's figures from the sink's folder `dir`, only when the run is whole: its `summary.yml`
+/// was written (the run finished), says no failure, and `metrics.csv` holds exactly the rows it
+/// counts, the last one ended.
+///
+/// # Errors
+/// [`SinkError::NotWhole`] saying what is missing or cut (no summary: the run did not finish;
+/// a failure: the summary's reason; rows missing or a row cut: the file was cut after the run),
+/// or [`SinkError::Io`] when a file cannot be read.
+pub fn read_run(dir: &Path) -> Result<SummaryFile, SinkError> {
+    use std::io::{BufRead, BufReader, Read};
+    let not_whole = |what: String| SinkError::NotWhole {
+        dir: dir.to_owned(),
+        what,
+    };
+    let io = |path: &Path| {
+        let path = path.to_owned();
+        move |source| SinkError::Io { path, source }
+    };
+    let csv_path = dir.join("metrics.csv");
+    // Rows in metrics.csv, and whether the last one ended with its newline.
+    let (lines, ended) = {
+        let mut reader = BufReader::new(File::open(&csv_path).map_err(io(&csv_path))?);
+        let (mut lines, mut ended) = (0u64, true);
+        loop {
+            let buf = reader.fill_buf().map_err(io(&csv_path))?;
+            let Some(&last) = buf.last() else {
+                break;
+            };
+            lines += buf.iter().filter(|&&b| b == b'\n').count() as u64;
+            ended = last == b'\n';
+            let n = buf.len();
+            reader.consume(n);
+        }
+        (lines, ended)
+    };
+    let rows = lines.saturating_sub(1);
+    let yml_path = dir.join("summary.yml");
+    let mut text = String::new();
+    match File::open(&yml_path) {
+        Ok(f) => f
+            .take(MAX_SUMMARY_BYTES)
+            .read_to_string(&mut text)
+            .map_err(io(&yml_path))?,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(not_whole(format!(
+                "no summary.yml: the run did not finish, so metrics.csv ({rows} rows) may stop \
+                 short of it"
+            )));
+        }
+        Err(e) => return Err(io(&yml_path)(e)),
+    };
+    let file: SummaryFile = serde_yaml::from_str(&text)
+        .map_err(|e| not_whole(format!("summary.yml: not a run's summary: {e}")))?;
+    if let Some(why) = &file.failure {
+        return Err(not_whole(format!(
+            "the sink failed ({why}); metrics.csv holds the {} rows before it",
+            file.metrics_rows
+        )));
+    }
+    if !ended {
+        return Err(not_whole(format!(
+            "metrics.csv: its last row is cut (no newline after row {rows})"
+        )));
+    }
+    if rows != file.metrics_rows {
+        return Err(not_whole(format!(
+            "metrics.csv holds {rows} rows but summary.yml counts {}: the file was cut or \
+             changed after the run",
+            file.metrics_rows
+        )));
+    }
+    Ok(file)
 }
 
 #[cfg(test)]

@@ -95,6 +95,17 @@ impl Sink {
     /// A sink writing under `cfg.out` (created); `has_gt` says whether ground truth will come.
     pub fn new(cfg: &SinkConfig, has_gt: bool) -> Result<Self, SinkError> {
         create_dir(&cfg.out)?;
+        // An earlier run's summary would vouch for this run's metrics.csv: it goes first (the
+        // summary is written again when this run ends).
+        for name in ["summary.yml", "summary.md"] {
+            let path = cfg.out.join(name);
+            match std::fs::remove_file(&path) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                    return Err(SinkError::Io { path, source: e });
+                }
+                _ => {}
+            }
+        }
         let csv = MetricsCsv::create(&cfg.out.join("metrics.csv"))?;
         Ok(Sink {
             out: cfg.out.clone(),
@@ -282,6 +293,7 @@ impl Sink {
         }
         self.summary
             .set_sampling(self.write_every, self.score_every);
+        self.summary.set_metrics_rows(self.csv.rows());
         let path = self.out.join("summary.md");
         if let Err(e) = self.summary.write(&path) {
             return Err(SinkError::SummaryLost {
