@@ -504,6 +504,26 @@ mod tests {
         panic!("nothing arrived");
     }
 
+    /// A publisher on `key` of `s`, once a subscriber matched it.
+    fn matched_publisher<'a>(s: &'a zenoh::Session, key: &str) -> zenoh::pubsub::Publisher<'a> {
+        let p = s
+            .declare_publisher(key.to_string())
+            .wait()
+            .expect("publisher");
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !p.matching_status().wait().expect("status").matching() {
+            assert!(Instant::now() < deadline, "the subscriber never matched");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        p
+    }
+
+    /// Puts a spike chunk (or its end marker) on `p`, as neuspike's publishers do.
+    fn put(p: &zenoh::pubsub::Publisher<'_>, (m, d): (Meta, ArrayRef)) {
+        let bytes = ipc::encode(SpikeChunk::TYPE_URN, &m, &d).expect("encode");
+        put_message(p, bytes, 0).expect("put");
+    }
+
     #[test]
     fn gaps_are_counted_duplicates_dropped_and_the_end_says_how_many_were_sent() {
         let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -613,20 +633,8 @@ mod tests {
             Duration::from_secs(10),
         )
         .expect("subscribe");
-        let declare = |s: &zenoh::Session| {
-            let p = s.declare_publisher("test/owned").wait().expect("publisher");
-            let deadline = Instant::now() + Duration::from_secs(10);
-            while !p.matching_status().wait().expect("status").matching() {
-                assert!(Instant::now() < deadline, "the subscriber never matched");
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            p
-        };
+        let declare = |s| matched_publisher(s, "test/owned");
         let (cam, bad) = (declare(&camera), declare(&intruder));
-        let put = |p: &zenoh::pubsub::Publisher<'_>, (m, d): (Meta, ArrayRef)| {
-            let bytes = ipc::encode(SpikeChunk::TYPE_URN, &m, &d).expect("encode");
-            put_message(p, bytes, 0).expect("put");
-        };
         put(&cam, chunk(0));
         let first = next_taken(&mut remote);
         assert!(matches!(first, Taken::Message(..)), "{first:?}");
@@ -683,22 +691,6 @@ mod tests {
         )
         .expect("subscribe")
         .rejoining_after(rejoin);
-        let declare = |s: &zenoh::Session| {
-            let p = s
-                .declare_publisher("test/restart")
-                .wait()
-                .expect("publisher");
-            let deadline = Instant::now() + Duration::from_secs(10);
-            while !p.matching_status().wait().expect("status").matching() {
-                assert!(Instant::now() < deadline, "the subscriber never matched");
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            p
-        };
-        let put = |p: &zenoh::pubsub::Publisher<'_>, (m, d): (Meta, ArrayRef)| {
-            let bytes = ipc::encode(SpikeChunk::TYPE_URN, &m, &d).expect("encode");
-            put_message(p, bytes, 0).expect("put");
-        };
         let mut seqs = Vec::new();
         let take = |remote: &mut Remote, seqs: &mut Vec<u64>| match next_taken(remote) {
             Taken::Message(m, d) => seqs.push(SpikeChunk::from_arrow(&m, &d).expect("chunk").seq),
@@ -706,7 +698,7 @@ mod tests {
         };
         {
             let first = session("tcp/127.0.0.1:0", &dial);
-            let cam = declare(&first);
+            let cam = matched_publisher(&first, "test/restart");
             for seq in 0..3 {
                 put(&cam, chunk(seq));
                 take(&mut remote, &mut seqs);
@@ -716,7 +708,7 @@ mod tests {
         // once the old one has been silent for the rejoin time.
         std::thread::sleep(rejoin + Duration::from_millis(100));
         let second = session("tcp/127.0.0.1:0", &dial);
-        let cam = declare(&second);
+        let cam = matched_publisher(&second, "test/restart");
         put(&cam, chunk(0));
         put(&cam, chunk(1));
         put(&cam, end_of_stream::<SpikeChunk>(2));
