@@ -10,7 +10,8 @@ use std::time::Instant;
 use eyre::WrapErr;
 use ndarray::Array3;
 
-use neuspike_reconstruction::learned::{ConvPath, LearnedModel, NodeTime, set_threads};
+use neuspike_reconstruction::learned::{ConvPath, LearnedModel, NodeTime, Precision, set_threads};
+use neuspike_simd::dot::DotPath;
 
 /// Latency at one thread count.
 #[derive(Clone, Debug, PartialEq)]
@@ -25,6 +26,39 @@ pub struct Timing {
     pub runs: usize,
     /// The convolution path the plan used.
     pub conv: ConvPath,
+    /// The precision of its 3x3 convolutions.
+    pub precision: Precision,
+}
+
+/// A precision as `bench-model --precision` names it: `f32`, `int8` (the widest 8-bit path
+/// this CPU has, as the infer node's `--precision int8` runs), or an 8-bit path by name
+/// (`int8-portable`, `int8-vnni`), refused when this CPU does not run it.
+pub fn parse_precision(s: &str) -> Result<Precision, String> {
+    if let Some(name) = s.strip_prefix("int8-") {
+        let path = DotPath::ALL
+            .into_iter()
+            .find(|p| p.name() == name)
+            .ok_or_else(|| {
+                format!("precision `{s}`: 8-bit paths are int8-portable and int8-vnni")
+            })?;
+        if !path.is_supported() {
+            return Err(format!("precision `{s}`: this CPU has no {name}"));
+        }
+        return Ok(Precision::Int8(path));
+    }
+    neuspike_reconstruction::learned::parse_precision(s)
+}
+
+/// Every precision and path this CPU runs, `f32` first.
+pub fn every_precision() -> Vec<Precision> {
+    std::iter::once(Precision::F32)
+        .chain(
+            DotPath::ALL
+                .into_iter()
+                .filter(|p| p.is_supported())
+                .map(Precision::Int8),
+        )
+        .collect()
 }
 
 /// The input pattern every timing uses: `[0, 1]`, a fixed pattern per channel (dense convolutions
@@ -87,9 +121,11 @@ pub fn profile_model(
     threads: usize,
     runs: usize,
     conv: ConvPath,
+    precision: Precision,
 ) -> eyre::Result<Profile> {
     let mut model = LearnedModel::load(path).wrap_err("bench-model")?;
     model.set_conv_path(conv);
+    model.set_precision(precision);
     let inputs = pattern_inputs(&model, height, width);
     let views: Vec<_> = inputs.iter().map(|a| a.view()).collect();
     set_threads(threads);
@@ -122,6 +158,7 @@ pub fn time_model(
     threads: &[usize],
     runs: usize,
     conv: ConvPath,
+    precision: Precision,
 ) -> eyre::Result<Vec<Timing>> {
     let loaded = LearnedModel::load(path).wrap_err("bench-model")?;
     let inputs = pattern_inputs(&loaded, height, width);
@@ -132,6 +169,7 @@ pub fn time_model(
         // may choose another convolution path (tract's direct convolution runs on one thread).
         let mut model = loaded.clone();
         model.set_conv_path(conv);
+        model.set_precision(precision);
         set_threads(n);
         model.run(&views).wrap_err("bench-model: warm-up run")?;
         let mut ms = Vec::with_capacity(runs);
@@ -147,6 +185,7 @@ pub fn time_model(
             min_ms: ms[0],
             runs: ms.len(),
             conv: model.conv_path_in_use().unwrap_or(conv),
+            precision,
         });
     }
     set_threads(1);

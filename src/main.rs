@@ -172,6 +172,11 @@ enum Command {
         /// fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
         #[arg(long, default_value = "auto")]
         conv: neuspike_reconstruction::learned::ConvPath,
+        /// Precisions of the 3x3 convolutions to time side by side, comma-separated: f32, int8
+        /// (the widest 8-bit path this CPU has, as the infer node runs it), int8-portable,
+        /// int8-vnni; by default every one this CPU runs. Ratios are against the first.
+        #[arg(long, value_delimiter = ',', value_parser = neuspike::bench_model::parse_precision)]
+        precision: Vec<neuspike_reconstruction::learned::Precision>,
     },
     /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the
     /// output folder (`graph.yml`), e.g. `neuspike reconstruct --spikes car.dat --out out/car`.
@@ -466,20 +471,57 @@ fn run(cli: Cli) -> eyre::Result<()> {
             runs,
             profile,
             conv,
+            precision,
         } => {
-            let t = neuspike::bench_model::time_model(&model, height, width, &threads, runs, conv)?;
-            println!("{}: {height}x{width}", model.display());
-            for x in t {
-                println!(
-                    "threads {}: median {:.2} ms, min {:.2} ms ({} runs, {} convolutions)",
-                    x.threads, x.median_ms, x.min_ms, x.runs, x.conv
-                );
+            let precisions = if precision.is_empty() {
+                neuspike::bench_model::every_precision()
+            } else {
+                precision
+            };
+            println!(
+                "{}: {height}x{width}; this CPU: {}, int8 on {}",
+                model.display(),
+                neuspike_simd::detect().name(),
+                neuspike_simd::dot::detect().name()
+            );
+            let mut first: Option<Vec<neuspike::bench_model::Timing>> = None;
+            for &p in &precisions {
+                let t = neuspike::bench_model::time_model(
+                    &model, height, width, &threads, runs, conv, p,
+                )?;
+                for x in &t {
+                    let base = first
+                        .as_ref()
+                        .and_then(|f| f.iter().find(|b| b.threads == x.threads));
+                    let ratio = base.map_or(String::new(), |b| {
+                        format!(
+                            ", {:.2}x the time of {}",
+                            x.median_ms / b.median_ms,
+                            b.precision
+                        )
+                    });
+                    println!(
+                        "{:<16} threads {}: median {:.2} ms, min {:.2} ms ({} runs, {} convolutions{ratio})",
+                        x.precision.to_string(),
+                        x.threads,
+                        x.median_ms,
+                        x.min_ms,
+                        x.runs,
+                        x.conv
+                    );
+                }
+                first.get_or_insert(t);
             }
             if profile {
                 let n = threads.last().copied().unwrap_or(1);
-                let p = neuspike::bench_model::profile_model(&model, height, width, n, runs, conv)?;
+                let last = precisions.last().copied().unwrap_or_default();
+                let p = neuspike::bench_model::profile_model(
+                    &model, height, width, n, runs, conv, last,
+                )?;
                 let total = p.total_ms().max(f64::MIN_POSITIVE);
-                println!("per operator, {n} thread(s), median of {runs} runs (sum {total:.2} ms):");
+                println!(
+                    "per operator, {last}, {n} thread(s), median of {runs} runs (sum {total:.2} ms):"
+                );
                 for (op, ms, k) in p.by_op() {
                     println!(
                         "  {op:<28} {ms:>9.2} ms {:>5.1}%  {k} nodes",

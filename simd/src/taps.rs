@@ -126,7 +126,7 @@ pub fn accumulate(
 
 /// `vectors` split into runs `(first, length)` of at most `most`, as even as can be: a short
 /// last run (7 as 6 + 1) would hold too few accumulators to hide the FMA latency, 4 + 3 does.
-fn blocks(vectors: usize, most: usize) -> impl Iterator<Item = (usize, usize)> {
+pub(crate) fn blocks(vectors: usize, most: usize) -> impl Iterator<Item = (usize, usize)> {
     let n = vectors.div_ceil(most.max(1));
     let (base, longer) = (vectors / n.max(1), vectors % n.max(1));
     (0..n).map(move |b| (b * base + b.min(longer), base + usize::from(b < longer)))

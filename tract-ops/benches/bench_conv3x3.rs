@@ -14,7 +14,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ndarray::{Array1, Array4};
-use neuspike_tract_ops::conv3x3::Conv3x3;
+use neuspike_tract_ops::conv3x3::{Conv3x3, Precision};
 use std::hint::black_box;
 use tract_onnx::prelude::*;
 
@@ -50,6 +50,19 @@ fn bench_shape(
                 .expect("runs")
         })
     });
+    // In 8 bits, on each path this CPU runs (the input quantised afresh every run).
+    for path in neuspike_simd::dot::DotPath::ALL
+        .into_iter()
+        .filter(|p| p.is_supported())
+    {
+        let int8 = conv.clone().with_precision(Precision::Int8(path));
+        group.bench_function(format!("neuspike-int8-{}", path.name()), |b| {
+            b.iter(|| {
+                int8.run(black_box(&input), (h, w), &mut output, None)
+                    .expect("runs")
+            })
+        });
+    }
     // The same into the same output on two threads: how well the bands scale, page faults apart.
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)

@@ -26,7 +26,10 @@
 use std::sync::Arc;
 
 use ndarray::{Array3, ArrayView3, ArrayView4};
+use neuspike_simd::dot::DotPath;
 use neuspike_simd::taps::{self, POINTS, Taps};
+
+pub mod int8;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::internal::*;
 
@@ -56,6 +59,36 @@ pub struct Conv3x3 {
     bias: Vec<f32>,
     /// Whether the output goes through `max(0, y)` (a ReLU after the convolution).
     relu: bool,
+    /// How it computes.
+    precision: Precision,
+}
+
+/// How a [`Conv3x3`] computes: in `f32` (the reference every other precision is tested
+/// against), or in 8 bits ([`int8`]: each frame's input quantised per channel, the weights per
+/// output channel, sums in 32-bit integers).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Precision {
+    /// `f32` fused multiply-adds.
+    #[default]
+    F32,
+    /// Unsigned 8-bit inputs by signed 8-bit weights, on the [`DotPath`] named.
+    Int8(DotPath),
+}
+
+impl Precision {
+    /// 8 bits on the widest path this CPU has.
+    pub fn int8() -> Precision {
+        Precision::Int8(neuspike_simd::dot::detect())
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Precision::F32 => f.write_str("f32"),
+            Precision::Int8(path) => write!(f, "int8 ({})", path.name()),
+        }
+    }
 }
 
 /// Why a convolution cannot be a [`Conv3x3`].
@@ -78,6 +111,9 @@ pub enum Conv3x3Error {
         /// Output channels.
         channels: usize,
     },
+    /// More input channels than an 8-bit convolution's sums hold ([`int8::MAX_CHANNELS`]).
+    #[error("{0} input channels, more than the {max} an 8-bit convolution takes", max = int8::MAX_CHANNELS)]
+    Int8Channels(usize),
     /// The input is not `[C, H, W]` with the weights' `C`, or the output does not fit it.
     #[error("input {input:?} and output of {output} values for a {c_in}-to-{c_out} convolution")]
     Shape {
@@ -137,12 +173,23 @@ impl Conv3x3 {
             packed,
             bias,
             relu: false,
+            precision: Precision::F32,
         })
     }
 
     /// The same convolution followed by a ReLU, `y.max(0.0)` (0 for NaN, as tract's `Max`).
     pub fn with_relu(self) -> Conv3x3 {
         Conv3x3 { relu: true, ..self }
+    }
+
+    /// The same convolution computed in `precision`.
+    pub fn with_precision(self, precision: Precision) -> Conv3x3 {
+        Conv3x3 { precision, ..self }
+    }
+
+    /// How it computes.
+    pub fn precision(&self) -> Precision {
+        self.precision
     }
 
     /// Whether a ReLU follows the convolution.
@@ -177,6 +224,9 @@ impl Conv3x3 {
     }
 
     fn check(&self, input: &[usize], output: usize) -> Result<(), Conv3x3Error> {
+        if matches!(self.precision, Precision::Int8(_)) {
+            self.check_int8()?;
+        }
         match *input {
             [c, h, w]
                 if c == self.c_in && output == self.c_out * self.out_len(h) * self.out_len(w) =>
@@ -383,6 +433,9 @@ impl Conv3x3 {
         if ho == 0 || wo == 0 {
             return;
         }
+        if let Precision::Int8(path) = self.precision {
+            return self.drive_int8(isa, path, input, (h, w), output, pool);
+        }
         let rows = crate::bands::band_rows(ho, pool);
         let tasks = crate::bands::row_bands(output, ho * wo, wo, rows);
         let band = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
@@ -445,7 +498,7 @@ impl Conv3x3 {
                     for c in 0..self.c_in {
                         let src = inside.map(|iy| input.row(c, iy, h));
                         let rows = &mut scratch[(c * 3 + *slot) * S * len..][..S * len];
-                        Self::padded::<S>(src, w, rows);
+                        Self::padded::<S, f32>(src, w, rows, 0.0);
                     }
                     held[*slot] = Some(iy);
                 }
@@ -520,7 +573,7 @@ impl Conv3x3 {
                 // Scratch row k is input row y0 + r0 + k - 1.
                 for (k, row) in dst[..(rows + 2) * pw].chunks_exact_mut(pw).enumerate() {
                     let iy = (y0 + r0 + k).checked_sub(1).filter(|&iy| iy < h);
-                    Self::padded::<1>(iy.map(|iy| input.row(c, iy, h)), w, row);
+                    Self::padded::<1, f32>(iy.map(|iy| input.row(c, iy, h)), w, row, 0.0);
                 }
                 dst[(rows + 2) * pw..].fill(0.0);
             }
@@ -566,26 +619,26 @@ impl Conv3x3 {
     }
 
     /// The `S` scratch rows (`len` values each) of one input row `src` (`None` off the image)
-    /// of `w` values, `src`'s last repeated up to `w` when it is shorter, 0 wherever a tap
+    /// of `w` values, `src`'s last repeated up to `w` when it is shorter, `zero` wherever a tap
     /// falls off the image.
     ///
     /// Stride 1: the row shifted right by one, tap `kx` of point `x` at `x + kx`.
     /// Stride 2: the even columns (`2x`: tap 1 at `x`), then the odd ones shifted right by one
     /// (`2x - 1`: tap 0 at `x`, tap 2 at `x + 1`).
     #[inline(always)]
-    fn padded<const S: usize>(src: Option<&[f32]>, w: usize, rows: &mut [f32]) {
+    fn padded<const S: usize, T: Copy>(src: Option<&[T]>, w: usize, rows: &mut [T], zero: T) {
         let Some(src) = src.filter(|s| !s.is_empty()) else {
-            rows.fill(0.0);
+            rows.fill(zero);
             return;
         };
         let (first, second) = rows.split_at_mut(rows.len() / S);
         let n = src.len().min(w);
         let last = src[n - 1];
         if S == 1 {
-            first[0] = 0.0;
+            first[0] = zero;
             first[1..=n].copy_from_slice(&src[..n]);
             first[n + 1..=w].fill(last);
-            first[w + 1..].fill(0.0);
+            first[w + 1..].fill(zero);
         } else {
             let (evens, odds) = (w.div_ceil(2), w / 2);
             // Pairs, which the compiler turns into vector shuffles (a step of 2 it does not).
@@ -601,9 +654,9 @@ impl Conv3x3 {
             // Past the end of `src` (only when the row is padded): its last value, repeated.
             first[n.div_ceil(2)..evens].fill(last);
             second[done + 1..=odds].fill(last);
-            first[evens..].fill(0.0);
-            second[0] = 0.0;
-            second[odds + 1..].fill(0.0);
+            first[evens..].fill(zero);
+            second[0] = zero;
+            second[odds + 1..].fill(zero);
         }
     }
 }
@@ -622,6 +675,26 @@ enum Input<'a> {
 }
 
 impl<'a> Input<'a> {
+    /// Channel `c`'s values as one run of memory when they are (`h` rows: the padded height),
+    /// without the padding an `Edge` input repeats.
+    #[inline]
+    fn plane(self, c: usize, h: usize) -> Option<&'a [f32]> {
+        match self {
+            Input::Dense(x, w) => x.get(c * h * w..(c + 1) * h * w),
+            Input::Parts(parts, w) => {
+                let mut c = c;
+                for &(x, channels) in parts {
+                    if c < channels {
+                        return x.get(c * h * w..(c + 1) * h * w);
+                    }
+                    c -= channels;
+                }
+                None
+            }
+            Input::Edge(x) => x.slice_move(ndarray::s![c, .., ..]).to_slice(),
+        }
+    }
+
     /// Row `iy` (`< h`, the padded height) of channel `c`: `w` values for `Dense`, the
     /// view's row (the last when `iy` is past it) for `Edge`.
     #[inline]
@@ -668,13 +741,13 @@ thread_local! {
 
 /// `len` values of `buffer` from its first 64-byte boundary (a cache line, and an AVX-512
 /// vector), growing it as needed; the values are whatever was there.
-fn aligned(buffer: &mut Vec<f32>, len: usize) -> &mut [f32] {
-    const VALUES: usize = 64 / std::mem::size_of::<f32>();
-    if buffer.len() < len + VALUES {
-        buffer.resize(len + VALUES, 0.0);
+fn aligned<T: Copy + Default>(buffer: &mut Vec<T>, len: usize) -> &mut [T] {
+    let values = 64 / std::mem::size_of::<T>();
+    if buffer.len() < len + values {
+        buffer.resize(len + values, T::default());
     }
-    let skew = buffer.as_ptr().addr() % 64 / std::mem::size_of::<f32>();
-    let start = (VALUES - skew) % VALUES;
+    let skew = buffer.as_ptr().addr() % 64 / std::mem::size_of::<T>();
+    let start = (values - skew) % values;
     &mut buffer[start..start + len]
 }
 
@@ -689,6 +762,7 @@ impl PartialEq for Conv3x3Op {
             && a.c_out == b.c_out
             && a.stride == b.stride
             && a.relu == b.relu
+            && a.precision == b.precision
             && a.packed
                 .iter()
                 .map(|v| v.to_bits())
@@ -710,8 +784,8 @@ impl Op for Conv3x3Op {
     fn info(&self) -> TractResult<Vec<String>> {
         let relu = if self.0.relu { ", then ReLU" } else { "" };
         Ok(vec![format!(
-            "{} -> {} channels, stride {}{relu}",
-            self.0.c_in, self.0.c_out, self.0.stride
+            "{} -> {} channels, stride {}{relu}, {}",
+            self.0.c_in, self.0.c_out, self.0.stride, self.0.precision
         )])
     }
 
@@ -921,9 +995,13 @@ fn concatenated(model: &TypedModel, outlet: OutletId) -> TractResult<Option<TVec
 /// Replaces every convolution of the (decluttered) `model` that a [`Conv3x3`] computes with
 /// output rows of at least `min_width` points ([`MIN_WIDTH`] where it pays) by a
 /// [`Conv3x3Op`], taking in the ReLU that follows it if any, and reading the parts of the
-/// channel concatenation before it if any (the decoder's merges: no concatenated copy);
-/// returns how many.
-pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usize> {
+/// channel concatenation before it if any (the decoder's merges: no concatenated copy),
+/// computing in `precision`; returns how many.
+pub fn use_conv3x3(
+    model: &mut TypedModel,
+    min_width: usize,
+    precision: Precision,
+) -> TractResult<usize> {
     let mut replaced = 0;
     for id in model.eval_order()? {
         let node = model.node(id);
@@ -935,7 +1013,8 @@ pub fn use_conv3x3(model: &mut TypedModel, min_width: usize) -> TractResult<usiz
             conv.with_relu()
         } else {
             conv
-        };
+        }
+        .with_precision(precision);
         let mut patch = TypedModelPatch::default();
         let parts = concatenated(model, node.inputs[0])?.unwrap_or_else(|| tvec![node.inputs[0]]);
         let xs = patch.taps(model, &parts)?;
@@ -1248,10 +1327,13 @@ mod tests {
             let want = run(model.clone());
             let mut ours = model;
             assert_eq!(
-                use_conv3x3(&mut ours.clone(), w.div_ceil(stride) + 1).unwrap(),
+                use_conv3x3(&mut ours.clone(), w.div_ceil(stride) + 1, Precision::F32).unwrap(),
                 0
             );
-            assert_eq!(use_conv3x3(&mut ours, w.div_ceil(stride)).unwrap(), 1);
+            assert_eq!(
+                use_conv3x3(&mut ours, w.div_ceil(stride), Precision::F32).unwrap(),
+                1
+            );
             let ours = ours.into_decluttered().unwrap();
             let op = ours.nodes().iter().find_map(|n| n.op_as::<Conv3x3Op>());
             assert_eq!(op.map(|op| op.0.relu()), Some(h % 2 == 1));
@@ -1293,7 +1375,7 @@ mod tests {
             .unwrap();
         model.select_output_outlets(&z).unwrap();
         let mut as_output = conv.tract_model(h, w).unwrap();
-        assert_eq!(use_conv3x3(&mut as_output, 1).unwrap(), 1);
+        assert_eq!(use_conv3x3(&mut as_output, 1, Precision::F32).unwrap(), 1);
         assert_eq!(take_first_convolutions(&mut as_output).unwrap().len(), 1);
         assert!(take_first_convolutions(&mut as_output).unwrap()[0].is_none());
 
@@ -1310,7 +1392,7 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         let mut ours = model;
-        assert_eq!(use_conv3x3(&mut ours, 1).unwrap(), 1);
+        assert_eq!(use_conv3x3(&mut ours, 1, Precision::F32).unwrap(), 1);
         let want = run(ours.clone(), x);
         let taken = take_first_convolutions(&mut ours).unwrap();
         let [Some(first)] = taken.as_slice() else {
@@ -1348,7 +1430,7 @@ mod tests {
             conv.bias.truncate(o);
             let mut model = conv.tract_model(9, 9).unwrap();
             assert_eq!(
-                use_conv3x3(&mut model, 1).unwrap(),
+                use_conv3x3(&mut model, 1, Precision::F32).unwrap(),
                 0,
                 "{o} outputs, stride {stride}"
             );

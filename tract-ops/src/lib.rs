@@ -3,15 +3,16 @@
 //!
 //! | module | operator | replaces |
 //! |---|---|---|
-//! | [`conv3x3`] | 3x3 convolution, pad 1, stride 1 or 2, its ReLU and a preceding channel concatenation taken in; an input's first convolution run on the input where it lies, its edge padding read in place | tract's direct convolution, or im2col and a matrix product |
+//! | [`conv3x3`] | 3x3 convolution, pad 1, stride 1 or 2, its ReLU and a preceding channel concatenation taken in; an input's first convolution run on the input where it lies, its edge padding read in place; in `f32` or 8 bits ([`conv3x3::int8`]) | tract's direct convolution, or im2col and a matrix product |
 //! | [`deconv2x2`] | 2x2 stride-2 transposed convolution and its ReLU | a matrix product and a one-thread scatter (`DeconvSum`) |
 //! | [`attention`] | NeuSpike-Net's spatial attention (Eq. 12) and the channel attention's scaled sums (Eq. 11) | some twenty one-thread passes |
 //! | [`bands`] | the split of output rows across tract's pool that every operator uses | |
 //!
 //! Every operator has a scalar reference whose operations it takes in the same order, so the two
-//! agree bit for bit on every instruction set and thread count (tested), and a test against
+//! agree bit for bit on every instruction set and thread count (tested; in 8 bits, the 8-bit
+//! definition, itself tested against the `f32` one within a stated error), and a test against
 //! tract's own operator on the same weights. The inner loop of the convolutions is
-//! `neuspike_simd::taps`. `docs/tract-operators.md` sets out the two generic operators, the 3x3
+//! `neuspike_simd::taps` (`neuspike_simd::dot` in 8 bits). `docs/tract-operators.md` sets out the two generic operators, the 3x3
 //! convolution and the 2x2 transposed convolution, for tract's maintainers.
 #![deny(missing_docs)]
 

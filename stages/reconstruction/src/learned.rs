@@ -30,6 +30,7 @@ use tract_onnx::tract_hir::infer::Factoid;
 
 use crate::InferError;
 use neuspike_tract_ops::conv3x3::Conv3x3;
+pub use neuspike_tract_ops::conv3x3::Precision;
 pub use neuspike_tract_ops::{pad_edge, pad_edge_into};
 
 /// Heights and widths the networks take are multiples of this (three stride-2 layers).
@@ -146,6 +147,18 @@ impl std::str::FromStr for ConvPath {
     }
 }
 
+/// The precision of a network's 3x3 convolutions as a user names it: `f32` (the default, the
+/// reference) or `int8` (8 bits on the widest path this CPU has, see
+/// [`neuspike_tract_ops::conv3x3::int8`]; neuspike's kernels only, so the convolutions run on
+/// [`ConvPath::Blocked`]). The other operators run in `f32` either way.
+pub fn parse_precision(s: &str) -> Result<Precision, String> {
+    match s {
+        "f32" => Ok(Precision::F32),
+        "int8" => Ok(Precision::int8()),
+        other => Err(format!("precision `{other}`: expected f32 or int8")),
+    }
+}
+
 /// Runs of each candidate plan [`ConvPath::Auto`] times (the fastest counts: the machines here
 /// are noisy, and noise only ever adds time). Two runs each, one after the other, once kept
 /// im2col for the large model at 2 threads, 1.5x slower than the blocked path.
@@ -175,6 +188,7 @@ pub struct LearnedModel {
     channels: Vec<usize>,
     output: LearnedOutput,
     conv: ConvPath,
+    precision: Precision,
     /// The plans for the last padded sizes, newest last, and the path they use (never `Auto`):
     /// under `Auto`, the path timed fastest at the first size is kept for the others.
     plans: Vec<((usize, usize), Plan)>,
@@ -412,6 +426,7 @@ impl LearnedModel {
             channels,
             output,
             conv: ConvPath::Auto,
+            precision: Precision::F32,
             plans: Vec::new(),
             path_in_use: None,
             buffers: Vec::new(),
@@ -440,6 +455,23 @@ impl LearnedModel {
             self.plans.clear();
             self.path_in_use = None;
         }
+    }
+
+    /// Chooses the precision of the 3x3 convolutions (the next plan uses it). Any precision
+    /// but `f32` runs on neuspike's kernels: [`ConvPath::Auto`] then plans
+    /// [`ConvPath::Blocked`] alone, and [`ConvPath::Direct`] or [`ConvPath::Im2col`] refuse to
+    /// plan.
+    pub fn set_precision(&mut self, precision: Precision) {
+        if precision != self.precision {
+            self.precision = precision;
+            self.plans.clear();
+            self.path_in_use = None;
+        }
+    }
+
+    /// The precision of the 3x3 convolutions.
+    pub fn precision(&self) -> Precision {
+        self.precision
     }
 
     /// The path the current plan uses (`None` before the first run).
@@ -476,6 +508,15 @@ impl LearnedModel {
         )])
         .map_err(|e| model_error(&self.path, chain(&e)))?;
         let n_inputs = self.inputs.len();
+        let precision = self.precision;
+        if precision != Precision::F32 && path != ConvPath::Blocked {
+            return Err(model_error(
+                &self.path,
+                format!(
+                    "{precision} convolutions run on neuspike's kernels: --conv blocked or auto, not {path}"
+                ),
+            ));
+        }
         let doing = format!("planning it at {h}x{w}");
         let (runnable, first) = caught(&self.path, &doing, || {
             scope
@@ -486,6 +527,7 @@ impl LearnedModel {
                         neuspike_tract_ops::conv3x3::use_conv3x3(
                             &mut model,
                             neuspike_tract_ops::conv3x3::MIN_WIDTH,
+                            precision,
                         )?;
                         neuspike_tract_ops::deconv2x2::use_deconv2x2(&mut model)?;
                         neuspike_tract_ops::attention::use_spatial_attention(&mut model)?;
@@ -545,6 +587,9 @@ impl LearnedModel {
         }
         let (plan, path) = match (self.conv, self.path_in_use) {
             (ConvPath::Auto, Some(path)) => (self.build_plan(h, w, path)?, path),
+            (ConvPath::Auto, None) if self.precision != Precision::F32 => {
+                (self.build_plan(h, w, ConvPath::Blocked)?, ConvPath::Blocked)
+            }
             (ConvPath::Auto, None) => {
                 let mut candidates = Vec::new();
                 for path in [ConvPath::Direct, ConvPath::Im2col, ConvPath::Blocked] {

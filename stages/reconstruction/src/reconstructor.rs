@@ -32,6 +32,11 @@ pub struct InferConfig {
     /// size, keep the fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
     #[arg(long, default_value = "auto")]
     pub conv: ConvPath,
+    /// learned: the precision of the 3x3 convolutions: f32, or int8 (each frame's input
+    /// quantised per channel, on the widest 8-bit path this CPU has: AVX-512 VNNI, or plain
+    /// loops; neuspike's kernels only, so --conv auto or blocked).
+    #[arg(long, default_value = "f32", value_parser = crate::learned::parse_precision)]
+    pub precision: crate::learned::Precision,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).
     #[arg(long)]
     pub lum_per_rate: Option<f64>,
@@ -98,6 +103,7 @@ impl Default for InferConfig {
             method: Method::Tfp,
             model: None,
             conv: ConvPath::default(),
+            precision: crate::learned::Precision::F32,
             lum_per_rate: None,
             contrast: p.contrast,
             hf_cutoff_rad_s: p.hf_cutoff_rad_s,
@@ -221,6 +227,7 @@ impl InferConfig {
         };
         let mut model = LearnedModel::load(path)?;
         model.set_conv_path(self.conv);
+        model.set_precision(self.precision);
         for i in model.inputs() {
             if !has(i.input_id()) {
                 return Err(InferError::Wiring(format!(

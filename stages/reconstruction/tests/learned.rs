@@ -7,7 +7,7 @@ use ndarray::{Array3, Array4, ArrayView3, Axis, s};
 use ndarray_npy::read_npy;
 use neuspike_reconstruction::InferError;
 use neuspike_reconstruction::learned::{
-    ConvPath, LearnedInput, LearnedModel, LearnedOutput, STRIDE, pad_edge,
+    ConvPath, LearnedInput, LearnedModel, LearnedOutput, Precision, STRIDE, pad_edge,
 };
 use prost::Message;
 use tract_onnx::prelude::Framework;
@@ -451,4 +451,78 @@ fn reused_input_tensors_never_leak_one_frame_into_the_next() {
     let mut copy = model.clone();
     assert_eq!(run(&mut copy, &b3), other);
     assert_eq!(run(&mut model, &a3), first);
+}
+
+/// In 8 bits, every shipped network gives nearly the `f32` image on its reference input widened
+/// so that every layer runs neuspike's kernels: the PSNR of the 8-bit image against the `f32`
+/// one, peak the `f32` image's largest value, at least [`INT8_PSNR_DB`]. The accuracy that counts
+/// (against the ground truth, on the held-out scenes) is in each model's card.
+#[test]
+fn in_8_bits_every_shipped_network_stays_close_to_its_f32_image() {
+    /// The least PSNR of an 8-bit image against the `f32` one.
+    const INT8_PSNR_DB: f64 = 45.0;
+    for path in shipped() {
+        let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
+        let wide: Vec<Array3<f32>> = inputs
+            .iter()
+            .map(|a| {
+                let a = a.index_axis(Axis(0), 0);
+                let tiles: Vec<_> = (0..14).map(|_| a.view()).collect();
+                ndarray::concatenate(Axis(2), &tiles).expect("tiles")
+            })
+            .collect();
+        let views: Vec<ArrayView3<f32>> = wide.iter().map(|a| a.view()).collect();
+        let mut model = LearnedModel::load(&path).expect("load");
+        let exact = model.run(&views).expect("f32 run");
+        model.set_precision(Precision::int8());
+        let ops: Vec<String> = model
+            .profile(&views)
+            .expect("profile")
+            .into_iter()
+            .map(|t| t.op)
+            .collect();
+        assert!(
+            ops.iter().filter(|op| *op == "NeuspikeConv3x3").count() >= 3,
+            "{}: {ops:?}",
+            path.display()
+        );
+        let int8 = model.run(&views).expect("int8 run");
+        let peak = exact.iter().fold(0f32, |m, &v| m.max(v.abs())) as f64;
+        let mse = exact
+            .iter()
+            .zip(&int8)
+            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+            .sum::<f64>()
+            / exact.len() as f64;
+        let psnr = 10.0 * (peak * peak / mse.max(f64::MIN_POSITIVE)).log10();
+        eprintln!("{}: int8 against f32 {psnr:.2} dB", path.display());
+        assert!(
+            psnr >= INT8_PSNR_DB,
+            "{}: int8 against f32 {psnr:.2} dB",
+            path.display()
+        );
+    }
+}
+
+#[test]
+fn eight_bits_refuse_tracts_own_convolutions_by_name() {
+    let path = models_dir().join("neuspike-spike-8.onnx");
+    let mut model = LearnedModel::load(&path).expect("load");
+    let inputs = reference_inputs(&model, &path);
+    let views: Vec<ArrayView3<f32>> = inputs.iter().map(|a| a.index_axis(Axis(0), 0)).collect();
+    model.set_precision(Precision::int8());
+    model.set_conv_path(ConvPath::Direct);
+    let err = model
+        .run(&views)
+        .expect_err("int8 on tract's convolution")
+        .to_string();
+    assert!(
+        err.contains("neuspike-spike-8.onnx") && err.contains("int8") && err.contains("direct"),
+        "{err}"
+    );
+    model.set_conv_path(ConvPath::Auto);
+    model
+        .run(&views)
+        .expect("int8 on auto plans neuspike's kernels");
+    assert_eq!(model.conv_path_in_use(), Some(ConvPath::Blocked));
 }

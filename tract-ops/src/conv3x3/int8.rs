@@ -1,0 +1,709 @@
+//! [`Conv3x3`] in 8 bits: [`Precision::Int8`].
+//!
+//! Each call quantises its input afresh, per input channel, from the channel's range in this
+//! frame (so a dark frame and a bright one both get 256 levels, and no calibration is shipped
+//! or can go stale): `x ≈ s_c (q - z_c)` with `q` in `0..=255`, the range widened to hold 0 so
+//! that 0 (the padding off the image) is exact. Each channel's scale is folded into the weights,
+//! which are then quantised per output channel, symmetrically: `w s_c ≈ t_o k` with `k` in
+//! `-127..=127`. An output is then `y_o = t_o (Σ k q - Σ k z) + b_o`: 32-bit integer sums of
+//! 8-bit products ([`neuspike_simd::dot`]), which every path computes exactly, then one
+//! multiply and one add in `f32`. The fast path and [`Conv3x3::reference_int8`] therefore
+//! agree bit for bit; against the `f32` [`Conv3x3::reference`] the error is the quantisation's
+//! (tested with a stated tolerance).
+//!
+//! Edges, stated: a channel's range is taken over its finite values; a channel that is all 0
+//! (or whose range is below `255 f32::MIN_POSITIVE`) reads as 0; a NaN reads as the bottom of
+//! its channel's range (0 for a channel without negative values), +inf and -inf as its ends; an
+//! output channel whose scaled weights are all 0, or beyond `f32`'s range, gives its bias. The
+//! 32-bit sums are exact up to [`MAX_CHANNELS`] input channels.
+
+use neuspike_simd::dot::{self, ByteTaps};
+
+use super::*;
+
+/// The most input channels an 8-bit convolution takes: `9 x 4096 x 255 x 127 < 2^31`, so a
+/// sum cannot wrap.
+pub const MAX_CHANNELS: usize = 4096;
+
+/// Input channels (four to a quad) of one block of taps, as [`CHANNELS`] for `f32`.
+const QUADS: usize = 8;
+
+/// How one input channel is quantised: `x ≈ scale (q - zero)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChannelQuant {
+    /// The step between two levels (0 for a channel read as 0).
+    pub scale: f32,
+    /// `1 / scale` (0 for a channel read as 0).
+    pub inv: f32,
+    /// The level of 0.
+    pub zero: u8,
+}
+
+impl ChannelQuant {
+    /// The quantisation of values in `lo..=hi` (widened to hold 0) on 256 levels.
+    pub fn from_range(lo: f32, hi: f32) -> ChannelQuant {
+        let (lo, hi) = (lo.min(0.0), hi.max(0.0));
+        // Each end divided first: `hi - lo` itself may overflow.
+        let scale = hi / 255.0 - lo / 255.0;
+        if !(scale >= f32::MIN_POSITIVE && scale.is_finite()) {
+            return ChannelQuant {
+                scale: 0.0,
+                inv: 0.0,
+                zero: 0,
+            };
+        }
+        let inv = 1.0 / scale;
+        ChannelQuant {
+            scale,
+            inv,
+            zero: ((-lo * inv).clamp(0.0, 255.0) + 0.5) as u8,
+        }
+    }
+
+    /// The level of `v`: `v / scale + zero` rounded to the nearest (ties to even), within
+    /// `0..=255` (NaN at 0).
+    #[inline(always)]
+    pub fn quantize(self, v: f32) -> u8 {
+        self.level(v) as u8
+    }
+
+    /// [`quantize`](Self::quantize) as a 32-bit word, in operations every vector unit has:
+    /// compares and selects (a NaN fails the first and becomes 0), then the rounding of adding
+    /// `1.5 x 2^23` (whose last bits are then the integer, rounded to even). A conversion to an
+    /// integer would not do: Rust's saturating one keeps the loop scalar.
+    #[inline(always)]
+    fn level(self, v: f32) -> u32 {
+        const ROUND: f32 = 12_582_912.0;
+        let y = v * self.inv + f32::from(self.zero);
+        let y = if y > 0.0 { y } else { 0.0 };
+        let y = if y < 255.0 { y } else { 255.0 };
+        (y + ROUND).to_bits() - ROUND.to_bits()
+    }
+}
+
+/// The smallest and largest finite value of `values`, each from `(lo, hi)` (finite).
+#[inline(always)]
+fn finite_range(values: &[f32], (lo, hi): (f32, f32)) -> (f32, f32) {
+    // Compares that keep the held value on NaN (the compiler's plain `vminps`/`vmaxps`), four
+    // vectors of 16 lanes so that the compares do not wait on each other; an infinity found
+    // sends the values through the slow filter below.
+    let keep_lo = |l: &mut [f32; 16], c: &[f32]| {
+        for (l, &v) in l.iter_mut().zip(c) {
+            *l = if v < *l { v } else { *l };
+        }
+    };
+    let keep_hi = |h: &mut [f32; 16], c: &[f32]| {
+        for (h, &v) in h.iter_mut().zip(c) {
+            *h = if v > *h { v } else { *h };
+        }
+    };
+    let (mut l0, mut l1, mut l2, mut l3) = ([lo; 16], [lo; 16], [lo; 16], [lo; 16]);
+    let (mut h0, mut h1, mut h2, mut h3) = ([hi; 16], [hi; 16], [hi; 16], [hi; 16]);
+    let chunks = values.chunks_exact(64);
+    let rest = chunks.remainder();
+    for c in chunks {
+        keep_lo(&mut l0, &c[..16]);
+        keep_lo(&mut l1, &c[16..32]);
+        keep_lo(&mut l2, &c[32..48]);
+        keep_lo(&mut l3, &c[48..]);
+        keep_hi(&mut h0, &c[..16]);
+        keep_hi(&mut h1, &c[16..32]);
+        keep_hi(&mut h2, &c[32..48]);
+        keep_hi(&mut h3, &c[48..]);
+    }
+    let mut range = (lo, hi);
+    for v in l0.into_iter().chain(l1).chain(l2).chain(l3) {
+        range.0 = if v < range.0 { v } else { range.0 };
+    }
+    for v in h0.into_iter().chain(h1).chain(h2).chain(h3) {
+        range.1 = if v > range.1 { v } else { range.1 };
+    }
+    for &v in rest {
+        range.0 = if v < range.0 { v } else { range.0 };
+        range.1 = if v > range.1 { v } else { range.1 };
+    }
+    if range.0.is_finite() && range.1.is_finite() {
+        return range;
+    }
+    values
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((lo, hi), |(l, h), &v| (l.min(v), h.max(v)))
+}
+
+/// The quantised weights of one call, from the input channels' quantisation.
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct Plan8 {
+    quant: Vec<ChannelQuant>,
+    /// `k`, `[c_out][c_in][9]`.
+    k: Vec<i8>,
+    /// `k` as the kernel reads it: `[c_out / 4][quads][9][4 outputs]` words of 4 channels
+    /// ([`dot::word`]), channels past `c_in` 0.
+    words: Vec<u32>,
+    /// Per output channel, `t_o`.
+    scale: Vec<f32>,
+    /// Per output channel, `Σ k z` over every channel and tap.
+    offset: Vec<i32>,
+}
+
+impl Conv3x3 {
+    /// Quads of input channels (the last one padded with channels of weight 0).
+    fn quads(&self) -> usize {
+        self.c_in.div_ceil(dot::CHANNELS)
+    }
+
+    /// The weights quantised for inputs quantised as `quant` (one per input channel).
+    fn plan8(&self, quant: Vec<ChannelQuant>) -> Plan8 {
+        let (c_in, quads) = (self.c_in, self.quads());
+        let mut k = vec![0i8; self.c_out * c_in * TAPS];
+        let mut bytes = vec![0i8; self.c_out * quads * dot::CHANNELS * TAPS];
+        let mut scale = vec![0f32; self.c_out];
+        let mut offset = vec![0i32; self.c_out];
+        for o in 0..self.c_out {
+            let scaled = |c: usize, t: usize| self.weight(o, c, t / 3, t % 3) * quant[c].scale;
+            let mut most = 0f32;
+            for c in 0..c_in {
+                for t in 0..TAPS {
+                    most = most.max(scaled(c, t).abs());
+                }
+            }
+            let t_o = most / 127.0;
+            if !(t_o >= f32::MIN_POSITIVE && t_o.is_finite()) {
+                continue;
+            }
+            scale[o] = t_o;
+            let inv = 1.0 / t_o;
+            let (g, lane) = (o / OUTS, o % OUTS);
+            for c in 0..c_in {
+                for t in 0..TAPS {
+                    let v = (scaled(c, t) * inv).round().clamp(-127.0, 127.0) as i8;
+                    let (quad, j) = (c / dot::CHANNELS, c % dot::CHANNELS);
+                    let at = (((g * quads + quad) * TAPS + t) * OUTS + lane) * dot::CHANNELS + j;
+                    bytes[at] = v;
+                    k[(o * c_in + c) * TAPS + t] = v;
+                    offset[o] += i32::from(v) * i32::from(quant[c].zero);
+                }
+            }
+        }
+        let words = bytes
+            .chunks_exact(dot::CHANNELS)
+            .map(|b| dot::word([b[0], b[1], b[2], b[3]].map(|v| v as u8)))
+            .collect();
+        Plan8 {
+            quant,
+            k,
+            words,
+            scale,
+            offset,
+        }
+    }
+
+    /// Output channel `o`'s value from its integer sum.
+    #[inline(always)]
+    fn dequantize(&self, plan: &Plan8, o: usize, sum: i32) -> f32 {
+        let y = sum.wrapping_sub(plan.offset[o]) as f32 * plan.scale[o] + self.bias[o];
+        if self.relu { y.max(0.0) } else { y }
+    }
+
+    /// The 8-bit definition ([`Precision::Int8`], see [`int8`](self)) on `input` (`[C, H, W]`),
+    /// whatever [`precision`](Self::precision) says: the input's per-channel quantisation, then
+    /// for each output the sum, input channel by channel, kernel row by row, column by column,
+    /// of the 8-bit products (a tap off the image reads the level of 0), then
+    /// `t_o (sum - offset) + b_o` and the ReLU if any.
+    pub fn reference_int8(&self, input: ArrayView3<f32>) -> Result<Array3<f32>, Conv3x3Error> {
+        let (_, h, w) = input.dim();
+        let (ho, wo) = (self.out_len(h), self.out_len(w));
+        self.check(input.shape(), self.c_out * ho * wo)?;
+        self.check_int8()?;
+        let quant = (0..self.c_in)
+            .map(|c| {
+                let (lo, hi) = input
+                    .slice(ndarray::s![c, .., ..])
+                    .iter()
+                    .filter(|v| v.is_finite())
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+                        (l.min(v), h.max(v))
+                    });
+                ChannelQuant::from_range(lo, hi)
+            })
+            .collect();
+        let plan = self.plan8(quant);
+        let level = |c: usize, y: isize, x: isize| -> i32 {
+            let q = plan.quant[c];
+            if y < 0 || x < 0 || y >= h as isize || x >= w as isize {
+                i32::from(q.zero)
+            } else {
+                i32::from(q.quantize(input[[c, y as usize, x as usize]]))
+            }
+        };
+        let s = self.stride as isize;
+        Ok(Array3::from_shape_fn((self.c_out, ho, wo), |(o, y, x)| {
+            let mut sum = 0i32;
+            for c in 0..self.c_in {
+                for ky in 0..3 {
+                    for kx in 0..3 {
+                        let k = plan.k[(o * self.c_in + c) * TAPS + ky * 3 + kx];
+                        let v = level(
+                            c,
+                            y as isize * s + ky as isize - 1,
+                            x as isize * s + kx as isize - 1,
+                        );
+                        sum = sum.wrapping_add(i32::from(k) * v);
+                    }
+                }
+            }
+            self.dequantize(&plan, o, sum)
+        }))
+    }
+
+    /// Refuses more input channels than the 32-bit sums hold.
+    pub(super) fn check_int8(&self) -> Result<(), Conv3x3Error> {
+        if self.c_in > MAX_CHANNELS {
+            return Err(Conv3x3Error::Int8Channels(self.c_in));
+        }
+        Ok(())
+    }
+
+    /// Every input channel's quantisation from its finite range, channels split across `pool`.
+    fn quantization(
+        &self,
+        input: Input,
+        h: usize,
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Vec<ChannelQuant> {
+        // From 0: every range is widened to hold 0 anyway.
+        let mut ranges = vec![(0.0, 0.0); self.c_in];
+        let tasks: Vec<_> = ranges.iter_mut().enumerate().collect();
+        crate::bands::for_each(tasks, pool, |(c, range)| {
+            *range = neuspike_simd::dispatch(
+                #[inline(always)]
+                || {
+                    if let Some(plane) = input.plane(c, h) {
+                        return finite_range(plane, *range);
+                    }
+                    let rows = match input {
+                        // The view's own rows: the padding repeats them.
+                        Input::Edge(x) => x.dim().1.min(h),
+                        _ => h,
+                    };
+                    let mut r = *range;
+                    for iy in 0..rows {
+                        r = finite_range(input.row(c, iy, h), r);
+                    }
+                    r
+                },
+            );
+        });
+        ranges
+            .into_iter()
+            .map(|(lo, hi)| ChannelQuant::from_range(lo, hi))
+            .collect()
+    }
+
+    /// [`drive`](Self::drive) in 8 bits: the input's quantisation and the weights' once, then
+    /// the output rows in bands across `pool`.
+    pub(super) fn drive_int8(
+        &self,
+        isa: neuspike_simd::Isa,
+        path: DotPath,
+        input: Input,
+        (h, w): (usize, usize),
+        output: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) {
+        let (ho, wo) = (self.out_len(h), self.out_len(w));
+        let plan = self.plan8(self.quantization(input, h, pool));
+        let rows = crate::bands::band_rows(ho, pool);
+        let tasks = crate::bands::row_bands(output, ho * wo, wo, rows);
+        let band = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
+            BUFFERS8.with_borrow_mut(|buffers| {
+                neuspike_simd::with_isa(
+                    isa,
+                    #[inline(always)]
+                    || match self.stride {
+                        1 => self.band8::<1>(path, &plan, input, (h, w), y0, &mut planes, buffers),
+                        _ => self.band8::<2>(path, &plan, input, (h, w), y0, &mut planes, buffers),
+                    },
+                )
+            })
+        };
+        crate::bands::for_each(tasks, pool, band);
+    }
+
+    /// [`band`](Self::band) in 8 bits: each input row read is quantised, four channels to a
+    /// word (a point's four levels side by side, as [`dot::accumulate`] reads them), into `S`
+    /// rows of `len` words, three input rows kept in a ring.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn band8<const S: usize>(
+        &self,
+        path: DotPath,
+        plan: &Plan8,
+        input: Input,
+        (h, w): (usize, usize),
+        y0: usize,
+        planes: &mut [&mut [f32]],
+        buffers: &mut Buffers8,
+    ) {
+        let wo = self.out_len(w);
+        let wv = wo.div_ceil(dot::POINTS) * dot::POINTS;
+        let len = wv + dot::POINTS;
+        let quads = self.quads();
+        let Buffers8 {
+            scratch,
+            levels,
+            out,
+            offsets,
+        } = buffers;
+        out.resize(self.c_out * wv, 0);
+        // `[quads][3 slots][S][len]`; every slot is written before it is read.
+        let quad_rows = S * len;
+        let scratch = aligned(scratch, quads * 3 * quad_rows);
+        // Each quad's level of 0, the word a tap off the image reads.
+        let zeros: Vec<u32> = (0..quads)
+            .map(|quad| {
+                dot::word(std::array::from_fn(|j| {
+                    plan.quant
+                        .get(quad * dot::CHANNELS + j)
+                        .map_or(0, |q| q.zero)
+                }))
+            })
+            .collect();
+        let mut held: [Option<isize>; 3] = [None; 3];
+        let n_rows = planes.first().map_or(0, |p| p.len() / wo);
+        for y in y0..y0 + n_rows {
+            let mut slots = [0; 3];
+            for (ky, slot) in slots.iter_mut().enumerate() {
+                let iy = (y * S + ky) as isize - 1;
+                *slot = iy.rem_euclid(3) as usize;
+                if held[*slot] == Some(iy) {
+                    continue;
+                }
+                let inside = usize::try_from(iy).ok().filter(|&iy| iy < h);
+                for (quad, &zero) in zeros.iter().enumerate() {
+                    // A plain `match`, not a closure: a closure may be compiled out of line,
+                    // for the baseline instruction set.
+                    let src = match inside {
+                        Some(iy) => {
+                            let n = input.row(quad * dot::CHANNELS, iy, h).len();
+                            levels.clear();
+                            levels.resize(n, 0);
+                            for j in 0..dot::CHANNELS {
+                                let c = quad * dot::CHANNELS + j;
+                                let Some(&q) = plan.quant.get(c) else { break };
+                                let shift = 8 * j as u32;
+                                for (l, &v) in levels.iter_mut().zip(input.row(c, iy, h)) {
+                                    *l |= q.level(v) << shift;
+                                }
+                            }
+                            Some(&levels[..])
+                        }
+                        None => None,
+                    };
+                    let dst = &mut scratch[(quad * 3 + *slot) * quad_rows..][..quad_rows];
+                    Self::padded::<S, u32>(src, w, dst, zero);
+                }
+                held[*slot] = Some(iy);
+            }
+            out.fill(0);
+            for q0 in (0..quads).step_by(QUADS) {
+                offsets.clear();
+                for quad in q0..(q0 + QUADS).min(quads) {
+                    for slot in slots {
+                        let at = (quad * 3 + slot) * quad_rows;
+                        offsets.extend(if S == 1 {
+                            [at, at + 1, at + 2]
+                        } else {
+                            [at + len, at, at + len + 1]
+                        });
+                    }
+                }
+                let taps = ByteTaps {
+                    rows: scratch,
+                    offsets,
+                    weights: &plan.words[q0 * TAPS * OUTS..],
+                    group_stride: quads * TAPS * OUTS,
+                };
+                dot::accumulate(path, &taps, out, wv, self.c_out / OUTS, wv);
+            }
+            for (o, plane) in planes.iter_mut().enumerate() {
+                let (offset, scale, bias) = (plan.offset[o], plan.scale[o], self.bias[o]);
+                let dst = &mut plane[(y - y0) * wo..][..wo];
+                for (d, &sum) in dst.iter_mut().zip(&out[o * wv..][..wo]) {
+                    let v = sum.wrapping_sub(offset) as f32 * scale + bias;
+                    *d = if self.relu { v.max(0.0) } else { v };
+                }
+            }
+        }
+    }
+}
+
+/// The working rows of [`Conv3x3::band8`], kept per thread from one band to the next.
+#[derive(Default)]
+struct Buffers8 {
+    /// Input rows quantised and padded for the taps, `[quads][3 slots][S][len]` words.
+    scratch: Vec<u32>,
+    /// One input row's levels, four channels to a word.
+    levels: Vec<u32>,
+    /// One output row of every channel, `[O][wv]` sums.
+    out: Vec<i32>,
+    /// The offsets of one block's tap rows in the scratch rows.
+    offsets: Vec<usize>,
+}
+
+thread_local! {
+    static BUFFERS8: std::cell::RefCell<Buffers8> = std::cell::RefCell::default();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::pattern;
+    use ndarray::{Array1, Array4};
+    use proptest::prelude::*;
+
+    fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> Conv3x3 {
+        let weights =
+            Array4::from_shape_vec((c_out, c_in, 3, 3), pattern(c_out * c_in * 9, seed)).unwrap();
+        let bias = Array1::from(pattern(c_out, seed + 1));
+        Conv3x3::new(weights.view(), bias.as_slice().unwrap(), stride).unwrap()
+    }
+
+    /// Inputs as the networks' are: after a ReLU (0 and above), or signed, or spikes (0 or 1).
+    fn input(n: usize, seed: u32, kind: u32) -> Vec<f32> {
+        let v = pattern(n, seed);
+        match kind % 3 {
+            0 => v.into_iter().map(|x| x.max(0.0) * 3.0).collect(),
+            1 => v,
+            _ => v.into_iter().map(|x| f32::from(x > 0.6)).collect(),
+        }
+    }
+
+    /// Every path, instruction set and thread count gives the 8-bit definition's bits.
+    fn check(c_in: usize, c_out: usize, stride: usize, (h, w): (usize, usize), seed: u32) {
+        let base = conv(c_in, c_out, stride, seed);
+        let base = if seed % 2 == 1 {
+            base.with_relu()
+        } else {
+            base
+        };
+        let (ho, wo) = (base.out_len(h), base.out_len(w));
+        let x = input(c_in * h * w, seed + 2, seed);
+        let view = ArrayView3::from_shape((c_in, h, w), &x).unwrap();
+        let want = base.reference_int8(view).unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        for path in DotPath::ALL.into_iter().filter(|p| p.is_supported()) {
+            let conv = base.clone().with_precision(Precision::Int8(path));
+            for isa in neuspike_simd::Isa::ALL
+                .into_iter()
+                .filter(|i| i.is_supported())
+            {
+                for pool in [None, Some(&pool)] {
+                    let mut got = vec![f32::NAN; c_out * ho * wo];
+                    conv.run_on(isa, &x, (h, w), &mut got, pool).unwrap();
+                    assert_eq!(
+                        got.as_slice(),
+                        want.as_slice().unwrap(),
+                        "{c_in}->{c_out} at {h}x{w}, stride {stride}, {path:?}, {isa:?}, pool {}",
+                        pool.is_some()
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn matches_the_8_bit_definition_at_the_networks_sizes() {
+        check(32, 8, 1, (16, 400), 1);
+        check(8, 16, 1, (9, 200), 2);
+        check(64, 64, 1, (5, 50), 3);
+        check(8, 16, 2, (16, 400), 4);
+        check(32, 64, 2, (9, 101), 5);
+        // Input channels that are not a multiple of four.
+        check(6, 8, 1, (7, 33), 6);
+        check(3, 4, 2, (7, 33), 7);
+    }
+
+    /// The error against the `f32` definition stays within its worst case: per output channel,
+    /// `Σ (t/2 (|x|max / s + 1/2) + |w| s / 2)` over the channels and taps (an input is off by
+    /// at most half its step, a weight by half of `t`), and it is small on average (below 1% of
+    /// the outputs' RMS).
+    fn close_to_f32(c_in: usize, c_out: usize, stride: usize, (h, w): (usize, usize), seed: u32) {
+        let conv = conv(c_in, c_out, stride, seed);
+        let x = input(c_in * h * w, seed + 2, seed);
+        let view = ArrayView3::from_shape((c_in, h, w), &x).unwrap();
+        let exact = conv.reference(view).unwrap();
+        let got = conv.reference_int8(view).unwrap();
+        let (mut err2, mut sum2) = (0f64, 0f64);
+        for o in 0..c_out {
+            let mut bound = 1e-4f32;
+            let scale = |c: usize| {
+                let (lo, hi) = view
+                    .slice(ndarray::s![c, .., ..])
+                    .fold((0f32, 0f32), |(l, h), &v| (l.min(v), h.max(v)));
+                (ChannelQuant::from_range(lo, hi).scale, lo.abs().max(hi))
+            };
+            let most = (0..c_in)
+                .flat_map(|c| (0..TAPS).map(move |t| (c, t)))
+                .map(|(c, t)| (conv.weight(o, c, t / 3, t % 3) * scale(c).0).abs())
+                .fold(0f32, f32::max);
+            let t_o = most / 127.0;
+            for c in 0..c_in {
+                let (s, big) = scale(c);
+                for t in 0..TAPS {
+                    let w = conv.weight(o, c, t / 3, t % 3).abs();
+                    let levels = if s > 0.0 { big / s + 0.5 } else { 0.0 };
+                    bound += t_o / 2.0 * levels + w * s / 2.0;
+                }
+            }
+            for (a, b) in exact
+                .slice(ndarray::s![o, .., ..])
+                .iter()
+                .zip(got.slice(ndarray::s![o, .., ..]))
+            {
+                assert!(
+                    (a - b).abs() <= bound,
+                    "output {o}: {b} for {a}, bound {bound}"
+                );
+                err2 += f64::from(a - b).powi(2);
+                sum2 += f64::from(*a).powi(2);
+            }
+        }
+        assert!(
+            err2 < 1e-4 * sum2,
+            "{c_in}->{c_out}: RMS error {} of RMS {}",
+            err2.sqrt(),
+            sum2.sqrt()
+        );
+    }
+
+    #[test]
+    fn stays_within_its_stated_error_of_the_f32_definition() {
+        for (seed, (c_in, c_out, stride)) in
+            [(32, 8, 1), (8, 16, 1), (16, 32, 2), (64, 64, 1), (5, 4, 2)]
+                .into_iter()
+                .enumerate()
+        {
+            close_to_f32(c_in, c_out, stride, (12, 40), seed as u32);
+        }
+    }
+
+    #[test]
+    fn spikes_and_a_zero_channel_are_exact_levels() {
+        // 0 and 1 are levels 0 and 255 exactly; an all-zero channel reads as 0.
+        let q = ChannelQuant::from_range(0.0, 1.0);
+        assert_eq!((q.quantize(0.0), q.quantize(1.0), q.zero), (0, 255, 0));
+        let zero = ChannelQuant::from_range(0.0, 0.0);
+        assert_eq!(zero.scale, 0.0);
+        assert_eq!([zero.quantize(5.0), zero.quantize(f32::NAN)], [0, 0]);
+        // Signed: 0 is a level; the ends and the infinities clamp; NaN reads as the bottom.
+        let q = ChannelQuant::from_range(-1.0, 3.0);
+        assert_eq!(q.zero, 64, "{q:?}");
+        assert_eq!(q.quantize(0.0), q.zero);
+        assert_eq!([q.quantize(-1.0), q.quantize(3.0)], [0, 255]);
+        assert_eq!(
+            [q.quantize(f32::NEG_INFINITY), q.quantize(f32::INFINITY)],
+            [0, 255]
+        );
+        assert_eq!(q.quantize(f32::NAN), 0);
+        // Ranges at f32's ends do not overflow.
+        let q = ChannelQuant::from_range(f32::MIN, f32::MAX);
+        assert!(q.scale.is_finite() && q.scale > 0.0, "{q:?}");
+        // A range too small for its reciprocal: read as 0.
+        assert_eq!(ChannelQuant::from_range(0.0, 1e-37).scale, 0.0);
+    }
+
+    #[test]
+    fn non_finite_inputs_give_finite_outputs() {
+        let conv = conv(8, 8, 1, 3).with_precision(Precision::int8());
+        let (h, w) = (5, 20);
+        let mut x = input(8 * h * w, 4, 1);
+        x[3] = f32::NAN;
+        x[50] = f32::INFINITY;
+        x[120] = f32::NEG_INFINITY;
+        let mut got = vec![0.0; 8 * h * w];
+        conv.run(&x, (h, w), &mut got, None).unwrap();
+        assert!(got.iter().all(|v| v.is_finite()));
+        let view = ArrayView3::from_shape((8, h, w), &x).unwrap();
+        assert_eq!(
+            got,
+            conv.reference_int8(view)
+                .unwrap()
+                .into_raw_vec_and_offset()
+                .0
+        );
+    }
+
+    #[test]
+    fn parts_and_edge_padding_give_the_8_bit_definitions_bits() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        for (stride, (h, w)) in [(1, (9, 37)), (2, (8, 20))] {
+            let conv = conv(8, 8, stride, 4)
+                .with_relu()
+                .with_precision(Precision::int8());
+            let x = input(8 * h * w, 3, 0);
+            let view = ArrayView3::from_shape((8, h, w), &x).unwrap();
+            let want = conv
+                .reference_int8(view)
+                .unwrap()
+                .into_raw_vec_and_offset()
+                .0;
+            let (a, b) = x.split_at(3 * h * w);
+            for pool in [None, Some(&pool)] {
+                let mut got = vec![f32::NAN; want.len()];
+                conv.run_concat(&[(a, 3), (b, 5)], (h, w), &mut got, pool)
+                    .unwrap();
+                assert_eq!(got, want, "stride {stride}");
+            }
+            // Read in place as if padded to (h + 3, w + 5) by repeating the last row and column.
+            let (hp, wp) = (h + 3, w + 5);
+            let padded = crate::pad_edge(view, hp, wp);
+            let padded = ArrayView3::from_shape((8, hp, wp), &padded).unwrap();
+            let want = conv
+                .reference_int8(padded)
+                .unwrap()
+                .into_raw_vec_and_offset()
+                .0;
+            let mut got = vec![f32::NAN; want.len()];
+            conv.run_edge_padded(view, (hp, wp), &mut got, Some(&pool))
+                .unwrap();
+            assert_eq!(got, want, "edge, stride {stride}");
+        }
+    }
+
+    #[test]
+    fn too_many_channels_are_refused_in_8_bits_only() {
+        let weights = Array4::<f32>::zeros((4, MAX_CHANNELS + 1, 3, 3));
+        let conv = Conv3x3::new(weights.view(), &[0.0], 1).unwrap();
+        let x = vec![0.0; (MAX_CHANNELS + 1) * 2 * 2];
+        let mut y = vec![0.0; 4 * 2 * 2];
+        conv.run(&x, (2, 2), &mut y, None).unwrap();
+        let err = conv
+            .with_precision(Precision::int8())
+            .run(&x, (2, 2), &mut y, None)
+            .unwrap_err();
+        assert_eq!(err, Conv3x3Error::Int8Channels(MAX_CHANNELS + 1));
+        assert!(err.to_string().contains("4097 input channels"), "{err}");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        #[test]
+        fn matches_the_8_bit_definition_anywhere(
+            c_in in 1usize..20,
+            groups in 1usize..4,
+            stride in 1usize..3,
+            h in 1usize..12,
+            w in 1usize..70,
+            seed in 0u32..1000,
+        ) {
+            check(c_in, 4 * groups, stride, (h, w), seed);
+        }
+    }
+}
