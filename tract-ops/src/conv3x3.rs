@@ -1070,16 +1070,9 @@ pub fn take_first_convolutions(model: &mut TypedModel) -> TractResult<Vec<Option
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::pattern;
-    use ndarray::{Array1, Array4};
+    use crate::testing::{conv, pattern};
+    use ndarray::Array4;
     use proptest::prelude::*;
-
-    fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> Conv3x3 {
-        let weights =
-            Array4::from_shape_vec((c_out, c_in, 3, 3), pattern(c_out * c_in * 9, seed)).unwrap();
-        let bias = Array1::from(pattern(c_out, seed + 1));
-        Conv3x3::new(weights.view(), bias.as_slice().unwrap(), stride).unwrap()
-    }
 
     /// The fast path on every instruction set and thread count against the reference, exactly.
     fn check(c_in: usize, c_out: usize, stride: usize, (h, w): (usize, usize), seed: u32) {

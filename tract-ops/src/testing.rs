@@ -10,3 +10,13 @@ pub(crate) fn pattern(n: usize, seed: u32) -> Vec<f32> {
         })
         .collect()
 }
+
+/// A `c_in`-to-`c_out` [`Conv3x3`](crate::conv3x3::Conv3x3) of `stride` with [`pattern`]
+/// weights and bias from `seed`.
+pub(crate) fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> crate::conv3x3::Conv3x3 {
+    let weights =
+        ndarray::Array4::from_shape_vec((c_out, c_in, 3, 3), pattern(c_out * c_in * 9, seed))
+            .expect("weights");
+    let bias = pattern(c_out, seed + 1);
+    crate::conv3x3::Conv3x3::new(weights.view(), &bias, stride).expect("a 3x3 convolution")
+}

@@ -335,15 +335,7 @@ fn neuspikes_convolution_computes_what_tracts_does_on_wide_frames() {
     // The reference frames are 24 wide, narrower than the rows `conv3x3` takes over: repeat
     // them to 336 so the full- and half-resolution layers run on it.
     for path in shipped() {
-        let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
-        let wide: Vec<Array3<f32>> = inputs
-            .iter()
-            .map(|a| {
-                let a = a.index_axis(Axis(0), 0);
-                let tiles: Vec<_> = (0..14).map(|_| a.view()).collect();
-                ndarray::concatenate(Axis(2), &tiles).expect("tiles")
-            })
-            .collect();
+        let wide = wide_reference_inputs(&path);
         // Also 13x333, neither a multiple of the stride: the first convolution, which reads the
         // representation in place (not a padded copy), pads it.
         for (h, w) in [(16, 336), (13, 333)] {
@@ -352,6 +344,19 @@ fn neuspikes_convolution_computes_what_tracts_does_on_wide_frames() {
             same_on_both_paths(&path, &views);
         }
     }
+}
+
+/// The reference inputs of `path`, 24 points wide, repeated side by side to 336: wide enough for
+/// neuspike's convolutions to take every full- and half-resolution layer.
+fn wide_reference_inputs(path: &Path) -> Vec<Array3<f32>> {
+    reference_inputs(&LearnedModel::load(path).expect("load"), path)
+        .iter()
+        .map(|a| {
+            let a = a.index_axis(Axis(0), 0);
+            let tiles: Vec<_> = (0..14).map(|_| a.view()).collect();
+            ndarray::concatenate(Axis(2), &tiles).expect("tiles")
+        })
+        .collect()
 }
 
 /// `path`'s image on `views` is the same whether tract or neuspike computes the convolutions.
@@ -462,15 +467,7 @@ fn in_8_bits_every_shipped_network_stays_close_to_its_f32_image() {
     /// The least PSNR of an 8-bit image against the `f32` one.
     const INT8_PSNR_DB: f64 = 45.0;
     for path in shipped() {
-        let inputs = reference_inputs(&LearnedModel::load(&path).expect("load"), &path);
-        let wide: Vec<Array3<f32>> = inputs
-            .iter()
-            .map(|a| {
-                let a = a.index_axis(Axis(0), 0);
-                let tiles: Vec<_> = (0..14).map(|_| a.view()).collect();
-                ndarray::concatenate(Axis(2), &tiles).expect("tiles")
-            })
-            .collect();
+        let wide = wide_reference_inputs(&path);
         let views: Vec<ArrayView3<f32>> = wide.iter().map(|a| a.view()).collect();
         let mut model = LearnedModel::load(&path).expect("load");
         let exact = model.run(&views).expect("f32 run");

@@ -458,16 +458,9 @@ thread_local! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::pattern;
-    use ndarray::{Array1, Array4};
+    use crate::testing::{conv, pattern};
+    use ndarray::Array4;
     use proptest::prelude::*;
-
-    fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> Conv3x3 {
-        let weights =
-            Array4::from_shape_vec((c_out, c_in, 3, 3), pattern(c_out * c_in * 9, seed)).unwrap();
-        let bias = Array1::from(pattern(c_out, seed + 1));
-        Conv3x3::new(weights.view(), bias.as_slice().unwrap(), stride).unwrap()
-    }
 
     /// Inputs as the networks' are: after a ReLU (0 and above), or signed, or spikes (0 or 1).
     fn input(n: usize, seed: u32, kind: u32) -> Vec<f32> {
