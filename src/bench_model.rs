@@ -32,14 +32,14 @@ pub struct Timing {
 
 /// A precision as `bench-model --precision` names it: `f32`, `int8` (the widest 8-bit path
 /// this CPU has, as the infer node's `--precision int8` runs), or an 8-bit path by name
-/// (`int8-portable`, `int8-vnni`), refused when this CPU does not run it.
+/// (`int8-portable`, `int8-vnni`, `int8-amx`), refused when this CPU does not run it.
 pub fn parse_precision(s: &str) -> Result<Precision, String> {
     if let Some(name) = s.strip_prefix("int8-") {
         let path = DotPath::ALL
             .into_iter()
             .find(|p| p.name() == name)
             .ok_or_else(|| {
-                format!("precision `{s}`: 8-bit paths are int8-portable and int8-vnni")
+                format!("precision `{s}`: 8-bit paths are int8-portable, int8-vnni and int8-amx")
             })?;
         if !path.is_supported() {
             return Err(format!("precision `{s}`: this CPU has no {name}"));

@@ -28,22 +28,27 @@ pub enum DotPath {
     Portable,
     /// AVX-512 VNNI (`vpdpbusd`).
     Vnni,
+    /// AMX tiles (`tdpbsud`: 16 output channels by 16 points by 16 quads of channels in one
+    /// instruction), for [`accumulate_tiles`]; [`accumulate`] runs VNNI there.
+    Amx,
 }
 
 impl DotPath {
     /// Every path, narrowest first.
-    pub const ALL: [DotPath; 2] = [DotPath::Portable, DotPath::Vnni];
+    pub const ALL: [DotPath; 3] = [DotPath::Portable, DotPath::Vnni, DotPath::Amx];
 
     /// Lower-case name.
     pub fn name(self) -> &'static str {
         match self {
             DotPath::Portable => "portable",
             DotPath::Vnni => "vnni",
+            DotPath::Amx => "amx",
         }
     }
 
     /// Whether this CPU runs it (VNNI: AVX-512 F, BW, DQ and VNNI, and `NEUSPIKE_ISA` not
-    /// narrower than `avx512`).
+    /// narrower than `avx512`; AMX: VNNI's, AMX-TILE and AMX-INT8, and Linux's permission to
+    /// use the tile registers, see [`amx_permitted`]).
     pub fn is_supported(self) -> bool {
         self <= detect()
     }
@@ -54,7 +59,11 @@ pub fn detect() -> DotPath {
     #[cfg(target_arch = "x86_64")]
     {
         if crate::detect() == Isa::Avx512 && std::arch::is_x86_feature_detected!("avx512vnni") {
-            return DotPath::Vnni;
+            return if amx_permitted() {
+                DotPath::Amx
+            } else {
+                DotPath::Vnni
+            };
         }
     }
     DotPath::Portable
@@ -140,7 +149,7 @@ pub fn accumulate(
         "output rows of {out_stride} for {width} points"
     );
     #[cfg(target_arch = "x86_64")]
-    if path.min(detect()) == DotPath::Vnni {
+    if path.min(detect()) >= DotPath::Vnni {
         let args = x86::Args {
             rows: rows.as_ptr(),
             offsets,
@@ -161,6 +170,290 @@ pub fn accumulate(
         #[inline(always)]
         || portable(taps, out, out_stride, groups, width),
     )
+}
+
+/// Whether this process may use the AMX tile registers: the CPU has AMX-TILE and AMX-INT8
+/// (CPUID leaf 7), and Linux granted the permission to use them (`arch_prctl` with
+/// `ARCH_REQ_XCOMP_PERM`, asked once per process; without it the first tile instruction would
+/// kill the process). `false` where either is missing, and on other systems.
+pub fn amx_permitted() -> bool {
+    static PERMITTED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *PERMITTED.get_or_init(|| {
+        #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+        {
+            let leaf = std::arch::x86_64::__cpuid_count(7, 0);
+            let (tile, int8) = (leaf.edx >> 24 & 1 == 1, leaf.edx >> 25 & 1 == 1);
+            if !(tile && int8) {
+                return false;
+            }
+            const ARCH_REQ_XCOMP_PERM: libc::c_long = 0x1023;
+            const XFEATURE_XTILEDATA: libc::c_long = 18;
+            // SAFETY: a system call taking two integers; it reads and writes no memory of ours.
+            #[allow(unsafe_code)]
+            let granted = unsafe {
+                libc::syscall(
+                    libc::SYS_arch_prctl,
+                    ARCH_REQ_XCOMP_PERM,
+                    XFEATURE_XTILEDATA,
+                )
+            } == 0;
+            granted
+        }
+        #[cfg(not(all(target_arch = "x86_64", target_os = "linux")))]
+        false
+    })
+}
+
+/// Output channels of one tile of sums.
+pub const TILE_OUTS: usize = 16;
+
+/// Quads of input channels one call of [`accumulate_tiles`] takes at most (a tile's 64 bytes).
+pub const TILE_QUADS: usize = 16;
+
+/// The inputs of [`accumulate_tiles`]: tap `t` of point `i` of quad `q` reads the word
+/// `rows[taps[t] + q * quad_stride + i]`, with, for output channel `o`, the word
+/// `weights[((o / 16) * taps.len() + t) * 16 * quads + (o % 16) * quads + q]`: per group of 16
+/// output channels and tap, a tile of 16 rows of `quads` words (rows past the last output
+/// channel 0).
+#[derive(Clone, Copy, Debug)]
+pub struct TileTaps<'a> {
+    /// The values the taps read, a word of four channels per point.
+    pub rows: &'a [u32],
+    /// Where each tap's run of points of quad 0 starts in `rows`.
+    pub taps: &'a [usize],
+    /// The distance between two quads' runs.
+    pub quad_stride: usize,
+    /// Quads of input channels, at most [`TILE_QUADS`].
+    pub quads: usize,
+    /// The weights, tile by tile (see above).
+    pub weights: &'a [u32],
+}
+
+/// For every output channel `o < outs` and point `i < width`, adds to `out[o out_stride + i]`
+/// every tap's and quad's four products (see [`TileTaps`]), wrapping modulo 2^32: the sums
+/// [`accumulate`] makes, with the weights in tiles. On AMX where `path` and this CPU allow,
+/// else in plain loops.
+///
+/// # Panics
+/// If `width` is not a multiple of [`POINTS`], `quads` is 0 or over [`TILE_QUADS`], or a tap,
+/// weight or output lies outside its slice (checked before any work).
+pub fn accumulate_tiles(
+    path: DotPath,
+    taps: &TileTaps,
+    out: &mut [i32],
+    out_stride: usize,
+    outs: usize,
+    width: usize,
+) {
+    assert!(width.is_multiple_of(POINTS), "width {width}");
+    assert!(
+        (1..=TILE_QUADS).contains(&taps.quads),
+        "{} quads in a tile",
+        taps.quads
+    );
+    if outs == 0 || width == 0 || taps.taps.is_empty() {
+        return;
+    }
+    let reach = taps.taps.iter().max().and_then(|&m| {
+        m.checked_add((taps.quads - 1).checked_mul(taps.quad_stride)?)?
+            .checked_add(width)
+    });
+    assert!(
+        reach.is_some_and(|r| r <= taps.rows.len()),
+        "taps reach {reach:?} of {}",
+        taps.rows.len()
+    );
+    let reach = outs
+        .div_ceil(TILE_OUTS)
+        .checked_mul(taps.taps.len())
+        .and_then(|n| n.checked_mul(TILE_OUTS * taps.quads));
+    assert!(
+        reach.is_some_and(|r| r <= taps.weights.len()),
+        "weights reach {reach:?} of {}",
+        taps.weights.len()
+    );
+    let reach = (outs - 1)
+        .checked_mul(out_stride)
+        .and_then(|r| r.checked_add(width));
+    assert!(
+        reach.is_some_and(|r| r <= out.len()),
+        "outputs reach {reach:?} of {}",
+        out.len()
+    );
+    assert!(
+        out_stride >= width,
+        "output rows of {out_stride} for {width} points"
+    );
+    #[cfg(target_arch = "x86_64")]
+    if path.min(detect()) == DotPath::Amx {
+        // SAFETY: the CPU has AMX-TILE and AMX-INT8 and Linux granted their use
+        // (`amx_permitted`, through `detect`); every tile the kernel loads or stores lies within
+        // a reach checked above.
+        #[allow(unsafe_code)]
+        return unsafe { amx::accumulate(taps, out.as_mut_ptr(), out_stride, outs, width) };
+    }
+    let _ = path;
+    crate::dispatch(
+        #[inline(always)]
+        || portable_tiles(taps, out, out_stride, outs, width),
+    )
+}
+
+/// [`accumulate_tiles`]' definition, in plain loops.
+#[inline(always)]
+fn portable_tiles(taps: &TileTaps, out: &mut [i32], out_stride: usize, outs: usize, width: usize) {
+    let n_taps = taps.taps.len();
+    for o in 0..outs {
+        let dst = &mut out[o * out_stride..][..width];
+        for (t, &offset) in taps.taps.iter().enumerate() {
+            let tile = ((o / TILE_OUTS) * n_taps + t) * TILE_OUTS * taps.quads;
+            for q in 0..taps.quads {
+                let w = taps.weights[tile + (o % TILE_OUTS) * taps.quads + q].to_le_bytes();
+                let w = w.map(|b| i32::from(b as i8));
+                let src = &taps.rows[offset + q * taps.quad_stride..][..width];
+                for (a, &v) in dst.iter_mut().zip(src) {
+                    let v = v.to_le_bytes().map(i32::from);
+                    let dot = (v[0] * w[0] + v[1] * w[1]).wrapping_add(v[2] * w[2] + v[3] * w[3]);
+                    *a = a.wrapping_add(dot);
+                }
+            }
+        }
+    }
+}
+
+/// The AMX kernel: tiles of 16 output channels by 16 points, four of them (64 points) held
+/// while the taps go by, each tap one tile of weights by four tiles of values.
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod amx {
+    use std::arch::asm;
+
+    use super::{TILE_OUTS, TileTaps};
+
+    /// The tile configuration `ldtilecfg` reads: palette 1, then each tile's bytes per row and
+    /// rows.
+    #[repr(C, align(64))]
+    struct Config([u8; 64]);
+
+    impl Config {
+        /// Tiles 0-3 the sums (`outs` rows of 16 words), 4 the weights (`outs` rows of
+        /// `quads` words), 5-6 the values (`quads` rows of 16 words).
+        fn new(outs: usize, quads: usize) -> Config {
+            let mut c = [0u8; 64];
+            c[0] = 1;
+            let mut tile = |t: usize, rows: usize, bytes: usize| {
+                c[16 + 2 * t..18 + 2 * t].copy_from_slice(&(bytes as u16).to_le_bytes());
+                c[48 + t] = rows as u8;
+            };
+            for t in 0..4 {
+                tile(t, outs, 64);
+            }
+            tile(4, outs, 4 * quads);
+            tile(5, quads, 64);
+            tile(6, quads, 64);
+            Config(c)
+        }
+    }
+
+    /// `tileloadd tmmT, [ptr + stride]`.
+    macro_rules! load {
+        ($t:literal, $ptr:expr, $stride:expr) => {
+            asm!(concat!("tileloadd tmm", $t, ", [{p} + {s}*1]"), p = in(reg) $ptr, s = in(reg) $stride, options(nostack, readonly))
+        };
+    }
+
+    /// `tilestored [ptr + stride], tmmT`.
+    macro_rules! store {
+        ($t:literal, $ptr:expr, $stride:expr) => {
+            asm!(concat!("tilestored [{p} + {s}*1], tmm", $t), p = in(reg) $ptr, s = in(reg) $stride, options(nostack))
+        };
+    }
+
+    /// `tdpbsud tmmC, tmm4, tmmB`: sums `C` += weights (signed) by values (unsigned).
+    macro_rules! dot {
+        ($c:literal, $b:literal) => {
+            asm!(
+                concat!("tdpbsud tmm", $c, ", tmm4, tmm", $b),
+                options(nostack, nomem)
+            )
+        };
+    }
+
+    /// # Safety
+    /// The CPU has AMX-TILE and AMX-INT8, Linux granted their use, and `taps`, `out`,
+    /// `out_stride`, `outs` and `width` are within the checks of [`super::accumulate_tiles`].
+    pub unsafe fn accumulate(
+        taps: &TileTaps,
+        out: *mut i32,
+        out_stride: usize,
+        outs: usize,
+        width: usize,
+    ) {
+        let (n_taps, quads) = (taps.taps.len(), taps.quads);
+        let (out_bytes, quad_bytes, weight_bytes) =
+            (4 * out_stride, 4 * taps.quad_stride, 4 * quads);
+        // SAFETY: every tile loaded or stored lies within the reaches `accumulate_tiles`
+        // checked: the sums' rows `o < outs` at points below `width`, the weights' tiles of the
+        // groups and taps there are, the values' runs of `width` points from each tap of each
+        // quad. Tile registers are touched by nothing but these instructions.
+        unsafe {
+            for g in 0..outs.div_ceil(TILE_OUTS) {
+                let rows = (outs - g * TILE_OUTS).min(TILE_OUTS);
+                let config = Config::new(rows, quads);
+                asm!("ldtilecfg [{c}]", c = in(reg) config.0.as_ptr(), options(nostack, readonly));
+                let sums = out.add(g * TILE_OUTS * out_stride);
+                let mut x = 0;
+                while x < width {
+                    let blocks = ((width - x) / 16).min(4);
+                    let at = |b: usize| sums.add(x + 16 * b);
+                    load!(0, at(0), out_bytes);
+                    if blocks > 1 {
+                        load!(1, at(1), out_bytes)
+                    }
+                    if blocks > 2 {
+                        load!(2, at(2), out_bytes)
+                    }
+                    if blocks > 3 {
+                        load!(3, at(3), out_bytes)
+                    }
+                    for (t, &offset) in taps.taps.iter().enumerate() {
+                        let tile = taps
+                            .weights
+                            .as_ptr()
+                            .add((g * n_taps + t) * TILE_OUTS * quads);
+                        load!(4, tile, weight_bytes);
+                        let values = |b: usize| taps.rows.as_ptr().add(offset + x + 16 * b);
+                        load!(5, values(0), quad_bytes);
+                        dot!(0, 5);
+                        if blocks > 1 {
+                            load!(6, values(1), quad_bytes);
+                            dot!(1, 6);
+                        }
+                        if blocks > 2 {
+                            load!(5, values(2), quad_bytes);
+                            dot!(2, 5);
+                        }
+                        if blocks > 3 {
+                            load!(6, values(3), quad_bytes);
+                            dot!(3, 6);
+                        }
+                    }
+                    store!(0, at(0), out_bytes);
+                    if blocks > 1 {
+                        store!(1, at(1), out_bytes)
+                    }
+                    if blocks > 2 {
+                        store!(2, at(2), out_bytes)
+                    }
+                    if blocks > 3 {
+                        store!(3, at(3), out_bytes)
+                    }
+                    x += 16 * blocks;
+                }
+            }
+            asm!("tilerelease", options(nostack, nomem));
+        }
+    }
 }
 
 /// The definition, in plain loops.
@@ -351,9 +644,84 @@ mod tests {
         accumulate(DotPath::Vnni, &taps, &mut [0; 64], 16, 1, 16);
     }
 
+    /// The tiles' sums are the definition's on every path, for 1 to 16 quads, output channels
+    /// not a multiple of 16 and widths not a multiple of 64.
+    #[test]
+    fn tiles_give_the_definitions_sums() {
+        for (outs, quads, width) in [
+            (8usize, 8usize, 400usize),
+            (16, 2, 48),
+            (20, 16, 64),
+            (4, 1, 16),
+            (33, 5, 112),
+        ] {
+            let n_taps = 9;
+            let quad_stride = 3 * (width + 16);
+            let rows = words(&bytes(4 * (quads * quad_stride + 64), 5));
+            let taps_at: Vec<usize> = (0..n_taps)
+                .map(|t| (t % 3) + (t / 3) * (width + 16))
+                .collect();
+            let weights = words(&bytes(4 * outs.div_ceil(16) * n_taps * 16 * quads, 6));
+            let out_stride = width + 16;
+            let start: Vec<i32> = bytes(outs * out_stride, 7)
+                .into_iter()
+                .map(|b| b as i32 * 1000 - 128_000)
+                .collect();
+            let mut want = start.clone();
+            for o in 0..outs {
+                for i in 0..width {
+                    for (t, &at) in taps_at.iter().enumerate() {
+                        for q in 0..quads {
+                            let w = weights
+                                [((o / 16) * n_taps + t) * 16 * quads + (o % 16) * quads + q];
+                            let v = rows[at + q * quad_stride + i];
+                            for j in 0..4 {
+                                let wj = (w >> (8 * j)) as u8 as i8 as i32;
+                                let vj = (v >> (8 * j)) as u8 as i32;
+                                want[o * out_stride + i] += wj * vj;
+                            }
+                        }
+                    }
+                }
+            }
+            let taps = TileTaps {
+                rows: &rows,
+                taps: &taps_at,
+                quad_stride,
+                quads,
+                weights: &weights,
+            };
+            for path in DotPath::ALL {
+                let mut out = start.clone();
+                accumulate_tiles(path, &taps, &mut out, out_stride, outs, width);
+                assert_eq!(
+                    out,
+                    want,
+                    "{} for {outs} outputs, {quads} quads, width {width}",
+                    path.name()
+                );
+            }
+        }
+    }
+
+    #[test]
+    #[should_panic(expected = "taps reach")]
+    fn tiles_past_their_rows_are_refused() {
+        // Quad 1 of tap 1 reads points 51..67 of 60.
+        let taps = TileTaps {
+            rows: &[0; 60],
+            taps: &[0, 1],
+            quad_stride: 50,
+            quads: 2,
+            weights: &[0; 64],
+        };
+        accumulate_tiles(DotPath::Amx, &taps, &mut [0; 16], 16, 1, 16);
+    }
+
     #[test]
     fn the_widest_path_is_supported() {
         assert!(DotPath::Portable.is_supported());
         assert!(detect().is_supported());
+        eprintln!("8-bit path here: {}", detect().name());
     }
 }

@@ -33,8 +33,8 @@ pub struct InferConfig {
     #[arg(long, default_value = "auto")]
     pub conv: ConvPath,
     /// learned: the precision of the 3x3 convolutions: f32, or int8 (each frame's input
-    /// quantised per channel, on the widest 8-bit path this CPU has: AVX-512 VNNI, or plain
-    /// loops; neuspike's kernels only, so --conv auto or blocked).
+    /// quantised per channel, on the widest 8-bit path this CPU has: AMX tiles, AVX-512 VNNI,
+    /// or plain loops; neuspike's kernels only, so --conv auto or blocked).
     #[arg(long, default_value = "f32", value_parser = crate::learned::parse_precision)]
     pub precision: crate::learned::Precision,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).

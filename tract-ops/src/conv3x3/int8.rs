@@ -138,8 +138,11 @@ pub(super) struct Plan8 {
     /// `k`, `[c_out][c_in][9]`.
     k: Vec<i8>,
     /// `k` as the kernel reads it: `[c_out / 4][quads][9][4 outputs]` words of 4 channels
-    /// ([`dot::word`]), channels past `c_in` 0.
+    /// ([`dot::word`]), channels past `c_in` 0 (empty on [`DotPath::Amx`]).
     words: Vec<u32>,
+    /// `k` as [`dot::accumulate_tiles`] reads it, one vector per block of
+    /// [`dot::TILE_QUADS`] quads (empty unless the path is [`DotPath::Amx`]).
+    tiles: Vec<Vec<u32>>,
     /// Per output channel, `t_o`.
     scale: Vec<f32>,
     /// Per output channel, `Σ k z` over every channel and tap.
@@ -152,50 +155,97 @@ impl Conv3x3 {
         self.c_in.div_ceil(dot::CHANNELS)
     }
 
-    /// The weights quantised for inputs quantised as `quant` (one per input channel).
-    fn plan8(&self, quant: Vec<ChannelQuant>) -> Plan8 {
-        let (c_in, quads) = (self.c_in, self.quads());
+    /// The weights quantised for inputs quantised as `quant` (one per input channel), packed
+    /// for `path`.
+    fn plan8(&self, quant: Vec<ChannelQuant>, path: DotPath) -> Plan8 {
+        let c_in = self.c_in;
         let mut k = vec![0i8; self.c_out * c_in * TAPS];
-        let mut bytes = vec![0i8; self.c_out * quads * dot::CHANNELS * TAPS];
         let mut scale = vec![0f32; self.c_out];
         let mut offset = vec![0i32; self.c_out];
+        let mut scaled = vec![0f32; c_in * TAPS];
         for o in 0..self.c_out {
-            let scaled = |c: usize, t: usize| self.weight(o, c, t / 3, t % 3) * quant[c].scale;
-            let mut most = 0f32;
-            for c in 0..c_in {
-                for t in 0..TAPS {
-                    most = most.max(scaled(c, t).abs());
+            for (c, row) in scaled.chunks_exact_mut(TAPS).enumerate() {
+                for (t, v) in row.iter_mut().enumerate() {
+                    *v = self.weight(o, c, t / 3, t % 3) * quant[c].scale;
                 }
             }
+            let most = scaled.iter().fold(0f32, |m, v| m.max(v.abs()));
             let t_o = most / 127.0;
             if !(t_o >= f32::MIN_POSITIVE && t_o.is_finite()) {
                 continue;
             }
             scale[o] = t_o;
             let inv = 1.0 / t_o;
-            let (g, lane) = (o / OUTS, o % OUTS);
-            for c in 0..c_in {
-                for t in 0..TAPS {
-                    let v = (scaled(c, t) * inv).round().clamp(-127.0, 127.0) as i8;
-                    let (quad, j) = (c / dot::CHANNELS, c % dot::CHANNELS);
-                    let at = (((g * quads + quad) * TAPS + t) * OUTS + lane) * dot::CHANNELS + j;
-                    bytes[at] = v;
-                    k[(o * c_in + c) * TAPS + t] = v;
-                    offset[o] += i32::from(v) * i32::from(quant[c].zero);
-                }
+            let ks = &mut k[o * c_in * TAPS..][..c_in * TAPS];
+            for (k, &v) in ks.iter_mut().zip(&scaled) {
+                // Half away from zero, as `f32::round`, without its library call.
+                let r = (v * inv).clamp(-127.0, 127.0);
+                *k = (r + 0.5f32.copysign(r)) as i8;
             }
+            offset[o] = ks
+                .chunks_exact(TAPS)
+                .zip(&quant)
+                .map(|(ks, q)| ks.iter().map(|&k| i32::from(k)).sum::<i32>() * i32::from(q.zero))
+                .sum();
         }
-        let words = bytes
-            .chunks_exact(dot::CHANNELS)
-            .map(|b| dot::word([b[0], b[1], b[2], b[3]].map(|v| v as u8)))
-            .collect();
+        let (words, tiles) = if path == DotPath::Amx {
+            (Vec::new(), self.tiles(&k))
+        } else {
+            (self.words(&k), Vec::new())
+        };
         Plan8 {
             quant,
             k,
             words,
+            tiles,
             scale,
             offset,
         }
+    }
+
+    /// `k` (`[c_out][c_in][9]`) as [`dot::accumulate`] reads it: `[c_out / 4][quads][9][4]`
+    /// words of four channels.
+    fn words(&self, k: &[i8]) -> Vec<u32> {
+        let quads = self.quads();
+        let mut words = vec![0u32; self.c_out * quads * TAPS];
+        for o in 0..self.c_out {
+            let (g, lane) = (o / OUTS, o % OUTS);
+            for c in 0..self.c_in {
+                let (quad, j) = (c / dot::CHANNELS, c % dot::CHANNELS);
+                for t in 0..TAPS {
+                    let at = ((g * quads + quad) * TAPS + t) * OUTS + lane;
+                    let byte = k[(o * self.c_in + c) * TAPS + t] as u8;
+                    words[at] |= u32::from(byte) << (8 * j);
+                }
+            }
+        }
+        words
+    }
+
+    /// `k` (`[c_out][c_in][9]`) in the tiles of [`dot::TileTaps`], one vector per block of
+    /// [`dot::TILE_QUADS`] quads, taps in the order kernel row by row, column by column.
+    fn tiles(&self, k: &[i8]) -> Vec<Vec<u32>> {
+        let (quads, groups) = (self.quads(), self.c_out.div_ceil(dot::TILE_OUTS));
+        (0..quads)
+            .step_by(dot::TILE_QUADS)
+            .map(|q0| {
+                let nq = (quads - q0).min(dot::TILE_QUADS);
+                let mut tile = vec![0u32; groups * TAPS * dot::TILE_OUTS * nq];
+                for o in 0..self.c_out {
+                    let (g, row) = (o / dot::TILE_OUTS, o % dot::TILE_OUTS);
+                    let channels = q0 * dot::CHANNELS..(self.c_in).min((q0 + nq) * dot::CHANNELS);
+                    for c in channels {
+                        let (q, j) = (c / dot::CHANNELS - q0, c % dot::CHANNELS);
+                        for t in 0..TAPS {
+                            let at = ((g * TAPS + t) * dot::TILE_OUTS + row) * nq + q;
+                            let byte = k[(o * self.c_in + c) * TAPS + t] as u8;
+                            tile[at] |= u32::from(byte) << (8 * j);
+                        }
+                    }
+                }
+                tile
+            })
+            .collect()
     }
 
     /// Output channel `o`'s value from its integer sum.
@@ -227,7 +277,7 @@ impl Conv3x3 {
                 ChannelQuant::from_range(lo, hi)
             })
             .collect();
-        let plan = self.plan8(quant);
+        let plan = self.plan8(quant, DotPath::Portable);
         let level = |c: usize, y: isize, x: isize| -> i32 {
             let q = plan.quant[c];
             if y < 0 || x < 0 || y >= h as isize || x >= w as isize {
@@ -312,7 +362,7 @@ impl Conv3x3 {
         pool: Option<&rayon::ThreadPool>,
     ) {
         let (ho, wo) = (self.out_len(h), self.out_len(w));
-        let plan = self.plan8(self.quantization(input, h, pool));
+        let plan = self.plan8(self.quantization(input, h, pool), path);
         let rows = crate::bands::band_rows(ho, pool);
         let tasks = crate::bands::row_bands(output, ho * wo, wo, rows);
         let band = |(y0, mut planes): (usize, Vec<&mut [f32]>)| {
@@ -406,7 +456,31 @@ impl Conv3x3 {
                 held[*slot] = Some(iy);
             }
             out.fill(0);
-            for q0 in (0..quads).step_by(QUADS) {
+            if path == DotPath::Amx {
+                let row = |ky: usize, kx: usize| {
+                    let at = slots[ky] * quad_rows;
+                    match (S, kx) {
+                        (1, _) => at + kx,
+                        (_, 0) => at + len,
+                        (_, 1) => at,
+                        _ => at + len + 1,
+                    }
+                };
+                let taps: [usize; TAPS] = std::array::from_fn(|t| row(t / 3, t % 3));
+                for (b, tile) in plan.tiles.iter().enumerate() {
+                    let q0 = b * dot::TILE_QUADS;
+                    let first = taps.map(|at| at + q0 * 3 * quad_rows);
+                    let taps = dot::TileTaps {
+                        rows: scratch,
+                        taps: &first,
+                        quad_stride: 3 * quad_rows,
+                        quads: (quads - q0).min(dot::TILE_QUADS),
+                        weights: tile,
+                    };
+                    dot::accumulate_tiles(path, &taps, out, wv, self.c_out, wv);
+                }
+            }
+            for q0 in (0..quads).step_by(QUADS).filter(|_| path != DotPath::Amx) {
                 offsets.clear();
                 for quad in q0..(q0 + QUADS).min(quads) {
                     for slot in slots {
