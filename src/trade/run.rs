@@ -11,12 +11,13 @@ use eyre::{WrapErr, bail, eyre};
 use ndarray::Array2;
 use neuspike_align::{AlignConfig, AlignStage};
 use neuspike_event_camera::{DvsConfig, EventCamera};
-use neuspike_reconstruction::learned::LearnedModel;
+use neuspike_reconstruction::learned::{INT8_SUFFIX, LearnedModel, Precision};
 use neuspike_reconstruction::{EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor};
 use neuspike_representations::{RepresentConfig, Representer, WindowStats};
 use neuspike_schemas::{
     AlignedWindow, EventBatch, RepresentationKind, SpikeChunk, bytes_per_plane,
 };
+use neuspike_simd::dot::DotPath;
 use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 use neuspike_stage::{Chain, Msg, MsgType, Replay};
 
@@ -38,6 +39,8 @@ pub enum Recon {
         path: PathBuf,
         /// Its inputs.
         inputs: Vec<(RepresentationKind, usize)>,
+        /// The precision of its convolutions.
+        precision: Precision,
     },
 }
 
@@ -86,9 +89,26 @@ impl MethodSpec {
             recon: Recon::Network {
                 path: path.to_path_buf(),
                 inputs,
+                precision: Precision::F32,
             },
             window_planes: WINDOW_PLANES,
             representation: None,
+        })
+    }
+
+    /// The same network in 8 bits, named with [`INT8_SUFFIX`]; `None` for a classical method.
+    pub fn int8(&self) -> Option<MethodSpec> {
+        let Recon::Network { path, inputs, .. } = &self.recon else {
+            return None;
+        };
+        Some(MethodSpec {
+            name: format!("{}{INT8_SUFFIX}", self.name),
+            recon: Recon::Network {
+                path: path.clone(),
+                inputs: inputs.clone(),
+                precision: Precision::int8(),
+            },
+            ..self.clone()
         })
     }
 
@@ -134,9 +154,12 @@ impl MethodSpec {
         };
         match &self.recon {
             Recon::Classical(m) => cfg.method = *m,
-            Recon::Network { path, .. } => {
+            Recon::Network {
+                path, precision, ..
+            } => {
                 cfg.method = Method::Learned;
                 cfg.model = Some(path.clone());
+                cfg.precision = *precision;
             }
         }
         cfg
@@ -177,7 +200,8 @@ impl MethodSpec {
 }
 
 /// The methods the bench compares: TFP over 8, 33, 128 and 256 planes, TFI, TFSTP, HF, CF, the
-/// physics fusion on ISIs (Eq. 5-7) and on TFP rates (`fusion-tfp`), and every network in `models` (`*.onnx`, by name).
+/// physics fusion on ISIs (Eq. 5-7) and on TFP rates (`fusion-tfp`), and every network in `models` (`*.onnx`, by name),
+/// each also in 8 bits (`<name>-int8`) where this CPU runs 8 bits faster than `f32` (VNNI or AMX).
 ///
 /// # Errors
 /// A network that does not load.
@@ -209,10 +233,15 @@ pub fn methods(models: &Path) -> eyre::Result<Vec<MethodSpec>> {
             models.display()
         );
     }
+    // The 8-bit variants where this CPU has a path that pays (VNNI or AMX; plain loops are
+    // slower than `f32`).
+    let int8 = Precision::int8() != Precision::Int8(DotPath::Portable);
     for f in files {
-        out.push(
-            MethodSpec::network(&f).wrap_err_with(|| format!("--models {}", models.display()))?,
-        );
+        let spec =
+            MethodSpec::network(&f).wrap_err_with(|| format!("--models {}", models.display()))?;
+        let variant = spec.int8().filter(|_| int8);
+        out.push(spec);
+        out.extend(variant);
     }
     Ok(out)
 }

@@ -131,8 +131,11 @@ pub type Rect = (usize, usize, usize, usize);
 /// network run on the whole frame, up to the last few (see the test).
 pub const NET_MARGIN: usize = 16;
 
+/// The file of network method `name` (`<models>/<name>.onnx`, or the stem's for an 8-bit
+/// variant: [`crate::learned::network_variant`]).
 fn model_file(models: &Path, name: &str) -> PathBuf {
-    models.join(format!("{name}.onnx"))
+    let (stem, _) = crate::learned::network_variant(name);
+    models.join(format!("{stem}.onnx"))
 }
 
 impl Auto {
@@ -199,6 +202,7 @@ impl Auto {
                 Ok(MethodName::Network(m)) => {
                     let mut net = LearnedModel::load(&model_file(models, &m))?;
                     net.set_conv_path(conv);
+                    net.set_precision(crate::learned::network_variant(&m).1);
                     for (i, c) in net.inputs().iter().zip(net.channels()) {
                         let c = u32::try_from(*c).unwrap_or(u32::MAX);
                         match i.representation() {
@@ -1090,9 +1094,23 @@ mod tests {
             .classes[0]
             .method
             .clone();
+        // A shipped network in 8 bits runs: its file is the stem's.
+        let p = dir.path().join("int8.yml");
+        std::fs::write(
+            &p,
+            text.replacen(
+                &format!("method: {first}"),
+                "method: neuspike-spike-8-int8",
+                1,
+            ),
+        )
+        .expect("write");
+        Auto::new(&p, &root().join("models"), None, None, ConvPath::Auto)
+            .expect("an 8-bit variant of a shipped network");
         for (bad, want) in [
             ("fusion", "fusion"),
             ("neuspike-missing-4", "neuspike-missing-4"),
+            ("neuspike-missing-4-int8", "neuspike-missing-4-int8"),
         ] {
             let p = dir.path().join("p.yml");
             std::fs::write(

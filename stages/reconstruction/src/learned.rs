@@ -159,6 +159,19 @@ pub fn parse_precision(s: &str) -> Result<Precision, String> {
     }
 }
 
+/// The suffix of a network method run in 8 bits: `neuspike-spike-8-int8` is
+/// `neuspike-spike-8.onnx` with `--precision int8` (the trade bench's and `auto`'s name for it).
+pub const INT8_SUFFIX: &str = "-int8";
+
+/// A network method's name as its file's stem and the precision it runs in (see
+/// [`INT8_SUFFIX`]).
+pub fn network_variant(name: &str) -> (&str, Precision) {
+    match name.strip_suffix(INT8_SUFFIX) {
+        Some(stem) if !stem.is_empty() => (stem, Precision::int8()),
+        _ => (name, Precision::F32),
+    }
+}
+
 /// Runs of each candidate plan [`ConvPath::Auto`] times (the fastest counts: the machines here
 /// are noisy, and noise only ever adds time). Two runs each, one after the other, once kept
 /// im2col for the large model at 2 threads, 1.5x slower than the blocked path.

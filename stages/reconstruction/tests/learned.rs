@@ -7,7 +7,8 @@ use ndarray::{Array3, Array4, ArrayView3, Axis, s};
 use ndarray_npy::read_npy;
 use neuspike_reconstruction::InferError;
 use neuspike_reconstruction::learned::{
-    ConvPath, LearnedInput, LearnedModel, LearnedOutput, Precision, STRIDE, pad_edge,
+    ConvPath, LearnedInput, LearnedModel, LearnedOutput, Precision, STRIDE, network_variant,
+    pad_edge,
 };
 use prost::Message;
 use tract_onnx::prelude::Framework;
@@ -522,4 +523,18 @@ fn eight_bits_refuse_tracts_own_convolutions_by_name() {
         .run(&views)
         .expect("int8 on auto plans neuspike's kernels");
     assert_eq!(model.conv_path_in_use(), Some(ConvPath::Blocked));
+}
+
+#[test]
+fn an_8_bit_method_is_its_networks_file_in_8_bits() {
+    assert_eq!(
+        network_variant("neuspike-spike-8-int8"),
+        ("neuspike-spike-8", Precision::int8())
+    );
+    assert_eq!(
+        network_variant("neuspike-spike-8"),
+        ("neuspike-spike-8", Precision::F32)
+    );
+    // The suffix alone names no network.
+    assert_eq!(network_variant("-int8"), ("-int8", Precision::F32));
 }
