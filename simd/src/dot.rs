@@ -118,35 +118,17 @@ pub fn accumulate(
     if groups == 0 || width == 0 {
         return;
     }
-    // Checked arithmetic: a reach that wrapped around would pass the checks below.
-    let reach = offsets
-        .iter()
-        .max()
-        .map_or(Some(0), |&m| m.checked_add(width));
-    assert!(
-        reach.is_some_and(|r| r <= rows.len()),
-        "taps reach {reach:?} of {}",
-        rows.len()
-    );
-    let reach = (groups - 1)
-        .checked_mul(group_stride)
-        .and_then(|r| r.checked_add(OUTS.checked_mul(offsets.len())?));
-    assert!(
-        reach.is_some_and(|r| r <= weights.len()),
-        "weights reach {reach:?} of {}",
-        weights.len()
-    );
-    let reach = OUTS
-        .checked_mul(groups)
-        .and_then(|n| (n - 1).checked_mul(out_stride)?.checked_add(width));
-    assert!(
-        reach.is_some_and(|r| r <= out.len()),
-        "outputs reach {reach:?} of {}",
-        out.len()
-    );
-    assert!(
-        out_stride >= width,
-        "output rows of {out_stride} for {width} points"
+    crate::taps::check_reaches(
+        crate::taps::Reaches {
+            offsets,
+            rows: rows.len(),
+            weights: weights.len(),
+            group_stride,
+            out: out.len(),
+            out_stride,
+        },
+        groups,
+        width,
     );
     #[cfg(target_arch = "x86_64")]
     if path.min(detect()) >= DotPath::Vnni {

@@ -57,35 +57,17 @@ pub fn accumulate(
     if groups == 0 || width == 0 {
         return;
     }
-    // Checked arithmetic: a reach that wrapped around would pass the checks below.
-    let reach = offsets
-        .iter()
-        .max()
-        .map_or(Some(0), |&m| m.checked_add(width));
-    assert!(
-        reach.is_some_and(|r| r <= rows.len()),
-        "taps reach {reach:?} of {}",
-        rows.len()
-    );
-    let reach = (groups - 1)
-        .checked_mul(group_stride)
-        .and_then(|r| r.checked_add(OUTS.checked_mul(offsets.len())?));
-    assert!(
-        reach.is_some_and(|r| r <= weights.len()),
-        "weights reach {reach:?} of {}",
-        weights.len()
-    );
-    let reach = OUTS
-        .checked_mul(groups)
-        .and_then(|n| (n - 1).checked_mul(out_stride)?.checked_add(width));
-    assert!(
-        reach.is_some_and(|r| r <= out.len()),
-        "outputs reach {reach:?} of {}",
-        out.len()
-    );
-    assert!(
-        out_stride >= width,
-        "output rows of {out_stride} for {width} points"
+    check_reaches(
+        Reaches {
+            offsets,
+            rows: rows.len(),
+            weights: weights.len(),
+            group_stride,
+            out: out.len(),
+            out_stride,
+        },
+        groups,
+        width,
     );
     #[cfg(target_arch = "x86_64")]
     {
@@ -122,6 +104,59 @@ pub fn accumulate(
             }
         }
     }
+}
+
+/// The lengths an accumulation over taps reads and writes (in values or words).
+pub(crate) struct Reaches<'a> {
+    /// Where each tap's run of points starts.
+    pub offsets: &'a [usize],
+    /// The values the taps read.
+    pub rows: usize,
+    /// The weights, [`OUTS`] per tap, then the next group `group_stride` on.
+    pub weights: usize,
+    /// The distance between two groups' weights.
+    pub group_stride: usize,
+    /// The outputs, [`OUTS`] rows a group.
+    pub out: usize,
+    /// The distance between two output rows.
+    pub out_stride: usize,
+}
+
+/// Panics unless every tap's run of `width` points, every group's weights and every output row
+/// of `groups` groups lies within its length (`groups` and `width` at least 1), and output rows
+/// do not overlap. Checked arithmetic: a reach that wrapped around would pass.
+pub(crate) fn check_reaches(r: Reaches, groups: usize, width: usize) {
+    let reach = r
+        .offsets
+        .iter()
+        .max()
+        .map_or(Some(0), |&m| m.checked_add(width));
+    assert!(
+        reach.is_some_and(|x| x <= r.rows),
+        "taps reach {reach:?} of {}",
+        r.rows
+    );
+    let reach = (groups - 1)
+        .checked_mul(r.group_stride)
+        .and_then(|x| x.checked_add(OUTS.checked_mul(r.offsets.len())?));
+    assert!(
+        reach.is_some_and(|x| x <= r.weights),
+        "weights reach {reach:?} of {}",
+        r.weights
+    );
+    let reach = OUTS
+        .checked_mul(groups)
+        .and_then(|n| (n - 1).checked_mul(r.out_stride)?.checked_add(width));
+    assert!(
+        reach.is_some_and(|x| x <= r.out),
+        "outputs reach {reach:?} of {}",
+        r.out
+    );
+    assert!(
+        r.out_stride >= width,
+        "output rows of {} for {width} points",
+        r.out_stride
+    );
 }
 
 /// `vectors` split into runs `(first, length)` of at most `most`, as even as can be: a short
