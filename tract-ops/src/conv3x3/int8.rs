@@ -438,15 +438,31 @@ impl Conv3x3 {
                             let n = input.row(quad * dot::CHANNELS, iy, h).len();
                             levels.clear();
                             levels.resize(n, 0);
-                            for j in 0..dot::CHANNELS {
-                                let c = quad * dot::CHANNELS + j;
-                                let Some(&q) = plan.quant.get(c) else { break };
-                                let shift = 8 * j as u32;
-                                for (l, &v) in levels.iter_mut().zip(input.row(c, iy, h)) {
-                                    *l |= q.level(v) << shift;
+                            let c0 = quad * dot::CHANNELS;
+                            if let Some(&[q0, q1, q2, q3]) = plan.quant.get(c0..c0 + 4) {
+                                // A whole quad: one pass making each word.
+                                let [r0, r1, r2, r3] =
+                                    [0, 1, 2, 3].map(|j| input.row(c0 + j, iy, h));
+                                for ((((l, &a), &b), &c), &d) in
+                                    levels.iter_mut().zip(r0).zip(r1).zip(r2).zip(r3)
+                                {
+                                    *l = q0.level(a)
+                                        | q1.level(b) << 8
+                                        | q2.level(c) << 16
+                                        | q3.level(d) << 24;
                                 }
+                                Some(&levels[..])
+                            } else {
+                                for j in 0..dot::CHANNELS {
+                                    let c = quad * dot::CHANNELS + j;
+                                    let Some(&q) = plan.quant.get(c) else { break };
+                                    let shift = 8 * j as u32;
+                                    for (l, &v) in levels.iter_mut().zip(input.row(c, iy, h)) {
+                                        *l |= q.level(v) << shift;
+                                    }
+                                }
+                                Some(&levels[..])
                             }
-                            Some(&levels[..])
                         }
                         None => None,
                     };
