@@ -1070,7 +1070,7 @@ pub fn take_first_convolutions(model: &mut TypedModel) -> TractResult<Vec<Option
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{conv, pattern};
+    use crate::testing::{conv, pattern, runs_give};
     use ndarray::Array4;
     use proptest::prelude::*;
 
@@ -1083,29 +1083,11 @@ mod tests {
         } else {
             conv
         };
-        let (ho, wo) = (conv.out_len(h), conv.out_len(w));
         let input = pattern(c_in * h * w, seed + 2);
         let view = ArrayView3::from_shape((c_in, h, w), &input).unwrap();
         let want = conv.reference(view).unwrap();
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .unwrap();
-        for isa in neuspike_simd::Isa::ALL
-            .into_iter()
-            .filter(|i| i.is_supported())
-        {
-            for pool in [None, Some(&pool)] {
-                let mut got = vec![f32::NAN; c_out * ho * wo];
-                conv.run_on(isa, &input, (h, w), &mut got, pool).unwrap();
-                assert_eq!(
-                    got.as_slice(),
-                    want.as_slice().unwrap(),
-                    "{c_in}->{c_out} at {h}x{w}, stride {stride}, {isa:?}, pool {}",
-                    pool.is_some()
-                );
-            }
-        }
+        let what = format!("{c_in}->{c_out} at {h}x{w}, stride {stride}");
+        runs_give(&conv, &input, (h, w), want.as_slice().unwrap(), &what);
     }
 
     #[test]

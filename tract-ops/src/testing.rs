@@ -20,3 +20,29 @@ pub(crate) fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> crate
     let bias = pattern(c_out, seed + 1);
     crate::conv3x3::Conv3x3::new(weights.view(), &bias, stride).expect("a 3x3 convolution")
 }
+
+/// Runs `conv` on `input` (`[C, h, w]`) on every instruction set this CPU has, on this thread
+/// and on a pool of three, and asserts each output is `want`, bit for bit (`what` names the case).
+pub(crate) fn runs_give(
+    conv: &crate::conv3x3::Conv3x3,
+    input: &[f32],
+    (h, w): (usize, usize),
+    want: &[f32],
+    what: &str,
+) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(3)
+        .build()
+        .expect("a pool");
+    for isa in neuspike_simd::Isa::ALL
+        .into_iter()
+        .filter(|i| i.is_supported())
+    {
+        for pool in [None, Some(&pool)] {
+            let mut got = vec![f32::NAN; want.len()];
+            conv.run_on(isa, input, (h, w), &mut got, pool)
+                .expect("runs");
+            assert_eq!(got, want, "{what}, {isa:?}, pool {}", pool.is_some());
+        }
+    }
+}

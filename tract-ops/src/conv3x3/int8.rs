@@ -548,7 +548,7 @@ thread_local! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{conv, pattern};
+    use crate::testing::{conv, pattern, runs_give};
     use ndarray::Array4;
     use proptest::prelude::*;
 
@@ -570,31 +570,13 @@ mod tests {
         } else {
             base
         };
-        let (ho, wo) = (base.out_len(h), base.out_len(w));
         let x = input(c_in * h * w, seed + 2, seed);
         let view = ArrayView3::from_shape((c_in, h, w), &x).unwrap();
         let want = base.reference_int8(view).unwrap();
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(3)
-            .build()
-            .unwrap();
         for path in DotPath::ALL.into_iter().filter(|p| p.is_supported()) {
             let conv = base.clone().with_precision(Precision::Int8(path));
-            for isa in neuspike_simd::Isa::ALL
-                .into_iter()
-                .filter(|i| i.is_supported())
-            {
-                for pool in [None, Some(&pool)] {
-                    let mut got = vec![f32::NAN; c_out * ho * wo];
-                    conv.run_on(isa, &x, (h, w), &mut got, pool).unwrap();
-                    assert_eq!(
-                        got.as_slice(),
-                        want.as_slice().unwrap(),
-                        "{c_in}->{c_out} at {h}x{w}, stride {stride}, {path:?}, {isa:?}, pool {}",
-                        pool.is_some()
-                    );
-                }
-            }
+            let what = format!("{c_in}->{c_out} at {h}x{w}, stride {stride}, {path:?}");
+            runs_give(&conv, &x, (h, w), want.as_slice().unwrap(), &what);
         }
     }
 
