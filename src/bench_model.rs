@@ -30,25 +30,6 @@ pub struct Timing {
     pub precision: Precision,
 }
 
-/// A precision as `bench-model --precision` names it: `f32`, `int8` (the widest 8-bit path
-/// this CPU has, as the infer node's `--precision int8` runs), or an 8-bit path by name
-/// (`int8-portable`, `int8-vnni`, `int8-amx`), refused when this CPU does not run it.
-pub fn parse_precision(s: &str) -> Result<Precision, String> {
-    if let Some(name) = s.strip_prefix("int8-") {
-        let path = DotPath::ALL
-            .into_iter()
-            .find(|p| p.name() == name)
-            .ok_or_else(|| {
-                format!("precision `{s}`: 8-bit paths are int8-portable, int8-vnni and int8-amx")
-            })?;
-        if !path.is_supported() {
-            return Err(format!("precision `{s}`: this CPU has no {name}"));
-        }
-        return Ok(Precision::Int8(path));
-    }
-    neuspike_reconstruction::learned::parse_precision(s)
-}
-
 /// Every precision and path this CPU runs, `f32` first.
 pub fn every_precision() -> Vec<Precision> {
     std::iter::once(Precision::F32)

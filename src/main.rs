@@ -175,7 +175,7 @@ enum Command {
         /// Precisions of the 3x3 convolutions to time side by side, comma-separated: f32, int8
         /// (the widest 8-bit path this CPU has, as the infer node runs it), int8-portable,
         /// int8-vnni, int8-amx; by default every one this CPU runs. Ratios are against the first.
-        #[arg(long, value_delimiter = ',', value_parser = neuspike::bench_model::parse_precision)]
+        #[arg(long, value_delimiter = ',')]
         precision: Vec<neuspike_reconstruction::learned::Precision>,
     },
     /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the

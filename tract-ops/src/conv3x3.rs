@@ -82,12 +82,37 @@ impl Precision {
     }
 }
 
+/// The name [`Precision`]'s `FromStr` reads back: `f32`, or `int8-<path>` (`int8-amx`, ...).
 impl std::fmt::Display for Precision {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Precision::F32 => f.write_str("f32"),
-            Precision::Int8(path) => write!(f, "int8 ({})", path.name()),
+            Precision::Int8(path) => write!(f, "int8-{}", path.name()),
         }
+    }
+}
+
+/// `f32`; `int8`, the widest 8-bit path this CPU has ([`Precision::int8`]); or an 8-bit path by
+/// name, `int8-portable`, `int8-vnni` or `int8-amx`, refused where this CPU does not run it.
+impl std::str::FromStr for Precision {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "f32" => return Ok(Precision::F32),
+            "int8" => return Ok(Precision::int8()),
+            _ => {}
+        }
+        let path = s
+            .strip_prefix("int8-")
+            .and_then(|name| DotPath::ALL.into_iter().find(|p| p.name() == name))
+            .ok_or_else(|| {
+                format!("precision `{s}`: expected f32, int8, int8-portable, int8-vnni or int8-amx")
+            })?;
+        if !path.is_supported() {
+            return Err(format!("precision `{s}`: this CPU has no {}", path.name()));
+        }
+        Ok(Precision::Int8(path))
     }
 }
 
@@ -513,11 +538,7 @@ impl Conv3x3 {
                 for c in c0..(c0 + CHANNELS).min(self.c_in) {
                     for slot in slots {
                         let at = (c * 3 + slot) * S * len;
-                        offsets.extend(if S == 1 {
-                            [at, at + 1, at + 2]
-                        } else {
-                            [at + len, at, at + len + 1]
-                        });
+                        offsets.extend(Self::taps::<S>(at, len));
                     }
                 }
                 let taps = Taps {
@@ -603,6 +624,18 @@ impl Conv3x3 {
                     self.put(&mut plane[(r0 + r) * w..][..w], src);
                 }
             }
+        }
+    }
+
+    /// Where taps `kx = 0, 1, 2` of point 0 lie in the `S` scratch rows of `len` values that
+    /// [`padded`](Self::padded) makes from one input row, from `at`: stride 1, `kx` on; stride
+    /// 2, the odd columns' row (`len` on), the even one's, the odd one's a point further.
+    #[inline(always)]
+    fn taps<const S: usize>(at: usize, len: usize) -> [usize; 3] {
+        if S == 1 {
+            [at, at + 1, at + 2]
+        } else {
+            [at + len, at, at + len + 1]
         }
     }
 
@@ -700,17 +733,9 @@ impl<'a> Input<'a> {
     #[inline]
     fn row(self, c: usize, iy: usize, h: usize) -> &'a [f32] {
         match self {
-            Input::Dense(x, w) => &x[(c * h + iy) * w..][..w],
-            Input::Parts(parts, w) => {
-                let mut c = c;
-                for &(x, channels) in parts {
-                    if c < channels {
-                        return &x[(c * h + iy) * w..][..w];
-                    }
-                    c -= channels;
-                }
-                // Past the last part (the channels were checked to add up): no row.
-                &[]
+            // Past the last part (the channels were checked to add up): no row.
+            Input::Dense(_, w) | Input::Parts(_, w) => {
+                self.plane(c, h).map_or(&[], |p| &p[iy * w..][..w])
             }
             Input::Edge(x) => {
                 let (_, rows, w) = x.dim();

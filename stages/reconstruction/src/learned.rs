@@ -147,18 +147,6 @@ impl std::str::FromStr for ConvPath {
     }
 }
 
-/// The precision of a network's 3x3 convolutions as a user names it: `f32` (the default, the
-/// reference) or `int8` (8 bits on the widest path this CPU has, see
-/// [`neuspike_tract_ops::conv3x3::int8`]; neuspike's kernels only, so the convolutions run on
-/// [`ConvPath::Blocked`]). The other operators run in `f32` either way.
-pub fn parse_precision(s: &str) -> Result<Precision, String> {
-    match s {
-        "f32" => Ok(Precision::F32),
-        "int8" => Ok(Precision::int8()),
-        other => Err(format!("precision `{other}`: expected f32 or int8")),
-    }
-}
-
 /// The suffix of a network method run in 8 bits: `neuspike-spike-8-int8` is
 /// `neuspike-spike-8.onnx` with `--precision int8` (the trade bench's and `auto`'s name for it).
 pub const INT8_SUFFIX: &str = "-int8";

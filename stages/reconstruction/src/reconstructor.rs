@@ -34,8 +34,9 @@ pub struct InferConfig {
     pub conv: ConvPath,
     /// learned: the precision of the 3x3 convolutions: f32, or int8 (each frame's input
     /// quantised per channel, on the widest 8-bit path this CPU has: AMX tiles, AVX-512 VNNI,
-    /// or plain loops; neuspike's kernels only, so --conv auto or blocked).
-    #[arg(long, default_value = "f32", value_parser = crate::learned::parse_precision)]
+    /// or plain loops; int8-amx, int8-vnni or int8-portable names one). The other operators
+    /// stay f32; neuspike's kernels only, so --conv auto or blocked.
+    #[arg(long, default_value = "f32")]
     pub precision: crate::learned::Precision,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).
     #[arg(long)]

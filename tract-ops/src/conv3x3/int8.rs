@@ -248,10 +248,17 @@ impl Conv3x3 {
             .collect()
     }
 
-    /// Output channel `o`'s value from its integer sum.
+    /// Output channel `o`'s terms: its offset, `t_o` and bias, taken out of the loop over its
+    /// points (through the vectors' heap the compiler would reload them at every store).
     #[inline(always)]
-    fn dequantize(&self, plan: &Plan8, o: usize, sum: i32) -> f32 {
-        let y = sum.wrapping_sub(plan.offset[o]) as f32 * plan.scale[o] + self.bias[o];
+    fn terms(&self, plan: &Plan8, o: usize) -> (i32, f32, f32) {
+        (plan.offset[o], plan.scale[o], self.bias[o])
+    }
+
+    /// An output's value from its integer sum and its channel's [`terms`](Self::terms).
+    #[inline(always)]
+    fn dequantize(&self, (offset, scale, bias): (i32, f32, f32), sum: i32) -> f32 {
+        let y = sum.wrapping_sub(offset) as f32 * scale + bias;
         if self.relu { y.max(0.0) } else { y }
     }
 
@@ -302,7 +309,7 @@ impl Conv3x3 {
                     }
                 }
             }
-            self.dequantize(&plan, o, sum)
+            self.dequantize(self.terms(&plan, o), sum)
         }))
     }
 
@@ -436,10 +443,10 @@ impl Conv3x3 {
                     let src = match inside {
                         Some(iy) => {
                             let n = input.row(quad * dot::CHANNELS, iy, h).len();
-                            levels.clear();
-                            levels.resize(n, 0);
                             let c0 = quad * dot::CHANNELS;
                             if let Some(&[q0, q1, q2, q3]) = plan.quant.get(c0..c0 + 4) {
+                                // Every word written below: no zeros first.
+                                levels.resize(n, 0);
                                 // A whole quad: one pass making each word.
                                 let [r0, r1, r2, r3] =
                                     [0, 1, 2, 3].map(|j| input.row(c0 + j, iy, h));
@@ -453,6 +460,8 @@ impl Conv3x3 {
                                 }
                                 Some(&levels[..])
                             } else {
+                                levels.clear();
+                                levels.resize(n, 0);
                                 for j in 0..dot::CHANNELS {
                                     let c = quad * dot::CHANNELS + j;
                                     let Some(&q) = plan.quant.get(c) else { break };
@@ -473,16 +482,8 @@ impl Conv3x3 {
             }
             out.fill(0);
             if path == DotPath::Amx {
-                let row = |ky: usize, kx: usize| {
-                    let at = slots[ky] * quad_rows;
-                    match (S, kx) {
-                        (1, _) => at + kx,
-                        (_, 0) => at + len,
-                        (_, 1) => at,
-                        _ => at + len + 1,
-                    }
-                };
-                let taps: [usize; TAPS] = std::array::from_fn(|t| row(t / 3, t % 3));
+                let taps: [usize; TAPS] =
+                    std::array::from_fn(|t| Self::taps::<S>(slots[t / 3] * quad_rows, len)[t % 3]);
                 for (b, tile) in plan.tiles.iter().enumerate() {
                     let q0 = b * dot::TILE_QUADS;
                     let first = taps.map(|at| at + q0 * 3 * quad_rows);
@@ -495,33 +496,29 @@ impl Conv3x3 {
                     };
                     dot::accumulate_tiles(path, &taps, out, wv, self.c_out, wv);
                 }
-            }
-            for q0 in (0..quads).step_by(QUADS).filter(|_| path != DotPath::Amx) {
-                offsets.clear();
-                for quad in q0..(q0 + QUADS).min(quads) {
-                    for slot in slots {
-                        let at = (quad * 3 + slot) * quad_rows;
-                        offsets.extend(if S == 1 {
-                            [at, at + 1, at + 2]
-                        } else {
-                            [at + len, at, at + len + 1]
-                        });
+            } else {
+                for q0 in (0..quads).step_by(QUADS) {
+                    offsets.clear();
+                    for quad in q0..(q0 + QUADS).min(quads) {
+                        for slot in slots {
+                            let at = (quad * 3 + slot) * quad_rows;
+                            offsets.extend(Self::taps::<S>(at, len));
+                        }
                     }
+                    let taps = ByteTaps {
+                        rows: scratch,
+                        offsets,
+                        weights: &plan.words[q0 * TAPS * OUTS..],
+                        group_stride: quads * TAPS * OUTS,
+                    };
+                    dot::accumulate(path, &taps, out, wv, self.c_out / OUTS, wv);
                 }
-                let taps = ByteTaps {
-                    rows: scratch,
-                    offsets,
-                    weights: &plan.words[q0 * TAPS * OUTS..],
-                    group_stride: quads * TAPS * OUTS,
-                };
-                dot::accumulate(path, &taps, out, wv, self.c_out / OUTS, wv);
             }
             for (o, plane) in planes.iter_mut().enumerate() {
-                let (offset, scale, bias) = (plan.offset[o], plan.scale[o], self.bias[o]);
+                let terms = self.terms(plan, o);
                 let dst = &mut plane[(y - y0) * wo..][..wo];
                 for (d, &sum) in dst.iter_mut().zip(&out[o * wv..][..wo]) {
-                    let v = sum.wrapping_sub(offset) as f32 * scale + bias;
-                    *d = if self.relu { v.max(0.0) } else { v };
+                    *d = self.dequantize(terms, sum);
                 }
             }
         }
@@ -740,6 +737,18 @@ mod tests {
                 .unwrap();
             assert_eq!(got, want, "edge, stride {stride}");
         }
+    }
+
+    #[test]
+    fn precisions_read_back_their_names() {
+        let supported = DotPath::ALL.into_iter().filter(|p| p.is_supported());
+        for p in std::iter::once(Precision::F32).chain(supported.map(Precision::Int8)) {
+            assert_eq!(p.to_string().parse::<Precision>(), Ok(p));
+        }
+        assert_eq!("int8".parse::<Precision>(), Ok(Precision::int8()));
+        let e = "int4".parse::<Precision>().unwrap_err();
+        assert!(e.contains("`int4`") && e.contains("int8-vnni"), "{e}");
+        assert!("int8-avx".parse::<Precision>().is_err());
     }
 
     #[test]
