@@ -10,6 +10,11 @@
 //! 256x400 on 2 threads. [`SpatialAttention`] reads `x` and `d` once for the two maps, then `x`
 //! once more for the product, its rows split across tract's pool.
 //!
+//! `x` is the channel attention's output, `sum_p x_p * g_p` ([`ScaledSumOp`]). Where nothing
+//! else reads it, the attention takes the products' inputs ([`Scaled`]) and forms `x` row by
+//! row as it goes, in the same operations: `x` is never written out (at full resolution, base 8,
+//! a pass of 3.3 MB written and two read).
+//!
 //! [`SpatialAttention::reference`] is the scalar definition; the fast path takes the same
 //! operations in the same order (the channel sum in channel order, the convolution's fused
 //! multiply-adds tap by tap), so the two agree exactly. tract's channel sum may add in another
@@ -26,6 +31,55 @@ const K: usize = 7;
 /// Its padding on each side.
 const PAD: usize = K / 2;
 
+/// The features `x` an attention weights: one tensor (`gates` empty), or the channel
+/// attention's sum `x = sum_p xs[p] * gates[p]`, each `xs[p]` `[C, H, W]` and each gate `[C]`,
+/// the products summed in order, each rounded, as [`ScaledSumOp`] computes it.
+#[derive(Clone, Copy, Debug)]
+pub struct Scaled<'a> {
+    /// The tensors, `[C][H][W]` each.
+    pub xs: &'a [&'a [f32]],
+    /// Their gates, `[C]` each; empty when `x` is `xs[0]` itself.
+    pub gates: &'a [&'a [f32]],
+}
+
+impl<'a> Scaled<'a> {
+    /// `x` itself.
+    pub fn plain(x: &'a [&'a [f32]]) -> Scaled<'a> {
+        Scaled { xs: x, gates: &[] }
+    }
+
+    /// Whether the sizes fit `n` values a tensor and `c` channels.
+    fn fits(&self, n: usize, c: usize) -> bool {
+        !self.xs.is_empty()
+            && self.xs.iter().all(|x| x.len() == n)
+            && (self.gates.is_empty()
+                || (self.gates.len() == self.xs.len() && self.gates.iter().all(|g| g.len() == c)))
+    }
+
+    /// The `w` values of `x` from `at` (in channel `k`): read in place, or summed into
+    /// `scratch` (at least `w` values).
+    #[inline(always)]
+    fn row<'s>(&'s self, k: usize, at: usize, w: usize, scratch: &'s mut [f32]) -> &'s [f32] {
+        if self.gates.is_empty() {
+            return &self.xs[0][at..at + w];
+        }
+        let out = &mut scratch[..w];
+        for (p, (x, g)) in self.xs.iter().zip(self.gates).enumerate() {
+            let (x, g) = (&x[at..at + w], g[k]);
+            if p == 0 {
+                for (o, &v) in out.iter_mut().zip(x) {
+                    *o = v * g;
+                }
+            } else {
+                for (o, &v) in out.iter_mut().zip(x) {
+                    *o += v * g;
+                }
+            }
+        }
+        out
+    }
+}
+
 /// The attention's parameters: the 2-to-1 7x7 convolution (padding 3) over the channel mean and
 /// maximum, and the mean's scale.
 #[derive(Clone, Debug, PartialEq)]
@@ -35,12 +89,16 @@ pub struct SpatialAttention {
     bias: f32,
     /// What the channel sum is multiplied by to give the mean (`1 / C` as the network has it).
     scale: f32,
+    /// How many `(x_p, g_p)` pairs `x` is the scaled sum of ([`Scaled`]); 0 when it is one
+    /// tensor. The operator's inputs are then `x_0, g_0, ..., d`.
+    pairs: usize,
 }
 
-/// The logistic function, `1 / (1 + exp(-z))`: 0 for `z = -inf`, 1 for `+inf`, NaN for NaN.
+/// The logistic function, `1 / (1 + exp(-z))` ([`neuspike_simd::fastmath::sigmoid`], within
+/// 4 ulp, vectorised): 0 for `z = -inf`, 1 for `+inf`, NaN for NaN.
 #[inline(always)]
-fn sigmoid(z: f32) -> f32 {
-    1.0 / (1.0 + (-z).exp())
+pub(crate) fn sigmoid(z: f32) -> f32 {
+    neuspike_simd::fastmath::sigmoid(z)
 }
 
 impl SpatialAttention {
@@ -51,7 +109,18 @@ impl SpatialAttention {
             weights: weights.to_vec(),
             bias,
             scale,
+            pairs: 0,
         })
+    }
+
+    /// The same attention of the scaled sum of `pairs` pairs ([`Scaled`]; 0: of one tensor).
+    pub fn of_scaled_sum(self, pairs: usize) -> SpatialAttention {
+        SpatialAttention { pairs, ..self }
+    }
+
+    /// How many pairs `x` is the scaled sum of (0: one tensor).
+    pub fn pairs(&self) -> usize {
+        self.pairs
     }
 
     /// The scalar definition: `y = x * sigmoid(z)`, `z` the bias then one fused multiply-add per
@@ -91,20 +160,22 @@ impl SpatialAttention {
     /// split across `pool` (or this thread when `None`).
     ///
     /// # Errors
-    /// A message when `x`, `d` or `out` is not `C * H * W` values.
+    /// A message when a tensor of `x`, `d` or `out` is not `C * H * W` values, or a gate not `C`.
     pub fn run(
         &self,
-        x: &[f32],
+        x: Scaled,
         d: &[f32],
         (c, h, w): (usize, usize, usize),
         out: &mut [f32],
         pool: Option<&rayon::ThreadPool>,
     ) -> Result<(), String> {
         let n = c.checked_mul(h).and_then(|n| n.checked_mul(w));
-        if [x.len(), d.len(), out.len()].iter().any(|&l| Some(l) != n) {
+        let fits = n.is_some_and(|n| x.fits(n, c) && d.len() == n && out.len() == n);
+        if !fits {
             return Err(format!(
-                "{} and {} values in, {} out, for {c}x{h}x{w}",
-                x.len(),
+                "{:?}, {} and {} values in, {} out, for {c}x{h}x{w}",
+                x.xs.iter().map(|x| x.len()).collect::<Vec<_>>(),
+                x.gates.iter().map(|g| g.len()).sum::<usize>(),
                 d.len(),
                 out.len()
             ));
@@ -122,8 +193,9 @@ impl SpatialAttention {
             neuspike_simd::dispatch(
                 #[inline(always)]
                 || {
+                    let mut scratch = vec![0f32; w];
                     for (r, row) in band[0].chunks_exact_mut(2 * pw).enumerate() {
-                        self.maps_row(x, d, (c, h, w), y0 + r, row)
+                        self.maps_row(x, d, (c, h, w), y0 + r, row, &mut scratch)
                     }
                 },
             )
@@ -144,18 +216,19 @@ impl SpatialAttention {
     #[inline(always)]
     fn maps_row(
         &self,
-        x: &[f32],
+        x: Scaled,
         d: &[f32],
         (c, h, w): (usize, usize, usize),
         y: usize,
         row: &mut [f32],
+        scratch: &mut [f32],
     ) {
         let (mean, max) = row.split_at_mut(row.len() / 2);
         let (mean, max) = (&mut mean[PAD..PAD + w], &mut max[PAD..PAD + w]);
         mean.fill(0.0);
         for k in 0..c {
             let at = (k * h + y) * w;
-            let (xs, ds) = (&x[at..at + w], &d[at..at + w]);
+            let (xs, ds) = (x.row(k, at, w, scratch), &d[at..at + w]);
             if k == 0 {
                 for (((m, a), &xv), &dv) in mean.iter_mut().zip(max.iter_mut()).zip(xs).zip(ds) {
                     let s = xv + dv;
@@ -179,7 +252,7 @@ impl SpatialAttention {
     #[inline(always)]
     fn product_rows(
         &self,
-        x: &[f32],
+        x: Scaled,
         maps: &[f32],
         (h, w): (usize, usize),
         y0: usize,
@@ -187,6 +260,7 @@ impl SpatialAttention {
     ) {
         let pw = w + 2 * PAD;
         let mut z = vec![0f32; w];
+        let mut scratch = vec![0f32; w];
         let n_rows = planes.first().map_or(0, |p| p.len() / w);
         for y in y0..y0 + n_rows {
             z.fill(self.bias);
@@ -207,7 +281,7 @@ impl SpatialAttention {
             }
             for (k, plane) in planes.iter_mut().enumerate() {
                 let dst = &mut plane[(y - y0) * w..][..w];
-                let xs = &x[(k * h + y) * w..][..w];
+                let xs = x.row(k, (k * h + y) * w, w, &mut scratch);
                 for ((o, &xv), &a) in dst.iter_mut().zip(xs).zip(&z) {
                     *o = xv * a;
                 }
@@ -234,30 +308,50 @@ impl EvalOp for SpatialAttentionOp {
     op_out_of_plan!();
 
     fn eval(&self, _ctx: &EvalContext, inputs: TVec<TValue>) -> TractResult<TVec<TValue>> {
-        let (x, d) = args_2!(inputs);
-        let &[1, c, h, w] = x.shape() else {
-            bail!(
-                "NeuspikeSpatialAttention takes [1, C, H, W], got {:?}",
-                x.shape()
-            );
-        };
+        let pairs = self.0.pairs;
         ensure!(
-            x.shape() == d.shape(),
-            "x {:?} and d {:?}",
-            x.shape(),
+            inputs.len() == (2 * pairs).max(1) + 1,
+            "NeuspikeSpatialAttention of {pairs} pairs given {} inputs",
+            inputs.len()
+        );
+        let shape = inputs[0].shape().to_vec();
+        let &[1, c, h, w] = shape.as_slice() else {
+            bail!("NeuspikeSpatialAttention takes [1, C, H, W], got {shape:?}");
+        };
+        let d = inputs.last().expect("checked above");
+        ensure!(
+            d.shape() == shape.as_slice(),
+            "x {shape:?} and d {:?}",
             d.shape()
         );
+        let plain = inputs
+            .iter()
+            .map(|i| i.try_as_plain_ram())
+            .collect::<TractResult<TVec<_>>>()?;
+        let (mut xs, mut gates) = (TVec::new(), TVec::new());
+        if pairs == 0 {
+            xs.push(plain[0].as_slice::<f32>()?);
+        }
+        for (i, pair) in plain[..2 * pairs].chunks_exact(2).enumerate() {
+            ensure!(
+                inputs[2 * i].shape() == shape.as_slice()
+                    && inputs[2 * i + 1].shape() == [1, c, 1, 1],
+                "pair {i}: {:?} and {:?} for {shape:?}",
+                inputs[2 * i].shape(),
+                inputs[2 * i + 1].shape()
+            );
+            xs.push(pair[0].as_slice::<f32>()?);
+            gates.push(pair[1].as_slice::<f32>()?);
+        }
+        let x = Scaled {
+            xs: &xs,
+            gates: &gates,
+        };
         let pool = crate::bands::tract_pool();
-        let (x, d) = (x.try_as_plain_ram()?, d.try_as_plain_ram()?);
+        let d = plain.last().expect("checked above").as_slice::<f32>()?;
         let mut y = vec![0f32; c * h * w];
         self.0
-            .run(
-                x.as_slice::<f32>()?,
-                d.as_slice::<f32>()?,
-                (c, h, w),
-                &mut y,
-                pool.as_deref(),
-            )
+            .run(x, d, (c, h, w), &mut y, pool.as_deref())
             .map_err(|e| format_err!("{e}"))?;
         let y = tract_ndarray::ArrayD::from_shape_vec(vec![1, c, h, w], y)?;
         Ok(tvec!(y.into_tensor().into_tvalue()))
@@ -266,9 +360,10 @@ impl EvalOp for SpatialAttentionOp {
 
 impl TypedOp for SpatialAttentionOp {
     fn output_facts(&self, inputs: &[&TypedFact]) -> TractResult<TVec<TypedFact>> {
-        let [x, d] = inputs else {
-            bail!("NeuspikeSpatialAttention takes two inputs");
+        let (Some(x), Some(d)) = (inputs.first(), inputs.last()) else {
+            bail!("NeuspikeSpatialAttention takes x (or its pairs) and d");
         };
+        ensure!(inputs.len() == (2 * self.0.pairs).max(1) + 1);
         ensure!(x.datum_type == f32::datum_type() && x.rank() == 4 && x.shape == d.shape);
         Ok(tvec!(f32::fact(x.shape.clone())))
     }
@@ -422,8 +517,9 @@ fn as_spatial_attention(
     Some((SpatialAttention::new(&weights, bias, scale)?, x, d))
 }
 
-/// Replaces every spatial attention of the (decluttered) `model` by a [`SpatialAttentionOp`];
-/// returns how many. The nodes it took over go when nothing else reads them.
+/// Replaces every spatial attention of the (decluttered) `model` by a [`SpatialAttentionOp`],
+/// reading the channel attention's products in place of `x` where only the attention reads
+/// `x` ([`Scaled`]); returns how many. The nodes it took over go when nothing else reads them.
 pub fn use_spatial_attention(model: &mut TypedModel) -> TractResult<usize> {
     let mut replaced = 0;
     for id in model.eval_order()? {
@@ -431,10 +527,24 @@ pub fn use_spatial_attention(model: &mut TypedModel) -> TractResult<usize> {
         let Some((attention, x, d)) = as_spatial_attention(model, node) else {
             continue;
         };
+        // x is read by the attention's sum s = x + d and its product, and by nothing else.
+        let only_here = model.node(x.node).outputs[x.slot].successors.len() == 2
+            && !model.output_outlets()?.contains(&x);
+        let pairs = scaled_sum(model, x).filter(|_| only_here);
+        let attention = attention.of_scaled_sum(pairs.as_ref().map_or(0, |p| p.len()));
         let mut patch = TypedModelPatch::default();
-        let x = patch.tap_model(model, x)?;
-        let d = patch.tap_model(model, d)?;
-        let y = patch.wire_node(&node.name, SpatialAttentionOp(Arc::new(attention)), &[x, d])?;
+        let mut wires = TVec::new();
+        match pairs {
+            Some(pairs) => {
+                for (x, g) in pairs {
+                    wires.push(patch.tap_model(model, x)?);
+                    wires.push(patch.tap_model(model, g)?);
+                }
+            }
+            None => wires.push(patch.tap_model(model, x)?),
+        }
+        wires.push(patch.tap_model(model, d)?);
+        let y = patch.wire_node(&node.name, SpatialAttentionOp(Arc::new(attention)), &wires)?;
         patch.shunt_outside(model, OutletId::new(id, 0), y[0])?;
         patch.apply(model)?;
         replaced += 1;
@@ -575,6 +685,21 @@ fn scaled(model: &TypedModel, outlet: OutletId) -> Option<(OutletId, OutletId)> 
     (f32_in && shape(outlet)? == x_shape).then_some((x, g))
 }
 
+/// The `(x_p, g_p)` pairs whose scaled sum `outlet` is: a sum of two products each read by
+/// nothing else, or one product.
+fn scaled_sum(model: &TypedModel, outlet: OutletId) -> Option<TVec<(OutletId, OutletId)>> {
+    let Some(inputs) = binary(model.node(outlet.node), "Add") else {
+        return scaled(model, outlet).map(|pair| tvec![pair]);
+    };
+    let only_here = |o: &OutletId| {
+        model.node(o.node).outputs[o.slot].successors.len() == 1
+            && !model.output_outlets().is_ok_and(|out| out.contains(o))
+    };
+    let (a, b) = (scaled(model, inputs[0])?, scaled(model, inputs[1])?);
+    let same = model.outlet_fact(a.0).ok()?.shape == model.outlet_fact(b.0).ok()?.shape;
+    (same && inputs.iter().all(only_here)).then(|| tvec![a, b])
+}
+
 /// Replaces the channel attention's products in the (decluttered) `model`: a sum of two
 /// products read by nothing else, and every other product, by a [`ScaledSumOp`]; returns how
 /// many operators it wired.
@@ -585,22 +710,13 @@ pub fn use_scaled_sums(model: &mut TypedModel) -> TractResult<usize> {
         for id in model.eval_order()? {
             let node = model.node(id);
             let pairs: TVec<(OutletId, OutletId)> = if sums {
-                let Some(inputs) = binary(node, "Add") else {
-                    continue;
-                };
-                let only_here = |o: &OutletId| {
-                    model.node(o.node).outputs[o.slot].successors.len() == 1
-                        && !model.output_outlets().is_ok_and(|out| out.contains(o))
-                };
-                let (Some(a), Some(b)) = (scaled(model, inputs[0]), scaled(model, inputs[1]))
-                else {
-                    continue;
-                };
-                let same = model.outlet_fact(a.0)?.shape == model.outlet_fact(b.0)?.shape;
-                if !same || !inputs.iter().all(only_here) {
+                if binary(node, "Add").is_none() {
                     continue;
                 }
-                tvec![a, b]
+                match scaled_sum(model, OutletId::new(id, 0)) {
+                    Some(pairs) => pairs,
+                    None => continue,
+                }
             } else {
                 match scaled(model, OutletId::new(id, 0)) {
                     Some(pair) => tvec![pair],
@@ -647,8 +763,31 @@ mod tests {
             );
             for pool in [None, Some(&pool)] {
                 let mut got = vec![f32::NAN; c * h * w];
-                a.run(&x, &d, (c, h, w), &mut got, pool).unwrap();
+                a.run(Scaled::plain(&[&x]), &d, (c, h, w), &mut got, pool)
+                    .unwrap();
                 assert_eq!(got.as_slice(), want.as_slice().unwrap(), "{c}x{h}x{w}");
+            }
+            // x as the channel attention's sum of one and of two products, formed in place.
+            let parts = [pattern(c * h * w, 30 + i as u32), pattern(c * h * w, 31)];
+            let gates = [pattern(c, 32), pattern(c, 33)];
+            for pairs in [1, 2] {
+                let xs: Vec<&[f32]> = parts[..pairs].iter().map(Vec::as_slice).collect();
+                let gs: Vec<&[f32]> = gates[..pairs].iter().map(Vec::as_slice).collect();
+                let mut x = vec![0f32; c * h * w];
+                ScaledSumOp::run(&xs, &gs, h * w, &mut x, None);
+                let want = a.reference(
+                    ArrayView3::from_shape((c, h, w), &x).unwrap(),
+                    ArrayView3::from_shape((c, h, w), &d).unwrap(),
+                );
+                let scaled = Scaled {
+                    xs: &xs,
+                    gates: &gs,
+                };
+                for pool in [None, Some(&pool)] {
+                    let mut got = vec![f32::NAN; c * h * w];
+                    a.run(scaled, &d, (c, h, w), &mut got, pool).unwrap();
+                    assert_eq!(got.as_slice(), want.as_slice().unwrap(), "{pairs} pairs");
+                }
             }
         }
     }
@@ -697,16 +836,30 @@ mod tests {
             (2.0, Some(2.0 * sigmoid(2.0))),
         ] {
             let mut y = [0.0];
-            a.run(&[x], &[0.0], (1, 1, 1), &mut y, None).unwrap();
+            a.run(Scaled::plain(&[&[x]]), &[0.0], (1, 1, 1), &mut y, None)
+                .unwrap();
             match want {
                 Some(v) => assert_eq!(y[0], v, "{x}"),
                 None => assert!(y[0].is_nan(), "{x}: {}", y[0]),
             }
         }
         let (x, d, mut y) = ([1.0; 4], [0.0; 4], [0.0; 4]);
-        assert!(a.run(&x, &d, (1, 1, 3), &mut y, None).is_err());
-        assert!(a.run(&x, &d[..3], (1, 1, 4), &mut y, None).is_err());
-        assert!(a.run(&x, &d, (1, 2, 2), &mut y[..3], None).is_err());
+        let xs: [&[f32]; 1] = [&x];
+        let plain = Scaled::plain(&xs);
+        assert!(a.run(plain, &d, (1, 1, 3), &mut y, None).is_err());
+        assert!(a.run(plain, &d[..3], (1, 1, 4), &mut y, None).is_err());
+        assert!(a.run(plain, &d, (1, 2, 2), &mut y[..3], None).is_err());
+        let no_gate = Scaled {
+            xs: &xs,
+            gates: &[&[]],
+        };
+        assert!(a.run(no_gate, &d, (1, 2, 2), &mut y, None).is_err());
+        let none = Scaled {
+            xs: &[],
+            gates: &[],
+        };
+        assert!(a.run(none, &d, (1, 2, 2), &mut y, None).is_err());
+        assert!(a.run(plain, &d, (usize::MAX, 2, 2), &mut y, None).is_err());
         assert!(SpatialAttention::new(&[0.0; 97], 0.0, 1.0).is_none());
         assert_eq!(
             (sigmoid(f32::INFINITY), sigmoid(f32::NEG_INFINITY)),

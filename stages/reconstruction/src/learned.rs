@@ -522,7 +522,12 @@ impl LearnedModel {
         let (runnable, first) = caught(&self.path, &doing, || {
             scope
                 .enter(|| {
-                    let mut model = model.into_typed()?.into_decluttered()?;
+                    let mut model = model.into_typed()?;
+                    if path == ConvPath::Blocked {
+                        // Before decluttering, which makes the 1x1 convolution a product.
+                        neuspike_tract_ops::depthwise::use_depthwise_out(&mut model)?;
+                    }
+                    let mut model = model.into_decluttered()?;
                     let mut first = vec![None; n_inputs];
                     if path == ConvPath::Blocked {
                         neuspike_tract_ops::conv3x3::use_conv3x3(

@@ -380,11 +380,20 @@ fn same_on_both_paths(path: &Path, views: &[ArrayView3<f32>]) {
         for name in ["NeuspikeDeconv2x2", "NeuspikeSpatialAttention"] {
             assert_eq!(count(name), want, "{name} in {} ({conv})", path.display());
         }
-        // The channel attention of each of the four fusions (one path or two, summed).
+        // The channel attention of each of the four fusions (one path or two, summed): the
+        // three of the skips formed inside their spatial attention, the deepest (which the
+        // residual blocks read) as an operator of its own.
         let sums = count("NeuspikeScaledSum");
         assert_eq!(
             sums,
-            if conv == ConvPath::Blocked { 4 } else { 0 },
+            if conv == ConvPath::Blocked { 1 } else { 0 },
+            "{}",
+            path.display()
+        );
+        // The depthwise convolution, the 1x1 convolution and the sigmoid at the end: one pass.
+        assert_eq!(
+            count("NeuspikeDepthwiseOut"),
+            usize::from(conv == ConvPath::Blocked),
             "{}",
             path.display()
         );
