@@ -1,5 +1,6 @@
 //! `neuspike bench-live`: the spike-only live graph (`graphs/spike-tfp-live.yml`) paced to a
-//! camera's clock, timed against the camera time it covers, with its losses and latency.
+//! camera's clock, timed against the camera time it covers, with its losses and latency; its
+//! infer stage runs TFP, or a spike-reading network (`--method`) on the spike representation.
 
 use std::path::{Path, PathBuf};
 
@@ -23,12 +24,21 @@ pub struct LiveBenchOptions {
     /// Spike camera plane rate, Hz (a Vidar runs at 20,000 or 40,000).
     #[arg(long, default_value_t = 20_000)]
     pub rate_hz: u64,
-    /// TFP frames a second: a frame every `rate_hz / fps` planes.
+    /// Frames a second: a frame every `rate_hz / fps` planes.
     #[arg(long, default_value_t = 1_000)]
     pub fps: u64,
-    /// Planes a TFP frame averages.
+    /// Planes a frame reads (TFP averages them; a network reads the spike representation of its
+    /// last ones).
     #[arg(long, default_value_t = 33)]
     pub window_planes: u64,
+    /// What the infer stage runs: `tfp`, or a network that reads spikes alone, by its name in
+    /// the trade bench: `neuspike-spike-8` runs `<models>/neuspike-spike-8.onnx` in f32,
+    /// `neuspike-spike-8-int8` the same file in 8 bits (the widest path this CPU has).
+    #[arg(long, default_value = "tfp")]
+    pub method: String,
+    /// The folder of the networks `--method` names.
+    #[arg(long, default_value = "models")]
+    pub models: PathBuf,
     /// Built-in scene the simulated camera sees.
     #[arg(long, default_value = "bright-static")]
     pub scene: String,
@@ -79,12 +89,82 @@ impl Layout {
         }
     }
 
-    /// The graph's `processes:` for it (none for `nodes`).
-    fn processes(self) -> Option<&'static str> {
+    /// The graph's `processes:` for it (none for `nodes`), its infer node named `infer`.
+    fn processes(self, infer: &str) -> Option<String> {
         match self {
             Layout::Nodes => None,
-            Layout::Core => Some("{core: [align, represent, infer-tfp]}"),
-            Layout::One => Some("{pipeline: [spike-source, align, represent, infer-tfp, sink]}"),
+            Layout::Core => Some(format!("{{core: [align, represent, {infer}]}}")),
+            Layout::One => Some(format!(
+                "{{pipeline: [spike-source, align, represent, {infer}, sink]}}"
+            )),
+        }
+    }
+}
+
+/// What the live graph's infer stage runs (`--method`).
+#[derive(Clone, Debug, PartialEq)]
+pub enum LiveMethod {
+    /// TFP over the window.
+    Tfp,
+    /// A network reading the spike representation of `channels` channels.
+    Network {
+        /// The method's name (the sink's input).
+        name: String,
+        /// The ONNX file.
+        model: PathBuf,
+        /// How its convolutions compute.
+        precision: neuspike_reconstruction::learned::Precision,
+        /// Channels of its spike input.
+        channels: usize,
+    },
+}
+
+impl LiveMethod {
+    /// `--method` of `opts` checked: a network's file exists, loads, and reads spikes alone.
+    pub fn of(opts: &LiveBenchOptions) -> eyre::Result<LiveMethod> {
+        use neuspike_reconstruction::learned::{LearnedInput, LearnedModel, network_variant};
+        if opts.method == "tfp" {
+            return Ok(LiveMethod::Tfp);
+        }
+        let (stem, precision) = network_variant(&opts.method);
+        let model = opts.models.join(format!("{stem}.onnx"));
+        if !model.is_file() {
+            bail!(
+                "bench-live: --method = {} is neither tfp nor a network in {} (no {})",
+                opts.method,
+                opts.models.display(),
+                model.display()
+            );
+        }
+        let loaded = LearnedModel::load(&model)?;
+        if loaded.inputs() != [LearnedInput::Spike] {
+            bail!(
+                "bench-live: --method = {} reads events ({}): the live graph has a spike camera only",
+                opts.method,
+                model.display()
+            );
+        }
+        Ok(LiveMethod::Network {
+            name: opts.method.clone(),
+            model: model.canonicalize()?,
+            precision,
+            channels: loaded.channels()[0],
+        })
+    }
+
+    /// The sink's input for its frames.
+    pub fn input(&self) -> &str {
+        match self {
+            LiveMethod::Tfp => "tfp",
+            LiveMethod::Network { name, .. } => name,
+        }
+    }
+
+    /// The infer node's id.
+    fn infer_id(&self) -> &'static str {
+        match self {
+            LiveMethod::Tfp => "infer-tfp",
+            LiveMethod::Network { .. } => "infer",
         }
     }
 }
@@ -144,6 +224,16 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
     }
     let stride = opts.rate_hz / opts.fps;
     let planes = (opts.seconds * opts.rate_hz as f64).round() as u64;
+    let method = LiveMethod::of(opts)?;
+    if let LiveMethod::Network { channels, .. } = &method
+        && opts.window_planes < *channels as u64
+    {
+        return bad(
+            "window-planes",
+            opts.window_planes.to_string(),
+            &format!("{} reads {channels} planes a frame", opts.method),
+        );
+    }
     let out = opts.out.join(layout.name());
     std::fs::create_dir_all(&out).wrap_err_with(|| format!("cannot create {}", out.display()))?;
     let out = out.canonicalize()?;
@@ -153,10 +243,27 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
             .wrap_err_with(|| format!("cannot clear {}", frames.display()))?;
     }
     let mut g: serde_yaml::Value = serde_yaml::from_str(LIVE_GRAPH)?;
+    if let LiveMethod::Network { name, .. } = &method {
+        // represent makes the spike representation, infer reads it, the sink its frames.
+        let mut edit = |id: &str, key: &str, value: &str| -> eyre::Result<()> {
+            let nodes = g["nodes"].as_sequence_mut();
+            let node = nodes
+                .into_iter()
+                .flatten()
+                .find(|n| n["id"].as_str() == Some(id))
+                .ok_or_else(|| eyre::eyre!("the live graph has no node {id}"))?;
+            node[key] = serde_yaml::from_str(value)?;
+            Ok(())
+        };
+        edit("represent", "outputs", "[spike_repr]")?;
+        edit("infer-tfp", "inputs", "{spike_repr: represent/spike_repr}")?;
+        edit("infer-tfp", "id", "infer")?;
+        edit("sink", "inputs", &format!("{{{name}: infer/frames}}"))?;
+    }
     if let Some(m) = g.as_mapping_mut() {
         m.remove("processes");
-        if let Some(p) = layout.processes() {
-            m.insert("processes".into(), serde_yaml::from_str(p)?);
+        if let Some(p) = layout.processes(method.infer_id()) {
+            m.insert("processes".into(), serde_yaml::from_str(&p)?);
         }
     }
     let text = serde_yaml::to_string(&g)?;
@@ -175,7 +282,19 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
             "--window-planes {} --stride-planes {stride}",
             opts.window_planes
         )),
-        "represent" => Some(format!("--tfp-planes {}", opts.window_planes)),
+        "represent" => Some(match &method {
+            LiveMethod::Tfp => format!("--tfp-planes {}", opts.window_planes),
+            LiveMethod::Network { channels, .. } => format!("--repr-channels {channels}"),
+        }),
+        "infer" => match &method {
+            LiveMethod::Network {
+                model, precision, ..
+            } => Some(format!(
+                "--method learned --model {} --precision {precision}",
+                model.display()
+            )),
+            LiveMethod::Tfp => None,
+        },
         "sink" => Some(format!(
             "--out {} --bit-depth 8 --write-every {}",
             frames.display(),
@@ -185,12 +304,12 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
     })
 }
 
-/// Reads a run's figures from the sink's `summary.yml` in `frames`.
-pub fn figures(frames: &Path, camera_s: f64, wall_s: f64) -> eyre::Result<LiveRun> {
+/// Reads a run's figures for the sink's `input` from its `summary.yml` in `frames`.
+pub fn figures(frames: &Path, input: &str, camera_s: f64, wall_s: f64) -> eyre::Result<LiveRun> {
     let path = frames.join("summary.yml");
     let file = neuspike_sink::read_run(frames)?;
-    let Some(tfp) = file.inputs.get("tfp") else {
-        bail!("{}: no input `tfp`", path.display());
+    let Some(tfp) = file.inputs.get(input) else {
+        bail!("{}: no input `{input}`", path.display());
     };
     Ok(LiveRun {
         camera_s,
@@ -216,8 +335,8 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
         graphs.push((layout, path, frames));
     }
     println!(
-        "| processes | camera | frames/s | camera s | wall s | vs {} | real time | frames | lost | latency p50 ms | latency p99 ms |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| method | processes | camera | frames/s | camera s | wall s | vs {} | real time | frames | lost | latency p50 ms | latency p99 ms |\n\
+         |---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
         opts.processes[0].name()
     );
     let mut runs = Vec::new();
@@ -236,7 +355,8 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
                 "-".into()
             };
             println!(
-                "| {} | {} kHz{} | {} | {:.1} | {:.2} | {vs} | {:.3}x | {}/{} | {} | {p50} | {p99} |",
+                "| {} | {} | {} kHz{} | {} | {:.1} | {:.2} | {vs} | {:.3}x | {}/{} | {} | {p50} | {p99} |",
+                opts.method,
                 layout.name(),
                 opts.rate_hz / 1000,
                 if opts.repeat_planes > 0 {
@@ -284,7 +404,11 @@ fn run_one(
     let report = report?;
     let wall_s = report.elapsed.as_secs_f64();
     report.into_result()?;
-    Ok((figures(frames, opts.seconds, wall_s)?, samples))
+    let input = LiveMethod::of(opts)?;
+    Ok((
+        figures(frames, input.input(), opts.seconds, wall_s)?,
+        samples,
+    ))
 }
 
 #[cfg(test)]
@@ -304,6 +428,8 @@ mod tests {
             processes: vec![Layout::Nodes, Layout::One],
             out,
             soak: false,
+            method: "tfp".into(),
+            models: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/models")),
         }
     }
 
@@ -362,6 +488,78 @@ mod tests {
     }
 
     #[test]
+    fn a_network_reads_the_spike_representation_and_one_that_reads_events_is_refused() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let o = LiveBenchOptions {
+            method: "neuspike-spike-8-int8".into(),
+            fps: 100,
+            ..opts(dir.path().join("b"))
+        };
+        let m = LiveMethod::of(&o).expect("spike-8");
+        let LiveMethod::Network {
+            precision,
+            channels,
+            ..
+        } = &m
+        else {
+            panic!("{m:?}")
+        };
+        assert_eq!(
+            (precision.to_string().starts_with("int8"), *channels),
+            (true, 32)
+        );
+        assert_eq!(m.input(), "neuspike-spike-8-int8");
+        for (method, why) in [
+            ("neuspike-fused-8", "reads events"),
+            ("neuspike-nothing", "neither tfp nor a network"),
+        ] {
+            let bad = LiveBenchOptions {
+                method: method.into(),
+                ..o.clone()
+            };
+            let e = prepare(&bad, Layout::Nodes).expect_err(method).to_string();
+            assert!(e.contains(why) && e.contains(method), "{e}");
+        }
+        let short = LiveBenchOptions {
+            window_planes: 20,
+            ..o.clone()
+        };
+        let e = prepare(&short, Layout::Nodes)
+            .expect_err("20 planes")
+            .to_string();
+        assert!(
+            e.contains("--window-planes = 20") && e.contains("32 planes"),
+            "{e}"
+        );
+        // Without node binaries beside the test program the graph cannot be resolved.
+        for layout in [Layout::Nodes, Layout::One] {
+            if let Ok(path) = prepare(&o, layout) {
+                let text = std::fs::read_to_string(path).expect("graph");
+                assert!(text.contains("--repr-channels 32"), "{text}");
+                assert!(
+                    text.contains("--method learned --model") && text.contains("--precision int8")
+                );
+                assert!(
+                    !text.contains("infer-tfp") && !text.contains("--tfp-planes"),
+                    "{text}"
+                );
+                if layout == Layout::Nodes {
+                    let g: serde_yaml::Value = serde_yaml::from_str(&text).expect("yaml");
+                    let sink = g["nodes"]
+                        .as_sequence()
+                        .and_then(|n| n.iter().find(|n| n["id"].as_str() == Some("sink")))
+                        .expect("sink");
+                    assert_eq!(
+                        sink["inputs"]["neuspike-spike-8-int8"]["source"].as_str(),
+                        Some("infer/frames"),
+                        "{text}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
     fn figures_come_from_the_sinks_summary_file() {
         let dir = tempfile::tempdir().expect("tempdir");
         std::fs::write(dir.path().join("metrics.csv"), "header\nrow\n").expect("write");
@@ -370,12 +568,16 @@ mod tests {
             "metrics_rows: 1\ninputs:\n  tfp:\n    input: tfp\n    expected: 10\n    received: 9\n    written: 1\n    missing: 1\n    ended: true\n    latency:\n      frames: 9\n      p50_ms: 2.0\n      p99_ms: 5.5\n      max_ms: 6.0\n",
         )
         .expect("write");
-        let r = figures(dir.path(), 1.0, 1.25).expect("figures");
+        let r = figures(dir.path(), "tfp", 1.0, 1.25).expect("figures");
+        let e = figures(dir.path(), "neuspike-spike-8", 1.0, 1.25)
+            .expect_err("no such input")
+            .to_string();
+        assert!(e.contains("no input `neuspike-spike-8`"), "{e}");
         assert_eq!((r.expected, r.received, r.missing), (10, 9, 1));
         assert_eq!(r.latency_ms, Some((2.0, 5.5)));
         assert_eq!(r.real_time(), 0.8);
         std::fs::remove_file(dir.path().join("summary.yml")).expect("remove");
-        let e = figures(dir.path(), 1.0, 1.0)
+        let e = figures(dir.path(), "tfp", 1.0, 1.0)
             .expect_err("no summary")
             .to_string();
         assert!(e.contains("no summary.yml: the run did not finish"), "{e}");
