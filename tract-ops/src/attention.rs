@@ -328,21 +328,11 @@ impl EvalOp for SpatialAttentionOp {
             .iter()
             .map(|i| i.try_as_plain_ram())
             .collect::<TractResult<TVec<_>>>()?;
-        let (mut xs, mut gates) = (TVec::new(), TVec::new());
-        if pairs == 0 {
-            xs.push(plain[0].as_slice::<f32>()?);
-        }
-        for (i, pair) in plain[..2 * pairs].chunks_exact(2).enumerate() {
-            ensure!(
-                inputs[2 * i].shape() == shape.as_slice()
-                    && inputs[2 * i + 1].shape() == [1, c, 1, 1],
-                "pair {i}: {:?} and {:?} for {shape:?}",
-                inputs[2 * i].shape(),
-                inputs[2 * i + 1].shape()
-            );
-            xs.push(pair[0].as_slice::<f32>()?);
-            gates.push(pair[1].as_slice::<f32>()?);
-        }
+        let (xs, gates) = if pairs == 0 {
+            (tvec![plain[0].as_slice::<f32>()?], TVec::new())
+        } else {
+            scaled_pairs(&inputs[..2 * pairs], &plain[..2 * pairs], &shape)?
+        };
         let x = Scaled {
             xs: &xs,
             gates: &gates,
@@ -369,6 +359,31 @@ impl TypedOp for SpatialAttentionOp {
     }
 
     as_op!();
+}
+
+/// The tensors and the gates of a scaled sum's pairs.
+type Pairs<'a> = (TVec<&'a [f32]>, TVec<&'a [f32]>);
+
+/// The `x_p` and `g_p` of the pairs `x_0, g_0, x_1, g_1, ...` in `inputs` (their plain values
+/// in `plain`), each `x_p` of `shape` (`[1, C, H, W]`) and each `g_p` `[1, C, 1, 1]`.
+fn scaled_pairs<'a>(
+    inputs: &[TValue],
+    plain: &'a [PlainView<'_>],
+    shape: &[usize],
+) -> TractResult<Pairs<'a>> {
+    let c = shape.get(1).copied().unwrap_or(0);
+    let (mut xs, mut gs) = (TVec::new(), TVec::new());
+    for (i, pair) in plain.chunks_exact(2).enumerate() {
+        ensure!(
+            inputs[2 * i].shape() == shape && inputs[2 * i + 1].shape() == [1, c, 1, 1],
+            "pair {i}: {:?} and {:?} for {shape:?}",
+            inputs[2 * i].shape(),
+            inputs[2 * i + 1].shape()
+        );
+        xs.push(pair[0].as_slice::<f32>()?);
+        gs.push(pair[1].as_slice::<f32>()?);
+    }
+    Ok((xs, gs))
 }
 
 /// The single value of the constant on `outlet`, if it is one.
@@ -622,20 +637,7 @@ impl EvalOp for ScaledSumOp {
             .iter()
             .map(|i| i.try_as_plain_ram())
             .collect::<TractResult<TVec<_>>>()?;
-        let mut xs = TVec::new();
-        let mut gs = TVec::new();
-        for (i, pair) in plain.chunks_exact(2).enumerate() {
-            let (x, g) = (&pair[0], &pair[1]);
-            ensure!(
-                inputs[2 * i].shape() == shape.as_slice()
-                    && inputs[2 * i + 1].shape() == [1, c, 1, 1],
-                "pair {i}: {:?} and {:?} for {shape:?}",
-                inputs[2 * i].shape(),
-                inputs[2 * i + 1].shape()
-            );
-            xs.push(x.as_slice::<f32>()?);
-            gs.push(g.as_slice::<f32>()?);
-        }
+        let (xs, gs) = scaled_pairs(&inputs, &plain, &shape)?;
         let mut y = vec![0f32; c * h * w];
         Self::run(
             &xs,

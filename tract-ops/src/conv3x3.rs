@@ -1319,11 +1319,7 @@ mod tests {
     fn the_operator_computes_what_tracts_convolution_does() {
         for (stride, (h, w)) in [(1, (7, 19)), (2, (8, 20)), (2, (7, 19)), (2, (1, 2))] {
             let (model, input) = one_conv(5, 8, stride, (h, w));
-            let run = |model: TypedModel| {
-                let plan = model.into_optimized().unwrap().into_runnable().unwrap();
-                let out = plan.run(tvec![input.clone().into_tvalue()]).unwrap();
-                out[0].clone().into_tensor()
-            };
+            let run = |model: TypedModel| crate::testing::run_typed(model, &input);
             let want = run(model.clone());
             let mut ours = model;
             assert_eq!(
@@ -1338,20 +1334,8 @@ mod tests {
             let op = ours.nodes().iter().find_map(|n| n.op_as::<Conv3x3Op>());
             assert_eq!(op.map(|op| op.0.relu()), Some(h % 2 == 1));
             assert_eq!(ours.nodes().len(), 2, "source and ours: {ours}");
-            let got = run(ours);
-            assert_eq!(got.shape(), want.shape(), "stride {stride}, {h}x{w}");
-            let got = got
-                .to_plain_array_view::<f32>()
-                .unwrap()
-                .iter()
-                .copied()
-                .collect::<Vec<_>>();
-            let want = want
-                .to_plain_array_view::<f32>()
-                .unwrap()
-                .iter()
-                .copied()
-                .collect::<Vec<_>>();
+            let ((shape, got), (want_shape, want)) = (run(ours), want);
+            assert_eq!(shape, want_shape, "stride {stride}, {h}x{w}");
             for (i, (g, w)) in got.iter().zip(want).enumerate() {
                 // 45 products of values below 1 in another order: a few ulps of 45.
                 assert!(
@@ -1381,16 +1365,7 @@ mod tests {
 
         let input = pattern(c * h * w, 5);
         let x = Tensor::from_shape(&[1, c, h, w], &input).unwrap();
-        let run = |model: TypedModel, x: Tensor| {
-            let plan = model.into_optimized().unwrap().into_runnable().unwrap();
-            let out = plan.run(tvec![x.into_tvalue()]).unwrap();
-            let out = out[0].clone().into_tensor();
-            out.to_plain_array_view::<f32>()
-                .unwrap()
-                .iter()
-                .copied()
-                .collect::<Vec<_>>()
-        };
+        let run = |model: TypedModel, x: Tensor| crate::testing::run_typed(model, &x).1;
         let mut ours = model;
         assert_eq!(use_conv3x3(&mut ours, 1, Precision::F32).unwrap(), 1);
         let want = run(ours.clone(), x);

@@ -616,19 +616,7 @@ mod tests {
             let d = if relu { d.with_relu() } else { d };
             let model = tract_deconv(&d, (h, w));
             let input = Tensor::from_shape(&[1, c, h, w], &pattern(c * h * w, 6)).unwrap();
-            let run = |model: TypedModel| {
-                let plan = model.into_optimized().unwrap().into_runnable().unwrap();
-                let out = plan.run(tvec![input.clone().into_tvalue()]).unwrap();
-                let out = out[0].clone().into_tensor();
-                (
-                    out.shape().to_vec(),
-                    out.to_plain_array_view::<f32>()
-                        .unwrap()
-                        .iter()
-                        .copied()
-                        .collect::<Vec<_>>(),
-                )
-            };
+            let run = |model: TypedModel| crate::testing::run_typed(model, &input);
             let (want_shape, want) = run(model.clone());
             let mut ours = model.into_decluttered().unwrap();
             assert_eq!(use_deconv2x2(&mut ours).unwrap(), 1);

@@ -11,6 +11,29 @@ pub(crate) fn pattern(n: usize, seed: u32) -> Vec<f32> {
         .collect()
 }
 
+/// Runs the typed `model`, optimised, on `input`: its first output's shape and values in
+/// logical order.
+pub(crate) fn run_typed(
+    model: tract_onnx::prelude::TypedModel,
+    input: &tract_onnx::prelude::Tensor,
+) -> (Vec<usize>, Vec<f32>) {
+    use tract_onnx::prelude::*;
+    let plan = model
+        .into_optimized()
+        .expect("optimised")
+        .into_runnable()
+        .expect("runnable");
+    let out = plan.run(tvec![input.clone().into_tvalue()]).expect("runs");
+    let out = out[0].clone().into_tensor();
+    let values = out
+        .to_plain_array_view::<f32>()
+        .expect("f32")
+        .iter()
+        .copied()
+        .collect();
+    (out.shape().to_vec(), values)
+}
+
 /// A `c_in`-to-`c_out` [`Conv3x3`](crate::conv3x3::Conv3x3) of `stride` with [`pattern`]
 /// weights and bias from `seed`.
 pub(crate) fn conv(c_in: usize, c_out: usize, stride: usize, seed: u32) -> crate::conv3x3::Conv3x3 {
