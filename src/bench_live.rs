@@ -328,6 +328,7 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
     if opts.processes.is_empty() {
         bail!("bench-live: --processes names no layout");
     }
+    let input = LiveMethod::of(opts)?.input().to_string();
     let mut graphs = Vec::new();
     for &layout in &opts.processes {
         let path = prepare(opts, layout)?;
@@ -343,7 +344,7 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
     for _ in 0..opts.runs {
         let mut baseline = None;
         for (layout, path, frames) in &graphs {
-            let (r, samples) = run_one(opts, path, frames)?;
+            let (r, samples) = run_one(opts, path, frames, &input)?;
             let base = *baseline.get_or_insert(r.wall_s);
             let (p50, p99) = r.latency_ms.map_or(("-".into(), "-".into()), |(a, b)| {
                 (format!("{a:.1}"), format!("{b:.1}"))
@@ -382,12 +383,13 @@ pub fn run(opts: &LiveBenchOptions) -> eyre::Result<Vec<(Layout, LiveRun)>> {
     Ok(runs)
 }
 
-/// Runs the graph at `path` once: its figures from the sink's summary in `frames`, and the
-/// memory samples taken during it (with `--soak`).
+/// Runs the graph at `path` once: its figures for the sink's `input` from the summary in
+/// `frames`, and the memory samples taken during it (with `--soak`).
 fn run_one(
     opts: &LiveBenchOptions,
     path: &Path,
     frames: &Path,
+    input: &str,
 ) -> eyre::Result<(LiveRun, Vec<soak::RssSample>)> {
     let done = Arc::new(AtomicBool::new(false));
     let rss_csv = path.parent().unwrap_or(Path::new(".")).join("rss.csv");
@@ -404,11 +406,7 @@ fn run_one(
     let report = report?;
     let wall_s = report.elapsed.as_secs_f64();
     report.into_result()?;
-    let input = LiveMethod::of(opts)?;
-    Ok((
-        figures(frames, input.input(), opts.seconds, wall_s)?,
-        samples,
-    ))
+    Ok((figures(frames, input, opts.seconds, wall_s)?, samples))
 }
 
 #[cfg(test)]

@@ -11,6 +11,16 @@ pub(crate) fn pattern(n: usize, seed: u32) -> Vec<f32> {
         .collect()
 }
 
+/// The networks' 3x3 layers the convolution tests run at: `(c_in, c_out, stride, (h, w))`
+/// (the head at full width, a half-width layer, the deepest at 50 wide, the stride-2 ones).
+pub(crate) const NETWORK_LAYERS: [(usize, usize, usize, (usize, usize)); 5] = [
+    (32, 8, 1, (16, 400)),
+    (8, 16, 1, (9, 200)),
+    (64, 64, 1, (5, 50)),
+    (8, 16, 2, (16, 400)),
+    (32, 64, 2, (9, 101)),
+];
+
 /// Runs the typed `model`, optimised, on `input`: its first output's shape and values in
 /// logical order.
 pub(crate) fn run_typed(

@@ -579,11 +579,9 @@ mod tests {
 
     #[test]
     fn matches_the_8_bit_definition_at_the_networks_sizes() {
-        check(32, 8, 1, (16, 400), 1);
-        check(8, 16, 1, (9, 200), 2);
-        check(64, 64, 1, (5, 50), 3);
-        check(8, 16, 2, (16, 400), 4);
-        check(32, 64, 2, (9, 101), 5);
+        for (seed, &(c_in, c_out, stride, hw)) in (1..).zip(&crate::testing::NETWORK_LAYERS) {
+            check(c_in, c_out, stride, hw, seed);
+        }
         // Input channels that are not a multiple of four.
         check(6, 8, 1, (7, 33), 6);
         check(3, 4, 2, (7, 33), 7);
