@@ -439,8 +439,7 @@ fn as_spatial_attention(
     node: &TypedNode,
 ) -> Option<(SpatialAttention, OutletId, OutletId)> {
     use tract_onnx::tract_core::ops::array::TypedConcat;
-    use tract_onnx::tract_core::ops::cnn::{Conv, PaddingSpec};
-    use tract_onnx::tract_core::ops::nn::{DataFormat, Reduce, Reducer};
+    use tract_onnx::tract_core::ops::nn::{Reduce, Reducer};
     let inputs = binary(node, "Mul")?;
     let (slot, sig) = inputs
         .iter()
@@ -459,36 +458,14 @@ fn as_spatial_attention(
     }
     let sig = model.node(sig.node);
     let conv_node = model.node(sig.inputs.first()?.node);
-    let conv = conv_node.op_as::<Conv>()?;
-    let spec = &conv.pool_spec;
-    let ones = |v: &Option<TVec<usize>>| v.as_ref().is_none_or(|v| v.iter().all(|&s| s == 1));
-    let padded = match &spec.padding {
-        PaddingSpec::Explicit(b, a) => b.iter().chain(a).all(|&p| p == PAD) && b.len() == 2,
-        PaddingSpec::SameUpper | PaddingSpec::SameLower => true,
-        _ => false,
+    let conv = crate::matching::conv_node(model, conv_node)?;
+    let fits = conv.kernel_size == [K, K] && conv.stride == 1 && conv.pad == PAD;
+    if !fits || conv.group != 1 || conv.shape != [1, 2, K, K] {
+        return None;
+    }
+    let (weights, &[bias]) = (conv.kernel, conv.bias.as_slice()) else {
+        return None;
     };
-    if conv.group != 1
-        || conv.q_params.is_some()
-        || spec.data_format != DataFormat::NCHW
-        || spec.kernel_shape.as_slice() != [K, K]
-        || !ones(&spec.strides)
-        || !ones(&spec.dilations)
-        || !padded
-        || conv_node.inputs.len() != 3
-    {
-        return None;
-    }
-    let kernel = model.outlet_fact(conv_node.inputs[1]).ok()?.konst.clone()?;
-    if kernel.shape() != [1, 2, K, K] {
-        return None;
-    }
-    let weights: Vec<f32> = kernel
-        .to_plain_array_view::<f32>()
-        .ok()?
-        .iter()
-        .copied()
-        .collect();
-    let bias = scalar(model, conv_node.inputs[2])?;
     let concat_node = model.node(conv_node.inputs[0].node);
     if concat_node.op_as::<TypedConcat>()?.axis != 1 || concat_node.inputs.len() != 2 {
         return None;

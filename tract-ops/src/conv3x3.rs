@@ -904,11 +904,6 @@ impl TypedOp for Conv3x3Op {
     as_op!();
 }
 
-/// The constant value on `outlet`, if it has one.
-fn konst(model: &TypedModel, outlet: OutletId) -> Option<Arc<Tensor>> {
-    model.outlet_fact(outlet).ok()?.konst.clone()
-}
-
 /// Output widths from which [`use_conv3x3`] is worth it. Measured with `neuspike bench-model
 /// --profile` (base widths 16 and 24, 256x400, AVX-512) and `bench_conv3x3`: ours is faster
 /// than tract's best path at every width the networks have. At width 50, stride 1 (rows
@@ -922,62 +917,24 @@ pub const MIN_WIDTH: usize = 40;
 /// without dilation, groups or quantisation, on f32 NCHW input of a known width giving at least
 /// `min_width` output points per row, with constant weights and bias.
 fn as_conv3x3(model: &TypedModel, node: &TypedNode, min_width: usize) -> Option<Conv3x3> {
-    use tract_onnx::tract_core::ops::cnn::{Conv, KernelFormat, PaddingSpec};
-    use tract_onnx::tract_core::ops::nn::DataFormat;
-    let conv = node.op_as::<Conv>()?;
-    let spec = &conv.pool_spec;
-    let all =
-        |v: &Option<TVec<usize>>, n: usize| v.as_ref().is_none_or(|v| v.iter().all(|&s| s == n));
-    let stride = if all(&spec.strides, 1) {
-        1
-    } else if all(&spec.strides, 2) && spec.strides.as_ref().is_some_and(|s| s.len() == 2) {
-        2
-    } else {
-        return None;
-    };
-    let padded = match &spec.padding {
-        PaddingSpec::Explicit(before, after) => {
-            before.iter().chain(after).all(|&p| p == 1) && before.len() == 2 && after.len() == 2
-        }
-        // The same output size pads one row on each side at stride 1 only.
-        PaddingSpec::SameUpper | PaddingSpec::SameLower => stride == 1,
-        _ => false,
-    };
-    if conv.q_params.is_some()
+    let conv = crate::matching::conv_node(model, node)?;
+    if conv.kernel_size != [3, 3]
+        || conv.pad != 1
         || conv.group != 1
-        || conv.kernel_fmt != KernelFormat::OIHW
-        || spec.data_format != DataFormat::NCHW
-        || spec.kernel_shape.as_slice() != [3, 3]
-        || !all(&spec.dilations, 1)
-        || !padded
-        || node.inputs.len() != 3
+        || !(1..=2).contains(&conv.stride)
     {
         return None;
     }
     let fact = model.outlet_fact(node.inputs[0]).ok()?;
-    if fact.datum_type != f32::datum_type() || fact.rank() != 4 {
-        return None;
-    }
     let width = fact.shape[3].to_usize().ok()?;
-    if (width.max(1) - 1) / stride + 1 < min_width {
+    if (width.max(1) - 1) / conv.stride + 1 < min_width {
         return None;
     }
-    let kernel = konst(model, node.inputs[1])?;
-    let bias = konst(model, node.inputs[2])?;
-    // tract's ndarray is not ours: the values go across as a vector, in logical order.
-    let kernel = kernel.to_plain_array_view::<f32>().ok()?;
-    let &[o, c, kh, kw] = kernel.shape() else {
+    let &[o, c, kh, kw] = conv.shape.as_slice() else {
         return None;
     };
-    let values: Vec<f32> = kernel.iter().copied().collect();
-    let kernel = ArrayView4::from_shape((o, c, kh, kw), &values).ok()?;
-    let bias: Vec<f32> = bias
-        .to_plain_array_view::<f32>()
-        .ok()?
-        .iter()
-        .copied()
-        .collect();
-    Conv3x3::new(kernel, &bias, stride).ok()
+    let kernel = ArrayView4::from_shape((o, c, kh, kw), &conv.kernel).ok()?;
+    Conv3x3::new(kernel, &conv.bias, conv.stride).ok()
 }
 
 /// The node of `model` that only applies a ReLU to `node`'s output, if its output has no other
@@ -986,19 +943,13 @@ fn as_conv3x3(model: &TypedModel, node: &TypedNode, min_width: usize) -> Option<
 pub(crate) fn relu_after(model: &TypedModel, node: &TypedNode) -> Option<usize> {
     use tract_onnx::tract_core::ops::binary::TypedBinOp;
     let out = OutletId::new(node.id, 0);
-    let [next] = node.outputs.first()?.successors.as_slice() else {
-        return None;
-    };
-    if model.output_outlets().ok()?.contains(&out) {
-        return None;
-    }
-    let relu = model.node(next.node);
+    let relu = model.node(crate::matching::only_reader(model, node)?);
     let max = relu.op_as::<TypedBinOp>()?;
     if max.0.name() != "Max" || relu.inputs.len() != 2 {
         return None;
     }
-    let zero = konst(model, relu.inputs[1 - next.slot])?;
-    let zero = zero.to_plain_array_view::<f32>().ok()?;
+    let slot = relu.inputs.iter().position(|&i| i == out)?;
+    let (_, zero) = crate::matching::values(model, relu.inputs[1 - slot])?;
     let same_shape = model.outlet_fact(OutletId::new(relu.id, 0)).ok()?.shape
         == model.outlet_fact(out).ok()?.shape;
     (same_shape && zero.iter().all(|&v| v == 0.0)).then_some(relu.id)

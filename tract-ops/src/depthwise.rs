@@ -293,91 +293,25 @@ impl TypedOp for DepthwiseOutOp {
     as_op!();
 }
 
-/// The values of the constant on `outlet` as `f32`, in logical order, with its shape. Before
-/// decluttering a bias may still be a `Cast` of a constant: that constant, cast.
-fn values(model: &TypedModel, outlet: OutletId) -> Option<(Vec<usize>, Vec<f32>)> {
-    let konst = |o: OutletId| model.outlet_fact(o).ok()?.konst.clone();
-    let node = model.node(outlet.node);
-    let k = konst(outlet).or_else(|| match node.inputs.as_slice() {
-        [from] if node.op().name() == "Cast" => konst(*from),
-        _ => None,
-    })?;
-    let k = k.cast_to::<f32>().ok()?;
-    let v = k.to_plain_array_view::<f32>().ok()?;
-    Some((v.shape().to_vec(), v.iter().copied().collect()))
-}
-
-/// The only node reading `node`'s output, if it is not a model output.
-fn only_reader(model: &TypedModel, node: &TypedNode) -> Option<usize> {
-    let out = OutletId::new(node.id, 0);
-    let [next] = node.outputs.first()?.successors.as_slice() else {
-        return None;
-    };
-    (!model.output_outlets().ok()?.contains(&out)).then_some(next.node)
-}
-
-/// The kernel and bias of `node` if it is a convolution of f32 NCHW input, stride 1, no
-/// dilation or quantisation, of `group` groups, with constant kernel (OIHW) and bias, its
-/// padding `pad` on every side (3x3: 1; 1x1: 0).
-fn conv_weights(
-    model: &TypedModel,
-    node: &TypedNode,
-    group: usize,
-    pad: usize,
-) -> Option<(Vec<usize>, Vec<f32>, Vec<f32>)> {
-    use tract_onnx::tract_core::ops::cnn::{Conv, KernelFormat, PaddingSpec};
-    use tract_onnx::tract_core::ops::nn::DataFormat;
-    let conv = node.op_as::<Conv>()?;
-    let spec = &conv.pool_spec;
-    let ones = |v: &Option<TVec<usize>>| v.as_ref().is_none_or(|v| v.iter().all(|&s| s == 1));
-    let padded = match &spec.padding {
-        PaddingSpec::Explicit(b, a) => b.len() == 2 && b.iter().chain(a).all(|&p| p == pad),
-        PaddingSpec::Valid => pad == 0,
-        PaddingSpec::SameUpper | PaddingSpec::SameLower => true,
-        _ => false,
-    };
-    let fact = model.outlet_fact(*node.inputs.first()?).ok()?;
-    if conv.group != group
-        || conv.q_params.is_some()
-        || conv.kernel_fmt != KernelFormat::OIHW
-        || spec.data_format != DataFormat::NCHW
-        || !ones(&spec.strides)
-        || !ones(&spec.dilations)
-        || !padded
-        || node.inputs.len() != 3
-        || fact.datum_type != f32::datum_type()
-        || fact.rank() != 4
-    {
-        return None;
-    }
-    let (shape, kernel) = values(model, node.inputs[1])?;
-    let (_, bias) = values(model, node.inputs[2])?;
-    Some((shape, kernel, bias))
-}
-
 /// The [`DepthwiseOut`] computing `node` and the 1x1 convolution (and sigmoid) after it, with
 /// the last node it takes over.
 fn as_depthwise_out(model: &TypedModel, node: &TypedNode) -> Option<(DepthwiseOut, usize)> {
-    let c = model
-        .outlet_fact(*node.inputs.first()?)
-        .ok()?
-        .shape
-        .as_concrete()?
-        .get(1)
-        .copied()?;
-    let (shape, dw, dw_bias) = conv_weights(model, node, c, 1)?;
-    if shape != [c, 1, 3, 3] {
+    use crate::matching::{conv_node, only_reader};
+    let dw = conv_node(model, node)?;
+    let c = dw.group;
+    let fits = dw.kernel_size == [3, 3] && dw.stride == 1 && dw.pad == 1;
+    if !fits || dw.shape != [c, 1, 3, 3] || dw.bias.len() != c {
         return None;
     }
     let next = model.node(only_reader(model, node)?);
-    let (shape, pw, pw_bias) = conv_weights(model, next, 1, 0)?;
-    let &[o, pc, 1, 1] = shape.as_slice() else {
+    let pw = conv_node(model, next)?;
+    let &[o, pc, 1, 1] = pw.shape.as_slice() else {
         return None;
     };
-    if pc != c || dw_bias.len() != c || pw_bias.len() != o {
+    if pw.group != 1 || pw.stride != 1 || pw.pad != 0 || pc != c || pw.bias.len() != o {
         return None;
     }
-    let op = DepthwiseOut::new(&dw, &dw_bias, &pw, &pw_bias)?;
+    let op = DepthwiseOut::new(&dw.kernel, &dw.bias, &pw.kernel, &pw.bias)?;
     match only_reader(model, next).map(|s| model.node(s)) {
         Some(sig) if sig.op().name() == "Sigmoid" && sig.inputs.len() == 1 => {
             Some((op.with_sigmoid(), sig.id))

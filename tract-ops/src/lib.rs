@@ -22,6 +22,7 @@ pub mod bands;
 pub mod conv3x3;
 pub mod deconv2x2;
 pub mod depthwise;
+mod matching;
 #[cfg(test)]
 mod testing;
 
