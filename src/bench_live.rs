@@ -137,18 +137,18 @@ impl LiveMethod {
             );
         }
         let loaded = LearnedModel::load(&model)?;
-        if loaded.inputs() != [LearnedInput::Spike] {
+        let (&[LearnedInput::Spike], &[channels]) = (loaded.inputs(), loaded.channels()) else {
             bail!(
                 "bench-live: --method = {} reads events ({}): the live graph has a spike camera only",
                 opts.method,
                 model.display()
             );
-        }
+        };
         Ok(LiveMethod::Network {
             name: opts.method.clone(),
             model: model.canonicalize()?,
             precision,
-            channels: loaded.channels()[0],
+            channels,
         })
     }
 
@@ -308,17 +308,17 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
 pub fn figures(frames: &Path, input: &str, camera_s: f64, wall_s: f64) -> eyre::Result<LiveRun> {
     let path = frames.join("summary.yml");
     let file = neuspike_sink::read_run(frames)?;
-    let Some(tfp) = file.inputs.get(input) else {
+    let Some(counted) = file.inputs.get(input) else {
         bail!("{}: no input `{input}`", path.display());
     };
     Ok(LiveRun {
         camera_s,
         wall_s,
-        expected: tfp.counts.expected,
-        received: tfp.counts.received,
-        missing: tfp.counts.missing,
-        latency_ms: tfp.latency.map(|l| (l.p50_ms, l.p99_ms)),
-        minutes: tfp.latency_by_minute.clone(),
+        expected: counted.counts.expected,
+        received: counted.counts.received,
+        missing: counted.counts.missing,
+        latency_ms: counted.latency.map(|l| (l.p50_ms, l.p99_ms)),
+        minutes: counted.latency_by_minute.clone(),
     })
 }
 

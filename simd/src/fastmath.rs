@@ -154,7 +154,7 @@ pub fn ln_fast(x: f32) -> f32 {
 #[inline(always)]
 pub fn sigmoid(z: f32) -> f32 {
     let e = exp_nonpos_f32(-z.abs());
-    let s = if z >= 0.0 { 1.0 } else { e } / (1.0 + e);
+    let s = (if z >= 0.0 { 1.0 } else { e }) / (1.0 + e);
     // A select, not a branch: NaN stays NaN.
     if z.is_nan() { z } else { s }
 }
