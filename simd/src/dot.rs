@@ -379,10 +379,16 @@ mod amx {
         // groups and taps there are, the values' runs of `width` points from each tap of each
         // quad. Tile registers are touched by nothing but these instructions.
         unsafe {
+            // `ldtilecfg` costs about as much as a group's products at a row of 50 points: it
+            // is loaded again only for a last group of fewer than 16 output channels.
+            let mut loaded = 0;
             for g in 0..outs.div_ceil(TILE_OUTS) {
                 let rows = (outs - g * TILE_OUTS).min(TILE_OUTS);
-                let config = Config::new(rows, quads);
-                asm!("ldtilecfg [{c}]", c = in(reg) config.0.as_ptr(), options(nostack, readonly));
+                if rows != loaded {
+                    let config = Config::new(rows, quads);
+                    asm!("ldtilecfg [{c}]", c = in(reg) config.0.as_ptr(), options(nostack, readonly));
+                    loaded = rows;
+                }
                 let sums = out.add(g * TILE_OUTS * out_stride);
                 let mut x = 0;
                 while x < width {

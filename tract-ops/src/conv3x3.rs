@@ -56,6 +56,9 @@ pub struct Conv3x3 {
     /// `[c_out / 4][c_in][9][4]`: for a group of four output channels, an input channel and a tap,
     /// the four weights side by side.
     packed: Vec<f32>,
+    /// `[c_out][9][quads * 4]`: for an output channel and a tap, the weights of every input
+    /// channel side by side, channels past `c_in` 0 (what [`int8`] quantises each call).
+    by_tap: Vec<f32>,
     bias: Vec<f32>,
     /// Whether the output goes through `max(0, y)` (a ReLU after the convolution).
     relu: bool,
@@ -191,11 +194,22 @@ impl Conv3x3 {
                 }
             }
         }
+        let c_pad = c_in.div_ceil(neuspike_simd::dot::CHANNELS) * neuspike_simd::dot::CHANNELS;
+        let mut by_tap = vec![0f32; c_out * TAPS * c_pad];
+        for ((o, ky, kx), row) in ndarray::indices((c_out, 3, 3))
+            .into_iter()
+            .zip(by_tap.chunks_exact_mut(c_pad))
+        {
+            for (c, v) in row.iter_mut().take(c_in).enumerate() {
+                *v = weights[[o, c, ky, kx]];
+            }
+        }
         Ok(Conv3x3 {
             c_in,
             c_out,
             stride,
             packed,
+            by_tap,
             bias,
             relu: false,
             precision: Precision::F32,

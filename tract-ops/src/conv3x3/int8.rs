@@ -131,14 +131,55 @@ fn finite_range(values: &[f32], (lo, hi): (f32, f32)) -> (f32, f32) {
         .fold((lo, hi), |(l, h), &v| (l.min(v), h.max(v)))
 }
 
+/// One output channel's weights `w` times their input channels' scales `s` (into `scaled`),
+/// quantised into `k` by `t_o`, the largest product's size over 127 (half away from zero, as
+/// `f32::round`, without its library call); `None`, and `k` left as it is, when `t_o` is 0 or
+/// not finite. The largest size is kept lane by lane, so the loop is not one chain of `max`.
+#[inline(always)]
+fn quantize_weights(w: &[f32], s: &[f32], scaled: &mut [f32], k: &mut [i8]) -> Option<f32> {
+    const LANES: usize = 16;
+    for ((d, &w), &s) in scaled.iter_mut().zip(w).zip(s) {
+        *d = w * s;
+    }
+    let mut lanes = [0f32; LANES];
+    let chunks = scaled.chunks_exact(LANES);
+    let most = chunks.remainder().iter().fold(0f32, |m, d| m.max(d.abs()));
+    for chunk in chunks {
+        for (m, d) in lanes.iter_mut().zip(chunk) {
+            *m = m.max(d.abs());
+        }
+    }
+    let most = lanes.into_iter().fold(most, f32::max);
+    let t_o = most / 127.0;
+    if !(t_o >= f32::MIN_POSITIVE && t_o.is_finite()) {
+        return None;
+    }
+    let inv = 1.0 / t_o;
+    for (k, &v) in k.iter_mut().zip(scaled.iter()) {
+        let r = (v * inv).clamp(-127.0, 127.0);
+        *k = to_i8((r + 0.5f32.copysign(r)).trunc());
+    }
+    Some(t_o)
+}
+
+/// `t`, a whole number in [-127, 127] or NaN, as `t as i8` gives it (NaN 0), in operations
+/// the compiler vectorises (it does not vectorise the saturating `as`): `t + 1.5 * 2^23` is
+/// exact and holds `2^22 + t` in its mantissa, whose low byte is `t` in two's complement.
+#[inline(always)]
+fn to_i8(t: f32) -> i8 {
+    let t = if t.is_nan() { 0.0 } else { t };
+    (t + 12_582_912.0).to_bits() as u8 as i8
+}
+
 /// The quantised weights of one call, from the input channels' quantisation.
 #[derive(Clone, Debug, PartialEq)]
 pub(super) struct Plan8 {
     quant: Vec<ChannelQuant>,
-    /// `k`, `[c_out][c_in][9]`.
+    /// `k`, `[c_out][9][quads * 4]`: per output channel and tap, every input channel's weight
+    /// side by side, channels past `c_in` 0.
     k: Vec<i8>,
     /// `k` as the kernel reads it: `[c_out / 4][quads][9][4 outputs]` words of 4 channels
-    /// ([`dot::word`]), channels past `c_in` 0 (empty on [`DotPath::Amx`]).
+    /// ([`dot::word`]) (empty on [`DotPath::Amx`]).
     words: Vec<u32>,
     /// `k` as [`dot::accumulate_tiles`] reads it, one vector per block of
     /// [`dot::TILE_QUADS`] quads (empty unless the path is [`DotPath::Amx`]).
@@ -155,44 +196,56 @@ impl Conv3x3 {
         self.c_in.div_ceil(dot::CHANNELS)
     }
 
+    /// Input channels, padded to whole quads.
+    fn c_pad(&self) -> usize {
+        self.quads() * dot::CHANNELS
+    }
+
+    /// Where `k[o][c][ky][kx]` lies in [`Plan8::k`].
+    fn k_at(&self, o: usize, c: usize, tap: usize) -> usize {
+        (o * TAPS + tap) * self.c_pad() + c
+    }
+
     /// The weights quantised for inputs quantised as `quant` (one per input channel), packed
-    /// for `path`.
+    /// for `path`. Per output channel, on the tap-major copy of the weights, in loops over
+    /// contiguous channels the compiler vectorises: every call makes a new plan (the input's
+    /// ranges move from frame to frame).
     fn plan8(&self, quant: Vec<ChannelQuant>, path: DotPath) -> Plan8 {
-        let c_in = self.c_in;
-        let mut k = vec![0i8; self.c_out * c_in * TAPS];
+        let c_pad = self.c_pad();
+        let row = TAPS * c_pad;
+        let mut k = vec![0i8; self.c_out * row];
         let mut scale = vec![0f32; self.c_out];
         let mut offset = vec![0i32; self.c_out];
-        let mut scaled = vec![0f32; c_in * TAPS];
-        for o in 0..self.c_out {
-            for (c, row) in scaled.chunks_exact_mut(TAPS).enumerate() {
-                for (t, v) in row.iter_mut().enumerate() {
-                    *v = self.weight(o, c, t / 3, t % 3) * quant[c].scale;
-                }
+        // Each input channel's scale and level of 0 at each of its weights (padding channels:
+        // 0 and 0, their weights are 0 anyway).
+        let (mut s, mut z) = (vec![0f32; row], vec![0i32; row]);
+        for (c, q) in quant.iter().enumerate() {
+            for t in 0..TAPS {
+                (s[t * c_pad + c], z[t * c_pad + c]) = (q.scale, i32::from(q.zero));
             }
-            let most = scaled.iter().fold(0f32, |m, v| m.max(v.abs()));
-            let t_o = most / 127.0;
-            if !(t_o >= f32::MIN_POSITIVE && t_o.is_finite()) {
-                continue;
-            }
-            scale[o] = t_o;
-            let inv = 1.0 / t_o;
-            let ks = &mut k[o * c_in * TAPS..][..c_in * TAPS];
-            for (k, &v) in ks.iter_mut().zip(&scaled) {
-                // Half away from zero, as `f32::round`, without its library call.
-                let r = (v * inv).clamp(-127.0, 127.0);
-                *k = (r + 0.5f32.copysign(r)) as i8;
-            }
-            offset[o] = ks
-                .chunks_exact(TAPS)
-                .zip(&quant)
-                .map(|(ks, q)| ks.iter().map(|&k| i32::from(k)).sum::<i32>() * i32::from(q.zero))
-                .sum();
         }
+        let mut scaled = vec![0f32; row];
+        neuspike_simd::dispatch(
+            #[inline(always)]
+            || {
+                for (o, (ks, w)) in k
+                    .chunks_exact_mut(row)
+                    .zip(self.by_tap.chunks_exact(row))
+                    .enumerate()
+                {
+                    if let Some(t_o) = quantize_weights(w, &s, &mut scaled, ks) {
+                        scale[o] = t_o;
+                        offset[o] = ks.iter().zip(&z).map(|(&k, &z)| i32::from(k) * z).sum();
+                    }
+                }
+            },
+        );
         let (words, tiles) = if path == DotPath::Amx {
             (Vec::new(), self.tiles(&k))
         } else {
             (self.words(&k), Vec::new())
         };
+
         Plan8 {
             quant,
             k,
@@ -203,26 +256,30 @@ impl Conv3x3 {
         }
     }
 
-    /// `k` (`[c_out][c_in][9]`) as [`dot::accumulate`] reads it: `[c_out / 4][quads][9][4]`
-    /// words of four channels.
+    /// The four channels' weights of `k` from `at` on, as one word.
+    fn quad_word(k: &[i8], at: usize) -> u32 {
+        let b = &k[at..at + dot::CHANNELS];
+        dot::word([b[0], b[1], b[2], b[3]].map(|v| v as u8))
+    }
+
+    /// [`Plan8::k`] as [`dot::accumulate`] reads it: `[c_out / 4][quads][9][4]` words of four
+    /// channels.
     fn words(&self, k: &[i8]) -> Vec<u32> {
         let quads = self.quads();
         let mut words = vec![0u32; self.c_out * quads * TAPS];
         for o in 0..self.c_out {
             let (g, lane) = (o / OUTS, o % OUTS);
-            for c in 0..self.c_in {
-                let (quad, j) = (c / dot::CHANNELS, c % dot::CHANNELS);
+            for quad in 0..quads {
                 for t in 0..TAPS {
                     let at = ((g * quads + quad) * TAPS + t) * OUTS + lane;
-                    let byte = k[(o * self.c_in + c) * TAPS + t] as u8;
-                    words[at] |= u32::from(byte) << (8 * j);
+                    words[at] = Self::quad_word(k, self.k_at(o, quad * dot::CHANNELS, t));
                 }
             }
         }
         words
     }
 
-    /// `k` (`[c_out][c_in][9]`) in the tiles of [`dot::TileTaps`], one vector per block of
+    /// [`Plan8::k`] in the tiles of [`dot::TileTaps`], one vector per block of
     /// [`dot::TILE_QUADS`] quads, taps in the order kernel row by row, column by column.
     fn tiles(&self, k: &[i8]) -> Vec<Vec<u32>> {
         let (quads, groups) = (self.quads(), self.c_out.div_ceil(dot::TILE_OUTS));
@@ -233,13 +290,10 @@ impl Conv3x3 {
                 let mut tile = vec![0u32; groups * TAPS * dot::TILE_OUTS * nq];
                 for o in 0..self.c_out {
                     let (g, row) = (o / dot::TILE_OUTS, o % dot::TILE_OUTS);
-                    let channels = q0 * dot::CHANNELS..(self.c_in).min((q0 + nq) * dot::CHANNELS);
-                    for c in channels {
-                        let (q, j) = (c / dot::CHANNELS - q0, c % dot::CHANNELS);
-                        for t in 0..TAPS {
-                            let at = ((g * TAPS + t) * dot::TILE_OUTS + row) * nq + q;
-                            let byte = k[(o * self.c_in + c) * TAPS + t] as u8;
-                            tile[at] |= u32::from(byte) << (8 * j);
+                    for t in 0..TAPS {
+                        let dst = &mut tile[((g * TAPS + t) * dot::TILE_OUTS + row) * nq..][..nq];
+                        for (q, d) in dst.iter_mut().enumerate() {
+                            *d = Self::quad_word(k, self.k_at(o, (q0 + q) * dot::CHANNELS, t));
                         }
                     }
                 }
@@ -299,7 +353,7 @@ impl Conv3x3 {
             for c in 0..self.c_in {
                 for ky in 0..3 {
                     for kx in 0..3 {
-                        let k = plan.k[(o * self.c_in + c) * TAPS + ky * 3 + kx];
+                        let k = plan.k[self.k_at(o, c, ky * 3 + kx)];
                         let v = level(
                             c,
                             y as isize * s + ky as isize - 1,
@@ -649,6 +703,51 @@ mod tests {
         {
             close_to_f32(c_in, c_out, stride, (12, 40), seed as u32);
         }
+    }
+
+    /// [`quantize_weights`]' definition in a plain loop: `f32::round` and the saturating `as`.
+    fn plain_weights(w: &[f32], s: &[f32]) -> Option<(f32, Vec<i8>)> {
+        let scaled: Vec<f32> = w.iter().zip(s).map(|(w, s)| w * s).collect();
+        let most = scaled.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let t_o = most / 127.0;
+        if !(t_o >= f32::MIN_POSITIVE && t_o.is_finite()) {
+            return None;
+        }
+        let k = scaled
+            .iter()
+            .map(|v| (v * (1.0 / t_o)).clamp(-127.0, 127.0).round() as i8)
+            .collect();
+        Some((t_o, k))
+    }
+
+    #[test]
+    fn weights_quantise_as_the_plain_definition() {
+        let quantized = |w: &[f32], s: &[f32]| {
+            let (mut scaled, mut k) = (vec![0f32; w.len()], vec![0i8; w.len()]);
+            neuspike_simd::dispatch(
+                #[inline(always)]
+                || quantize_weights(w, s, &mut scaled, &mut k),
+            )
+            .map(|t_o| (t_o, k))
+        };
+        for n in [1, 9, 15, 16, 17, 36, 288, 577] {
+            let w = pattern(n, n as u32);
+            let s: Vec<f32> = pattern(n, 7).iter().map(|v| v.abs() + 0.01).collect();
+            assert_eq!(quantized(&w, &s), plain_weights(&w, &s), "{n} weights");
+        }
+        // Ties: 127 times a half step lands on halves; they go away from zero.
+        let w: Vec<f32> = (-254..=254).map(|i| i as f32 / 2.0).collect();
+        let s = vec![1.0; w.len()];
+        assert_eq!(quantized(&w, &s), plain_weights(&w, &s));
+        // A NaN weight is a level of 0; an infinite one leaves no scale; none at all either.
+        let mut w = pattern(40, 3);
+        w[17] = f32::NAN;
+        let got = quantized(&w, &vec![1.0; 40]).expect("a scale");
+        assert_eq!(got.1[17], 0);
+        assert_eq!(Some(got), plain_weights(&w, &vec![1.0; 40]));
+        w[3] = f32::INFINITY;
+        assert_eq!(quantized(&w, &vec![1.0; 40]), None);
+        assert_eq!(quantized(&[0.0; 20], &[1.0; 20]), None);
     }
 
     #[test]
