@@ -742,11 +742,11 @@ mod tests {
         // A NaN weight is a level of 0; an infinite one leaves no scale; none at all either.
         let mut w = pattern(40, 3);
         w[17] = f32::NAN;
-        let got = quantized(&w, &vec![1.0; 40]).expect("a scale");
+        let got = quantized(&w, &[1.0; 40]).expect("a scale");
         assert_eq!(got.1[17], 0);
-        assert_eq!(Some(got), plain_weights(&w, &vec![1.0; 40]));
+        assert_eq!(Some(got), plain_weights(&w, &[1.0; 40]));
         w[3] = f32::INFINITY;
-        assert_eq!(quantized(&w, &vec![1.0; 40]), None);
+        assert_eq!(quantized(&w, &[1.0; 40]), None);
         assert_eq!(quantized(&[0.0; 20], &[1.0; 20]), None);
     }
 
