@@ -11,6 +11,7 @@ pub mod bench_model;
 pub mod calibrate;
 pub mod cluster;
 pub mod dataset;
+pub mod evaluate;
 pub mod frames_to_events;
 pub mod graph;
 pub mod in_process;

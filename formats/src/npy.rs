@@ -300,11 +300,15 @@ impl Parser<'_> {
     }
 }
 
-/// A float32 `[T, H, W]` `.npy` file, read a frame at a time.
+/// A float32 `[T, H, W]` `.npy` file, read a frame at a time; or, opened with
+/// [`open_samples`](NpyFrames::open_samples), `[N, C, .., H, W]` read a sample (`C .. H W`
+/// values) at a time.
 pub struct NpyFrames {
     path: PathBuf,
     reader: BufReader<File>,
     frames: usize,
+    /// Values of the axes between the first and the last two (1 for `[T, H, W]`).
+    planes: usize,
     height: usize,
     width: usize,
     fortran_order: bool,
@@ -320,7 +324,20 @@ impl NpyFrames {
     /// # Errors
     /// The file cannot be opened or read, or its header or size says something else.
     pub fn open(path: impl AsRef<Path>) -> Result<NpyFrames> {
-        let path = path.as_ref();
+        Self::open_axes(path.as_ref(), false)
+    }
+
+    /// Opens `path` as [`open`](Self::open) does, for any float32 array of three axes or more,
+    /// `[N, ..]`: each [`read_frame`](Self::read_frame) reads one sample, `[..]` (e.g. a
+    /// `[C, H, W]` representation of a `[N, C, H, W]` set).
+    ///
+    /// # Errors
+    /// As [`open`](Self::open), but for the number of axes.
+    pub fn open_samples(path: impl AsRef<Path>) -> Result<NpyFrames> {
+        Self::open_axes(path.as_ref(), true)
+    }
+
+    fn open_axes(path: &Path, samples: bool) -> Result<NpyFrames> {
         let open_err = |source| FormatError::Open {
             path: path.to_path_buf(),
             source,
@@ -339,14 +356,27 @@ impl NpyFrames {
                 header.descr
             )));
         }
-        let &[frames, height, width] = header.shape.as_slice() else {
-            return Err(bad(format!(
-                "shape {:?}: frames must be [T, H, W]",
-                header.shape
-            )));
+        let (frames, planes, height, width) = match header.shape.as_slice() {
+            &[frames, height, width] => (frames, 1, height, width),
+            &[frames, ref middle @ .., height, width] if samples => {
+                let planes = middle.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
+                let Some(planes) = planes else {
+                    return Err(bad(format!("shape {:?}: over 2^64 values", header.shape)));
+                };
+                (frames, planes, height, width)
+            }
+            shape if samples => {
+                return Err(bad(format!(
+                    "shape {shape:?}: samples must be [N, .., H, W], three axes or more"
+                )));
+            }
+            shape => {
+                return Err(bad(format!("shape {shape:?}: frames must be [T, H, W]")));
+            }
         };
         let want = frames
-            .checked_mul(height)
+            .checked_mul(planes)
+            .and_then(|n| n.checked_mul(height))
             .and_then(|n| n.checked_mul(width))
             .and_then(|n| n.checked_mul(4))
             .and_then(|n| u64::try_from(n).ok())
@@ -356,7 +386,8 @@ impl NpyFrames {
                 path: path.to_path_buf(),
                 offset: size,
                 what: format!(
-                    "shape [{frames}, {height}, {width}] of float32 needs {} bytes, the file has {size}",
+                    "shape {:?} of float32 needs {} bytes, the file has {size}",
+                    header.shape,
                     want.map_or_else(|| "more than 2^64".to_string(), |w| w.to_string())
                 ),
             });
@@ -365,6 +396,7 @@ impl NpyFrames {
             path: path.to_path_buf(),
             reader,
             frames,
+            planes,
             height,
             width,
             fortran_order: header.fortran_order,
@@ -374,7 +406,7 @@ impl NpyFrames {
         })
     }
 
-    /// `[T, H, W]`.
+    /// `[T, H, W]` (of samples: their count and the last two axes).
     pub fn shape(&self) -> (usize, usize, usize) {
         (self.frames, self.height, self.width)
     }
@@ -385,7 +417,13 @@ impl NpyFrames {
         self.fortran_order
     }
 
-    /// Reads the next frame into `frame` (`H * W` values, rows top-down); `false` after the last.
+    /// Values of one frame or sample (`H * W`, or the product of every axis but the first).
+    pub fn frame_len(&self) -> usize {
+        self.planes * self.height * self.width
+    }
+
+    /// Reads the next frame into `frame` (`H * W` values, rows top-down; a sample's
+    /// [`frame_len`](Self::frame_len) values in C order); `false` after the last.
     ///
     /// # Errors
     /// A Fortran-order file, or a read that fails.
@@ -399,7 +437,7 @@ impl NpyFrames {
         if self.next == self.frames {
             return Ok(false);
         }
-        let n = self.height * self.width;
+        let n = self.frame_len();
         self.bytes.resize(n * 4, 0);
         let offset = self.data_offset + (self.next * n * 4) as u64;
         self.reader
@@ -451,6 +489,50 @@ mod tests {
         let mut r = NpyFrames::open(&path).expect("open");
         assert!(r.fortran_order());
         assert!(r.read_frame(&mut f).is_err());
+    }
+
+    #[test]
+    fn samples_of_four_axes_come_back_one_at_a_time() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let a = ndarray::Array4::from_shape_fn((3, 2, 4, 5), |(n, c, y, x)| {
+            (n * 1000 + c * 100 + y * 10 + x) as f32
+        });
+        let path = dir.path().join("s.npy");
+        ndarray_npy::write_npy(&path, &a).expect("write");
+        // Frames are three axes, nothing else.
+        let e = NpyFrames::open(&path).err().expect("refused").to_string();
+        assert!(e.contains("[3, 2, 4, 5]") && e.contains("[T, H, W]"), "{e}");
+        let mut r = NpyFrames::open_samples(&path).expect("open");
+        assert_eq!((r.shape(), r.frame_len()), ((3, 4, 5), 40));
+        let mut f = Vec::new();
+        for n in 0..3 {
+            assert!(r.read_frame(&mut f).expect("sample"));
+            let want: Vec<f32> = a.index_axis(ndarray::Axis(0), n).iter().copied().collect();
+            assert_eq!(f, want);
+        }
+        assert!(!r.read_frame(&mut f).expect("end"));
+        // Three axes read as frames; fewer are refused; a size short of the shape too.
+        let three = Array3::from_shape_fn((2, 3, 4), |(t, y, x)| (t + y + x) as f32);
+        ndarray_npy::write_npy(&path, &three).expect("write");
+        assert_eq!(
+            NpyFrames::open_samples(&path).expect("open").frame_len(),
+            12
+        );
+        ndarray_npy::write_npy(&path, &ndarray::Array2::<f32>::zeros((2, 3))).expect("write");
+        let e = NpyFrames::open_samples(&path)
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(e.contains("three axes or more"), "{e}");
+        let e = {
+            std::fs::write(&path, b"\x93NUMPY\x01\x00\x3f\x00{'descr': '<f4', 'fortran_order': False, 'shape': (9, 9, 9, 9)}")
+                .expect("write");
+            NpyFrames::open_samples(&path)
+                .err()
+                .expect("refused")
+                .to_string()
+        };
+        assert!(e.contains("needs") && e.contains("the file has"), "{e}");
     }
 
     #[test]

@@ -706,6 +706,110 @@ mod tests {
         accumulate_tiles(DotPath::Amx, &taps, &mut [0; 16], 16, 1, 16);
     }
 
+    /// The environment variable that makes [`amx_refused_child`] run.
+    const REFUSED_CHILD: &str = "NEUSPIKE_AMX_REFUSED_CHILD";
+
+    /// Makes Linux refuse this process the AMX tile registers: a seccomp filter that answers
+    /// `arch_prctl(ARCH_REQ_XCOMP_PERM, ..)` with `EPERM` and lets every other call through.
+    #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+    #[allow(unsafe_code)]
+    fn refuse_amx() {
+        // Classic BPF over `struct seccomp_data`: `nr` at 0, the first argument's low word at 16.
+        let op = |code: u16, jt: u8, jf: u8, k: u32| libc::sock_filter { code, jt, jf, k };
+        const LD_W_ABS: u16 = 0x20;
+        const JEQ_K: u16 = 0x15;
+        const RET_K: u16 = 0x06;
+        const SECCOMP_RET_ERRNO: u32 = 0x0005_0000;
+        const SECCOMP_RET_ALLOW: u32 = 0x7fff_0000;
+        let mut filter = [
+            op(LD_W_ABS, 0, 0, 0),
+            op(JEQ_K, 0, 3, libc::SYS_arch_prctl as u32),
+            op(LD_W_ABS, 0, 0, 16),
+            op(JEQ_K, 0, 1, 0x1023),
+            op(RET_K, 0, 0, SECCOMP_RET_ERRNO | libc::EPERM as u32),
+            op(RET_K, 0, 0, SECCOMP_RET_ALLOW),
+        ];
+        let program = libc::sock_fprog {
+            len: filter.len() as u16,
+            filter: filter.as_mut_ptr(),
+        };
+        // SAFETY: `prctl` with integer arguments, then with a pointer to `program`, which lives
+        // across the call; the kernel copies the filter.
+        unsafe {
+            assert_eq!(
+                libc::prctl(libc::PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0),
+                0,
+                "no_new_privs"
+            );
+            assert_eq!(
+                libc::prctl(
+                    libc::PR_SET_SECCOMP,
+                    libc::SECCOMP_MODE_FILTER,
+                    &program as *const libc::sock_fprog,
+                    0,
+                    0
+                ),
+                0,
+                "seccomp filter"
+            );
+        }
+    }
+
+    /// Run by [`amx_refused_falls_back`] in a process of its own: with the permission refused,
+    /// the path is VNNI (or plain loops), and sums asked of AMX come out the same.
+    #[test]
+    #[ignore = "run by amx_refused_falls_back in a child process"]
+    #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+    fn amx_refused_child() {
+        assert!(
+            std::env::var_os(REFUSED_CHILD).is_some(),
+            "run by amx_refused_falls_back"
+        );
+        refuse_amx();
+        assert!(!amx_permitted(), "the permission was refused");
+        assert_ne!(detect(), DotPath::Amx);
+        assert!(!DotPath::Amx.is_supported());
+        let (rows, weights) = (
+            words(&bytes(4 * 3 * 64, 1)),
+            words(&bytes(4 * 16 * 9 * 2, 2)),
+        );
+        let taps = TileTaps {
+            rows: &rows,
+            taps: &[0, 1, 2, 16, 17, 18, 32, 33, 34],
+            quad_stride: 64,
+            quads: 2,
+            weights: &weights,
+        };
+        let (mut amx, mut plain) = (vec![0; 16 * 16], vec![0; 16 * 16]);
+        accumulate_tiles(DotPath::Amx, &taps, &mut amx, 16, 16, 16);
+        accumulate_tiles(DotPath::Portable, &taps, &mut plain, 16, 16, 16);
+        assert_eq!(amx, plain);
+        println!("refused: 8-bit path {}", detect().name());
+    }
+
+    #[test]
+    #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+    fn amx_refused_falls_back() {
+        let exe = std::env::current_exe().expect("the test binary");
+        let out = std::process::Command::new(exe)
+            .args([
+                "--ignored",
+                "--exact",
+                "dot::tests::amx_refused_child",
+                "--nocapture",
+            ])
+            .env(REFUSED_CHILD, "1")
+            .output()
+            .expect("the child runs");
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{text}");
+        assert!(
+            text.contains("refused: 8-bit path"),
+            "the child test ran: {text}"
+        );
+    }
+
     #[test]
     fn the_widest_path_is_supported() {
         assert!(DotPath::Portable.is_supported());
