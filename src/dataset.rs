@@ -875,28 +875,32 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
     Ok(summary)
 }
 
+/// A small set's options for tests: one sample of 16x16 a cell, shards of 10, seed 7.
+#[cfg(test)]
+pub(crate) fn tiny_options(split: Split, out: PathBuf) -> DatasetOptions {
+    DatasetOptions {
+        out,
+        split,
+        per_cell: 1,
+        size: 16,
+        window_planes: 33,
+        channels: 32,
+        tau_ns: 500_000.0,
+        rate_hz: 20_000.0,
+        textures: None,
+        shard: 10,
+        seed: 7,
+        also: Vec::new(),
+        noise: NoiseArgs::default(),
+        randomise_camera: false,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn opts(split: Split, out: PathBuf) -> DatasetOptions {
-        DatasetOptions {
-            out,
-            split,
-            per_cell: 1,
-            size: 16,
-            window_planes: 33,
-            channels: 32,
-            tau_ns: 500_000.0,
-            rate_hz: 20_000.0,
-            textures: None,
-            shard: 10,
-            seed: 7,
-            also: Vec::new(),
-            noise: NoiseArgs::default(),
-            randomise_camera: false,
-        }
-    }
+    use super::tiny_options as opts;
 
     #[test]
     fn also_writes_the_other_representations_of_each_window() {

@@ -396,25 +396,13 @@ pub fn tables(scores: &[MethodScores]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::{DatasetOptions, Split, generate};
+    use crate::dataset::{DatasetOptions, Split, generate, tiny_options};
 
     fn set(dir: &Path) -> PathBuf {
         let out = dir.join("set");
         let o = DatasetOptions {
-            out: out.clone(),
-            split: Split::Test,
-            per_cell: 1,
             size: 32,
-            window_planes: 33,
-            channels: 32,
-            tau_ns: 500_000.0,
-            rate_hz: 20_000.0,
-            textures: None,
-            shard: 10,
-            seed: 7,
-            also: Vec::new(),
-            noise: Default::default(),
-            randomise_camera: false,
+            ..tiny_options(Split::Test, out.clone())
         };
         generate(&o, false).expect("a set");
         out

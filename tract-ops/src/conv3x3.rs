@@ -987,32 +987,16 @@ fn concatenated(model: &TypedModel, outlet: OutletId) -> TractResult<Option<TVec
 /// [`Conv3x3Op`], taking in the ReLU that follows it if any, and reading the parts of the
 /// channel concatenation before it if any (the decoder's merges: no concatenated copy),
 /// computing in `precision`; returns how many.
-///
-/// In 8 bits the last of them (in evaluation order) stays in `f32`: in a NeuSpike-Net it is the
-/// decoder's last merge, at full resolution, whose error reaches the image through nothing but
-/// the last layers. On the held-out set, in 8 bits with it `neuspike-fused-8` lost 0.45 dB in
-/// normal scenes; with it in `f32`, 0.17 dB (docs/performance.md, "In 8 bits").
 pub fn use_conv3x3(
     model: &mut TypedModel,
     min_width: usize,
     precision: Precision,
 ) -> TractResult<usize> {
     let mut replaced = 0;
-    let order = model.eval_order()?;
-    let last = order
-        .iter()
-        .rev()
-        .find(|&&id| as_conv3x3(model, model.node(id), min_width).is_some())
-        .copied();
-    for id in order {
+    for id in model.eval_order()? {
         let node = model.node(id);
         let Some(conv) = as_conv3x3(model, node, min_width) else {
             continue;
-        };
-        let precision = if Some(id) == last {
-            Precision::F32
-        } else {
-            precision
         };
         let relu = relu_after(model, node);
         let conv = if relu.is_some() {
@@ -1371,48 +1355,6 @@ mod tests {
         first.run_edge_padded(view, (h, w), &mut y, None).unwrap();
         let y = Tensor::from_shape(&[1, o, h, w], &y).unwrap();
         assert_eq!(run(ours, y), want);
-    }
-
-    #[test]
-    fn in_8_bits_the_last_convolution_stays_f32() {
-        use tract_onnx::tract_core::ops::cnn::Conv;
-        let two = || {
-            let mut model = conv(4, 8, 1, 3).tract_model(6, 20).unwrap();
-            let out = model.output_outlets().unwrap()[0];
-            let mut op = model
-                .nodes()
-                .iter()
-                .find_map(|n| n.op_as::<Conv>())
-                .unwrap()
-                .clone();
-            op.pool_spec.input_channels = 8;
-            let k = Tensor::from_shape(&[8, 8, 3, 3], &pattern(8 * 8 * 9, 4)).unwrap();
-            let k = model.add_const("k2", k).unwrap();
-            let b = model
-                .add_const("b2", Tensor::from_shape(&[8], &pattern(8, 5)).unwrap())
-                .unwrap();
-            let y = model.wire_node("conv2", op, &[out, k, b]).unwrap();
-            model.select_output_outlets(&y).unwrap();
-            model
-        };
-        let precisions = |precision: Precision| {
-            let mut model = two();
-            assert_eq!(use_conv3x3(&mut model, 1, precision).unwrap(), 2);
-            model
-                .eval_order()
-                .unwrap()
-                .into_iter()
-                .filter_map(|id| {
-                    model
-                        .node(id)
-                        .op_as::<Conv3x3Op>()
-                        .map(|op| op.0.precision())
-                })
-                .collect::<Vec<_>>()
-        };
-        let int8 = Precision::Int8(neuspike_simd::dot::DotPath::Portable);
-        assert_eq!(precisions(int8), [int8, Precision::F32]);
-        assert_eq!(precisions(Precision::F32), [Precision::F32; 2]);
     }
 
     #[test]
