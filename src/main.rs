@@ -119,7 +119,7 @@ enum Command {
     /// Score methods on a held-out `neuspike dataset` set as training/evaluate.py does (PSNR
     /// and SSIM, normal and complex scenes, per light scale), the networks run by tract as the
     /// infer node runs them, in 8 bits too (`<name>-int8`): what a precision costs in accuracy.
-    Evaluate(neuspike::evaluate::EvaluateOptions),
+    Evaluate(neuspike::held_out::EvaluateOptions),
     /// Run the DVS on a sequence of intensity frames (a float32 [T, H, W] .npy), as v2e runs
     /// its emulator on video frames: events as text, and a one-line JSON summary (counts and
     /// the emulation's time).
@@ -456,13 +456,13 @@ fn run(cli: Cli) -> eyre::Result<()> {
             Ok(())
         }
         Command::Evaluate(opts) => {
-            let scores = neuspike::evaluate::run(&opts)?;
+            let scores = neuspike::held_out::run(&opts)?;
             let n = scores
                 .first()
                 .and_then(|m| m.group("all"))
                 .map_or(0, |g| g.n);
             println!("held-out: {} ({n} samples)\n", opts.test.display());
-            print!("{}", neuspike::evaluate::tables(&scores));
+            print!("{}", neuspike::held_out::tables(&scores));
             Ok(())
         }
         Command::Dataset(opts) => {
