@@ -8,7 +8,6 @@
 //! its PSNR and SSIM against the truth (docs/definitions.md); then the mean over every sample,
 //! the normal and the complex ones (`complex` in `samples.csv`) and each light scale.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use eyre::{WrapErr, bail, eyre};
@@ -308,9 +307,9 @@ pub fn groups(rows: &[SampleRow], scores: &[(f64, f64)]) -> Vec<(String, GroupSc
         ("normal".to_string(), mean(&|r| !r.complex)),
         ("complex".to_string(), mean(&|r| r.complex)),
     ];
-    let lights: BTreeMap<u64, f64> = rows.iter().map(|r| (r.light.to_bits(), r.light)).collect();
-    let mut lights: Vec<f64> = lights.into_values().collect();
+    let mut lights: Vec<f64> = rows.iter().map(|r| r.light).collect();
     lights.sort_by(f64::total_cmp);
+    lights.dedup();
     for light in lights {
         out.push((format!("light {light}"), mean(&|r| r.light == light)));
     }
