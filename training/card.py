@@ -99,8 +99,13 @@ def main() -> None:
            "camera's calibration: it predicts luminance itself). ")
         + "Built by `training/neuspike_net.py`: head convolution, 3 stride-2 encoder "
         "layers doubling the width, channel and spatial attention fusion after each (Eq. 11-12), 2 "
-        "residual blocks, 3 transposed-convolution decoder layers with the fused skips, a depthwise "
-        "convolution and a sigmoid. The channel maximum of the spatial attention is exported as a "
+        + ("residual blocks, 3 transposed-convolution decoder layers with the fused skips, a depthwise "
+           "convolution and a sigmoid. " if cfg.get("features", "full") == "full" else
+           "residual blocks, 2 transposed-convolution decoder layers with the fused skips down to half "
+           "resolution, a 3x3 convolution to the 4 pixels of each 2x2 block (a sub-pixel shuffle, "
+           "`DepthToSpace`) plus a 1x1 convolution of each path's full-resolution head feature, and a "
+           "sigmoid (`--features half`). ")
+        + "The channel maximum of the spatial attention is exported as a "
         "tree of `Max` (`training/onnx_passes.py`, exact).",
         "",
         "## Training",

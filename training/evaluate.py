@@ -25,7 +25,11 @@ def load_model(path: pathlib.Path) -> tuple[NeuSpikeNet, dict]:
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
     cfg = ckpt["config"]
     model = NeuSpikeNet(
-        base=cfg["base"], channels=cfg["channels"], mode=cfg["mode"], gated=cfg.get("gated", False)
+        base=cfg["base"],
+        channels=cfg["channels"],
+        mode=cfg["mode"],
+        gated=cfg.get("gated", False),
+        features=cfg.get("features", "full"),
     )
     model.load_state_dict(ckpt["state"])
     return model.eval(), cfg

@@ -27,7 +27,7 @@ def main() -> None:
             c = r["config"]
             l2 = c.get("l2", "mean")
             key = (c["mode"], c["base"], c["aux"], c["steps"], "val" in c, l2, c.get("gated", False),
-                   c.get("camera", "paper"), c.get("init", ""),
+                   c.get("camera", "paper"), c.get("init", ""), c.get("features", "full"),
                    # the data matters to the label only for a fine-tune (paths differ by machine)
                    c.get("train", "") if c.get("init") else "")
             groups[key].append((name, r))
@@ -37,15 +37,18 @@ def main() -> None:
     for k in ("tfp", "tfi"):
         print(f"| {k.upper()} (classical) | | | {fmt(ev[k])} |")
     def key(g):
-        mode, base, aux, steps, val, l2, gated, camera, init, _ = g[0]
-        return order[mode], base, ["ssim", "grad", "none"].index(aux), bool(init), steps, val, l2, gated, camera
+        mode, base, aux, steps, val, l2, gated, camera, init, features, _ = g[0]
+        return order[mode], base, features, ["ssim", "grad", "none"].index(aux), bool(init), steps, val, l2, gated, camera
 
-    for (mode, base, aux, steps, val, l2, gated, camera, init, train), runs in sorted(groups.items(), key=key):
+    for (mode, base, aux, steps, val, l2, gated, camera, init, features, train), runs in sorted(
+        groups.items(), key=key
+    ):
         label = f"{mode}, base {base}, aux {aux}, {steps / 1000:g}k steps" + (", best on validation" if val else "")
         # A fine-tune (`train.py --init`): where its weights started and what it trained on.
         label += f", fine-tuning `{init}` on `{train}`" if init else ""
         label += ", L2 weighted by 1/MSE" if l2 == "psnr" else ""
         label += ", motion path gated from 0" if gated else ""
+        label += ", decoder to half resolution (`--features half`)" if features == "half" else ""
         label += {"paper": "", "random": ", cameras drawn at random",
                   "random, no clean share": ", cameras drawn at random, none clean"}.get(camera, f", {camera}")
         for name, r in sorted(runs, key=lambda x: (x[1]["config"]["seed"], x[0])):

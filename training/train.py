@@ -12,6 +12,9 @@ not the wall clock, ends training, so a run repeats (on a CPU; CUDA kernels are 
 
 `--init FILE` starts from the weights of a checkpoint (`.pt`) or an exported network (`.onnx`, its
 initializers by parameter name) of the same architecture, to fine-tune it (e.g. on larger crops).
+With `--init-partial` the architecture may differ: every tensor of the same name and shape is
+taken, the others keep their initial values and are named (a `--features half` network started
+from a `full` one's deeper layers).
 
 `--val DIR` (a set made like the training set with another `--seed`, never the held-out set)
 scores the model every `--val-every` steps and keeps the weights of the best mean PSNR: the
@@ -114,11 +117,12 @@ def validation_psnr(model: NeuSpikeNet, val: data.Split, batch: int = 50) -> flo
     return total / len(val)
 
 
-def initial_weights(path: pathlib.Path, model: NeuSpikeNet) -> dict[str, torch.Tensor]:
+def initial_weights(path: pathlib.Path, model: NeuSpikeNet, partial: bool = False) -> dict[str, torch.Tensor]:
     """The weights of `path` (`.pt` checkpoint or `.onnx` export) for every tensor of `model`'s
     state; a shape that differs, or a missing tensor, is an error naming it. An export holds only
     what its forward pass reads (the deepest fusion's spatial attention is never used): a tensor
-    missing from an `.onnx` keeps its initial value, and is named, unless none matched at all."""
+    missing from an `.onnx` keeps its initial value, and is named, unless none matched at all.
+    `partial`: a missing tensor or one of another shape keeps its initial value too (named)."""
     if path.suffix == ".onnx":
         import onnx
         from onnx import numpy_helper
@@ -130,7 +134,9 @@ def initial_weights(path: pathlib.Path, model: NeuSpikeNet) -> dict[str, torch.T
     state, kept = {}, []
     for name, want in model.state_dict().items():
         got = found.get(name)
-        if got is None and path.suffix == ".onnx":
+        if (got is None and (partial or path.suffix == ".onnx")) or (
+            partial and got is not None and tuple(got.shape) != tuple(want.shape)
+        ):
             kept.append(name)
             state[name] = want
             continue
@@ -142,7 +148,8 @@ def initial_weights(path: pathlib.Path, model: NeuSpikeNet) -> dict[str, torch.T
     if len(kept) == len(state):
         raise SystemExit(f"--init {path}: none of the model's tensors is there (another architecture?)")
     if kept:
-        print(f"--init {path}: not in the export (unused by the forward pass), kept as initialised: {', '.join(kept)}")
+        why = "not there or of another shape" if partial else "not in the export (unused by the forward pass)"
+        print(f"--init {path}: {why}, kept as initialised: {', '.join(kept)}")
     return state
 
 
@@ -173,6 +180,17 @@ def main() -> None:
     ap.add_argument("--val", type=pathlib.Path, help="validation set: keep the best checkpoint on it")
     ap.add_argument("--val-every", type=int, default=500)
     ap.add_argument("--init", type=pathlib.Path, help="start from these weights (.pt or .onnx)")
+    ap.add_argument(
+        "--init-partial",
+        action="store_true",
+        help="--init from another architecture: take the tensors of the same name and shape",
+    )
+    ap.add_argument(
+        "--features",
+        default="full",
+        choices=["full", "half"],
+        help="the finest scale computed: full resolution (the paper's) or half (the -lite networks)",
+    )
     ap.add_argument("--out", type=pathlib.Path, required=True)
     args = ap.parse_args()
     if args.gated and args.mode != "fused":
@@ -184,9 +202,11 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     train = data.load(args.train).to(device)
-    model = NeuSpikeNet(base=args.base, channels=train.spike.shape[1], mode=args.mode, gated=args.gated).to(device)
+    model = NeuSpikeNet(
+        base=args.base, channels=train.spike.shape[1], mode=args.mode, gated=args.gated, features=args.features
+    ).to(device)
     if args.init:
-        model.load_state_dict(initial_weights(args.init, model))
+        model.load_state_dict(initial_weights(args.init, model, args.init_partial))
     names = model.inputs()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.steps, pct_start=0.05)
@@ -232,6 +252,7 @@ def main() -> None:
         "base": args.base,
         "mode": args.mode,
         "gated": args.gated,
+        "features": args.features,
         "channels": int(train.spike.shape[1]),
         "steps": args.steps,
         "batch": args.batch,

@@ -1014,8 +1014,14 @@ mod tests {
             w.events.truncate(0);
             auto.frame(&w).expect("frame")
         };
-        // The spike network in `f32` or in 8 bits: the policy has both.
-        let spike_net = |m: &str| crate::learned::network_variant(m).0 == "neuspike-spike-8";
+        // A spike network (the paper's decoder or the `-lite` one) in `f32` or in 8 bits: the
+        // policy has all four.
+        let spike_net = |m: &str| {
+            matches!(
+                crate::learned::network_variant(m).0,
+                "neuspike-spike-8" | "neuspike-spike-8-lite"
+            )
+        };
         for (w, truth) in windows(1.0, 0.0, 0.2, 2) {
             let f = frame(&mut auto, &w);
             assert!(

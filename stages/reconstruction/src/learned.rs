@@ -524,8 +524,9 @@ impl LearnedModel {
                 .enter(|| {
                     let mut model = model.into_typed()?;
                     if path == ConvPath::Blocked {
-                        // Before decluttering, which makes the 1x1 convolution a product.
+                        // Before decluttering, which makes the 1x1 convolutions products.
                         neuspike_tract_ops::depthwise::use_depthwise_out(&mut model)?;
+                        neuspike_tract_ops::subpixel::use_subpixel_out(&mut model)?;
                     }
                     let mut model = model.into_decluttered()?;
                     let mut first = vec![None; n_inputs];

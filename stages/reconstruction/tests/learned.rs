@@ -373,36 +373,44 @@ fn same_on_both_paths(path: &Path, views: &[ArrayView3<f32>]) {
             .map(|t| t.op)
             .collect();
         let ours = ops.iter().filter(|op| *op == "NeuspikeConv3x3").count();
-        // The decoder's three upsamplings and the attention of its three skip connections,
-        // whatever the width.
+        let blocked = usize::from(conv == ConvPath::Blocked);
+        // A `-lite` network's decoder stops at half resolution (models/README.md): one scale
+        // fewer, and a sub-pixel output in place of the depthwise one.
+        let lite = path
+            .file_stem()
+            .is_some_and(|s| s.to_string_lossy().ends_with("-lite"));
+        let scales = if lite { 2 } else { 3 };
+        // The decoder's upsamplings and the attention of its skip connections, whatever the
+        // width.
         let count = |name: &str| ops.iter().filter(|op| *op == name).count();
-        let want = if conv == ConvPath::Blocked { 3 } else { 0 };
         for name in ["NeuspikeDeconv2x2", "NeuspikeSpatialAttention"] {
-            assert_eq!(count(name), want, "{name} in {} ({conv})", path.display());
+            assert_eq!(
+                count(name),
+                scales * blocked,
+                "{name} in {} ({conv})",
+                path.display()
+            );
         }
-        // The channel attention of each of the four fusions (one path or two, summed): the
-        // three of the skips formed inside their spatial attention, the deepest (which the
-        // residual blocks read) as an operator of its own.
-        let sums = count("NeuspikeScaledSum");
-        assert_eq!(
-            sums,
-            if conv == ConvPath::Blocked { 1 } else { 0 },
-            "{}",
-            path.display()
-        );
-        // The depthwise convolution, the 1x1 convolution and the sigmoid at the end: one pass.
+        // The channel attention of each fusion (one path or two, summed): those of the skips
+        // formed inside their spatial attention, the deepest (which the residual blocks read)
+        // as an operator of its own.
+        assert_eq!(count("NeuspikeScaledSum"), blocked, "{}", path.display());
+        // The depthwise convolution, the 1x1 convolution and the sigmoid at the end (or the
+        // sub-pixel shuffle, the heads' 1x1 convolutions and the sigmoid): one pass.
+        let (depthwise, subpixel) = if lite { (0, blocked) } else { (blocked, 0) };
         assert_eq!(
             count("NeuspikeDepthwiseOut"),
-            usize::from(conv == ConvPath::Blocked),
+            depthwise,
             "{}",
             path.display()
         );
+        assert_eq!(count("NeuspikeSubpixelOut"), subpixel, "{}", path.display());
         // The merges read their two inputs in place; the attention's maps are its own: no
         // concatenation is left.
         if conv == ConvPath::Blocked {
             assert_eq!(count("Concat"), 0, "{}", path.display());
         } else {
-            assert!(count("Concat") >= 6, "{}", path.display());
+            assert!(count("Concat") >= 2 * scales, "{}", path.display());
         }
         if conv == ConvPath::Blocked {
             assert!(
