@@ -339,12 +339,12 @@ impl EvalOp for SpatialAttentionOp {
         };
         let pool = crate::bands::tract_pool();
         let d = plain.last().expect("checked above").as_slice::<f32>()?;
-        let mut y = vec![0f32; c * h * w];
-        self.0
-            .run(x, d, (c, h, w), &mut y, pool.as_deref())
-            .map_err(|e| format_err!("{e}"))?;
-        let y = tract_ndarray::ArrayD::from_shape_vec(vec![1, c, h, w], y)?;
-        Ok(tvec!(y.into_tensor().into_tvalue()))
+        let y = crate::bands::output_tensor(&[1, c, h, w], |y| {
+            self.0
+                .run(x, d, (c, h, w), y, pool.as_deref())
+                .map_err(|e| format_err!("{e}"))
+        })?;
+        Ok(tvec!(y))
     }
 }
 
@@ -607,7 +607,7 @@ impl EvalOp for ScaledSumOp {
             inputs.len()
         );
         let shape = inputs[0].shape().to_vec();
-        let &[1, c, h, w] = shape.as_slice() else {
+        let &[1, _, h, w] = shape.as_slice() else {
             bail!("NeuspikeScaledSum takes [1, C, H, W], got {shape:?}");
         };
         let plain = inputs
@@ -615,16 +615,11 @@ impl EvalOp for ScaledSumOp {
             .map(|i| i.try_as_plain_ram())
             .collect::<TractResult<TVec<_>>>()?;
         let (xs, gs) = scaled_pairs(&inputs, &plain, &shape)?;
-        let mut y = vec![0f32; c * h * w];
-        Self::run(
-            &xs,
-            &gs,
-            h * w,
-            &mut y,
-            crate::bands::tract_pool().as_deref(),
-        );
-        let y = tract_ndarray::ArrayD::from_shape_vec(shape, y)?;
-        Ok(tvec!(y.into_tensor().into_tvalue()))
+        let y = crate::bands::output_tensor(&shape, |y| {
+            Self::run(&xs, &gs, h * w, y, crate::bands::tract_pool().as_deref());
+            Ok(())
+        })?;
+        Ok(tvec!(y))
     }
 }
 

@@ -874,25 +874,24 @@ impl EvalOp for Conv3x3Op {
             .iter()
             .map(|p| p.as_slice::<f32>())
             .collect::<TractResult<TVec<_>>>()?;
-        // Allocated zeroed (fresh pages come zeroed from the system, untouched until the threads
-        // write their rows) and moved into the tensor, not copied.
-        let mut y = vec![0f32; n * self.0.c_out * ho * wo];
-        if c * h * w > 0 && ho * wo > 0 {
-            for (b, y) in y.chunks_exact_mut(self.0.c_out * ho * wo).enumerate() {
-                let parts: TVec<(&[f32], usize)> = values
-                    .iter()
-                    .zip(&channels)
-                    .map(|(v, &ci)| (&v[b * ci * h * w..][..ci * h * w], ci))
-                    .collect();
-                if let [(x, _)] = parts.as_slice() {
-                    self.0.run(x, (h, w), y, pool.as_deref())?;
-                } else {
-                    self.0.run_concat(&parts, (h, w), y, pool.as_deref())?;
+        let y = crate::bands::output_tensor(&[n, self.0.c_out, ho, wo], |y| {
+            if c * h * w > 0 && ho * wo > 0 {
+                for (b, y) in y.chunks_exact_mut(self.0.c_out * ho * wo).enumerate() {
+                    let parts: TVec<(&[f32], usize)> = values
+                        .iter()
+                        .zip(&channels)
+                        .map(|(v, &ci)| (&v[b * ci * h * w..][..ci * h * w], ci))
+                        .collect();
+                    if let [(x, _)] = parts.as_slice() {
+                        self.0.run(x, (h, w), y, pool.as_deref())?;
+                    } else {
+                        self.0.run_concat(&parts, (h, w), y, pool.as_deref())?;
+                    }
                 }
             }
-        }
-        let output = tract_ndarray::ArrayD::from_shape_vec(vec![n, self.0.c_out, ho, wo], y)?;
-        Ok(tvec!(output.into_tensor().into_tvalue()))
+            Ok(())
+        })?;
+        Ok(tvec!(y))
     }
 }
 

@@ -369,14 +369,20 @@ impl EvalOp for Deconv2x2Op {
             .0
             .out_len(h, w)
             .ok_or_else(|| format_err!("output of {h}x{w} input overflows"))?;
-        let mut y = vec![0f32; n * plane];
-        if c * h * w > 0 && plane > 0 {
-            for (x, y) in x.chunks_exact(c * h * w).zip(y.chunks_exact_mut(plane)) {
-                self.0.run(x, (h, w), y, pool.as_deref())?;
+        let y = crate::bands::output_tensor(&[n, self.0.c_out, 2 * h, 2 * w], |y| {
+            ensure!(
+                y.len() == n * plane,
+                "output of {} values for {n} of {plane}",
+                y.len()
+            );
+            if c * h * w > 0 && plane > 0 {
+                for (x, y) in x.chunks_exact(c * h * w).zip(y.chunks_exact_mut(plane)) {
+                    self.0.run(x, (h, w), y, pool.as_deref())?;
+                }
             }
-        }
-        let output = tract_ndarray::ArrayD::from_shape_vec(vec![n, self.0.c_out, 2 * h, 2 * w], y)?;
-        Ok(tvec!(output.into_tensor().into_tvalue()))
+            Ok(())
+        })?;
+        Ok(tvec!(y))
     }
 }
 

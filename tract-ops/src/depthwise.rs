@@ -269,13 +269,13 @@ impl EvalOp for DepthwiseOutOp {
             self.0.channels
         );
         let x = x.try_as_plain_ram()?;
-        let mut y = vec![0f32; self.0.outs * h * w];
         let pool = crate::bands::tract_pool();
-        self.0
-            .run(x.as_slice::<f32>()?, (h, w), &mut y, pool.as_deref())
-            .map_err(|e| format_err!("{e}"))?;
-        let y = tract_ndarray::ArrayD::from_shape_vec(vec![1, self.0.outs, h, w], y)?;
-        Ok(tvec!(y.into_tensor().into_tvalue()))
+        let y = crate::bands::output_tensor(&[1, self.0.outs, h, w], |y| {
+            self.0
+                .run(x.as_slice::<f32>()?, (h, w), y, pool.as_deref())
+                .map_err(|e| format_err!("{e}"))
+        })?;
+        Ok(tvec!(y))
     }
 }
 

@@ -266,19 +266,19 @@ impl EvalOp for SubpixelOutOp {
             .iter()
             .map(|p| p.as_slice::<f32>())
             .collect::<TractResult<TVec<_>>>()?;
-        let mut y = vec![0f32; BLOCK * h * w];
         let pool = crate::bands::tract_pool();
-        self.0
-            .run(
-                coarse.as_slice::<f32>()?,
-                &values,
-                (h, w),
-                &mut y,
-                pool.as_deref(),
-            )
-            .map_err(|e| format_err!("{e}"))?;
-        let y = tract_ndarray::ArrayD::from_shape_vec(vec![1, 1, 2 * h, 2 * w], y)?;
-        Ok(tvec!(y.into_tensor().into_tvalue()))
+        let y = crate::bands::output_tensor(&[1, 1, 2 * h, 2 * w], |y| {
+            self.0
+                .run(
+                    coarse.as_slice::<f32>()?,
+                    &values,
+                    (h, w),
+                    y,
+                    pool.as_deref(),
+                )
+                .map_err(|e| format_err!("{e}"))
+        })?;
+        Ok(tvec!(y))
     }
 }
 
