@@ -524,21 +524,14 @@ pub fn use_spatial_attention(model: &mut TypedModel) -> TractResult<usize> {
             && !model.output_outlets()?.contains(&x);
         let pairs = scaled_sum(model, x).filter(|_| only_here);
         let attention = attention.of_scaled_sum(pairs.as_ref().map_or(0, |p| p.len()));
-        let mut patch = TypedModelPatch::default();
-        let mut wires = TVec::new();
-        match pairs {
-            Some(pairs) => {
-                for (x, g) in pairs {
-                    wires.push(patch.tap_model(model, x)?);
-                    wires.push(patch.tap_model(model, g)?);
-                }
-            }
-            None => wires.push(patch.tap_model(model, x)?),
-        }
-        wires.push(patch.tap_model(model, d)?);
-        let y = patch.wire_node(&node.name, SpatialAttentionOp(Arc::new(attention)), &wires)?;
-        patch.shunt_outside(model, OutletId::new(id, 0), y[0])?;
-        patch.apply(model)?;
+        let mut inputs: TVec<OutletId> = match pairs {
+            Some(pairs) => pairs.into_iter().flat_map(|(x, g)| [x, g]).collect(),
+            None => tvec![x],
+        };
+        inputs.push(d);
+        let name = node.name.clone();
+        let op = SpatialAttentionOp(Arc::new(attention));
+        crate::matching::replace(model, &name, op, &inputs, id, &[])?;
         replaced += 1;
     }
     Ok(replaced)
@@ -697,16 +690,9 @@ pub fn use_scaled_sums(model: &mut TypedModel) -> TractResult<usize> {
                     None => continue,
                 }
             };
-            let mut patch = TypedModelPatch::default();
-            let mut wires = TVec::new();
-            for &(x, g) in &pairs {
-                wires.push(patch.tap_model(model, x)?);
-                wires.push(patch.tap_model(model, g)?);
-            }
-            let op = ScaledSumOp { pairs: pairs.len() };
-            let y = patch.wire_node(&node.name, op, &wires)?;
-            patch.shunt_outside(model, OutletId::new(id, 0), y[0])?;
-            patch.apply(model)?;
+            let inputs: TVec<OutletId> = pairs.iter().flat_map(|&(x, g)| [x, g]).collect();
+            let (name, op) = (node.name.clone(), ScaledSumOp { pairs: pairs.len() });
+            crate::matching::replace(model, &name, op, &inputs, id, &[])?;
             replaced += 1;
         }
     }

@@ -1004,17 +1004,10 @@ pub fn use_conv3x3(
             conv
         }
         .with_precision(precision);
-        let mut patch = TypedModelPatch::default();
         let parts = concatenated(model, node.inputs[0])?.unwrap_or_else(|| tvec![node.inputs[0]]);
-        let xs = patch.taps(model, &parts)?;
-        let y = patch.wire_node(&node.name, Conv3x3Op(Arc::new(conv)), &xs)?;
-        let last = relu.unwrap_or(id);
-        patch.shunt_outside(model, OutletId::new(last, 0), y[0])?;
-        patch.obliterate(id)?;
-        if let Some(relu) = relu {
-            patch.obliterate(relu)?;
-        }
-        patch.apply(model)?;
+        let (name, op) = (node.name.clone(), Conv3x3Op(Arc::new(conv)));
+        let gone: TVec<usize> = std::iter::once(id).chain(relu).collect();
+        crate::matching::replace(model, &name, op, &parts, relu.unwrap_or(id), &gone)?;
         replaced += 1;
     }
     Ok(replaced)

@@ -473,16 +473,10 @@ pub fn use_deconv2x2(model: &mut TypedModel) -> TractResult<usize> {
         } else {
             deconv
         };
-        let mut patch = TypedModelPatch::default();
-        let x = patch.tap_model(model, node.inputs[0])?;
-        let y = patch.wire_node(&node.name, Deconv2x2Op(Arc::new(deconv)), &[x])?;
-        let last = relu.unwrap_or(id);
-        patch.shunt_outside(model, OutletId::new(last, 0), y[0])?;
-        patch.obliterate(id)?;
-        if let Some(relu) = relu {
-            patch.obliterate(relu)?;
-        }
-        patch.apply(model)?;
+        let (name, x) = (node.name.clone(), node.inputs[0]);
+        let op = Deconv2x2Op(Arc::new(deconv));
+        let gone: TVec<usize> = std::iter::once(id).chain(relu).collect();
+        crate::matching::replace(model, &name, op, &[x], relu.unwrap_or(id), &gone)?;
         replaced += 1;
     }
     Ok(replaced)

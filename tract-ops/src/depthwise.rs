@@ -331,11 +331,8 @@ pub fn use_depthwise_out(model: &mut TypedModel) -> TractResult<usize> {
         let Some((op, last)) = as_depthwise_out(model, node) else {
             continue;
         };
-        let mut patch = TypedModelPatch::default();
-        let x = patch.tap_model(model, node.inputs[0])?;
-        let y = patch.wire_node(&node.name, DepthwiseOutOp(Arc::new(op)), &[x])?;
-        patch.shunt_outside(model, OutletId::new(last, 0), y[0])?;
-        patch.apply(model)?;
+        let (name, x) = (node.name.clone(), node.inputs[0]);
+        crate::matching::replace(model, &name, DepthwiseOutOp(Arc::new(op)), &[x], last, &[])?;
         replaced += 1;
     }
     Ok(replaced)

@@ -98,3 +98,24 @@ pub(crate) fn only_reader(model: &TypedModel, node: &TypedNode) -> Option<usize>
     };
     (!model.output_outlets().ok()?.contains(&out)).then_some(next.node)
 }
+
+/// Puts a node computing `op` on `inputs`, named `name`, in `model` in place of the output of
+/// node `last` (what read that output reads the new node's), then removes the nodes in
+/// `obliterate`: the one rewrite every operator here makes.
+pub(crate) fn replace(
+    model: &mut TypedModel,
+    name: &str,
+    op: impl Into<Box<dyn TypedOp>>,
+    inputs: &[OutletId],
+    last: usize,
+    obliterate: &[usize],
+) -> TractResult<()> {
+    let mut patch = TypedModelPatch::default();
+    let taps = patch.taps(model, inputs)?;
+    let y = patch.wire_node(name, op, &taps)?;
+    patch.shunt_outside(model, OutletId::new(last, 0), y[0])?;
+    for &id in obliterate {
+        patch.obliterate(id)?;
+    }
+    patch.apply(model)
+}

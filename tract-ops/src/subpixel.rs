@@ -424,14 +424,8 @@ pub fn use_subpixel_out(model: &mut TypedModel) -> TractResult<usize> {
         let Some((op, inputs)) = as_subpixel_out(model, node) else {
             continue;
         };
-        let mut patch = TypedModelPatch::default();
-        let taps = inputs
-            .iter()
-            .map(|&i| patch.tap_model(model, i))
-            .collect::<TractResult<TVec<_>>>()?;
-        let y = patch.wire_node(&node.name, SubpixelOutOp(Arc::new(op)), &taps)?;
-        patch.shunt_outside(model, OutletId::new(id, 0), y[0])?;
-        patch.apply(model)?;
+        let name = node.name.clone();
+        crate::matching::replace(model, &name, SubpixelOutOp(Arc::new(op)), &inputs, id, &[])?;
         replaced += 1;
     }
     Ok(replaced)
