@@ -44,17 +44,50 @@ pub(crate) fn row_bands(
     bands
 }
 
-/// A new `f32` tensor of `shape`, zeroed, with `write` run on its values: an operator's output
-/// made where tract keeps it. tract holds a tensor's values in its own aligned buffer, so a `Vec`
-/// made into a tensor is copied (`Tensor::from_datum`): with the page faults of the second
-/// buffer, about 1 ms a frame of `neuspike-spike-8-lite` in 8 bits on one thread.
+/// The output tensors of the last frames, kept to be written again: an operator's output of the
+/// same shape that nothing else holds any more (tract dropped it after the frame) is taken
+/// again instead of a new zeroed one, whose zeroing and page faults took about 9% of
+/// `neuspike-spike-8-lite`'s frame in 8 bits on one thread. The oldest go first past
+/// [`KEPT_BYTES`].
+static KEPT: std::sync::Mutex<Vec<Arc<tract_onnx::prelude::Tensor>>> =
+    std::sync::Mutex::new(Vec::new());
+
+/// The most bytes of output tensors [`KEPT`] holds: 256 MiB (every intermediate of the largest
+/// shipped network at 256x400 takes about 100).
+pub(crate) const KEPT_BYTES: usize = 256 << 20;
+
+/// An `f32` tensor of `shape` with `write` run on its values, which are those of a kept tensor
+/// (see [`KEPT`]) or zeros: `write` must set every value (each operator's tests fill its
+/// output with NaN first and compare every value). It is made where tract keeps a
+/// tensor's values: a `Vec` made into a tensor is copied into tract's own aligned buffer
+/// (`Tensor::from_datum`), which with the page faults of the second buffer took about 1 ms a
+/// frame of `neuspike-spike-8-lite` in 8 bits on one thread.
 pub(crate) fn output_tensor(
     shape: &[usize],
     write: impl FnOnce(&mut [f32]) -> tract_onnx::prelude::TractResult<()>,
 ) -> tract_onnx::prelude::TractResult<tract_onnx::prelude::TValue> {
-    use tract_onnx::prelude::*;
-    let mut t = Tensor::zero::<f32>(shape)?;
-    write(t.try_as_plain_ram_mut()?.as_slice_mut::<f32>()?)?;
+    use tract_onnx::tract_core::internal::*;
+    let kept = {
+        let mut kept = KEPT.lock().unwrap_or_else(|e| e.into_inner());
+        let free = kept
+            .iter_mut()
+            .position(|t| t.shape() == shape && Arc::get_mut(t).is_some());
+        free.map(|i| kept.remove(i))
+    };
+    let mut t = match kept {
+        Some(t) => t,
+        None => Arc::new(Tensor::zero::<f32>(shape)?),
+    };
+    let Some(tensor) = Arc::get_mut(&mut t) else {
+        bail!("an output tensor held elsewhere");
+    };
+    write(tensor.try_as_plain_ram_mut()?.as_slice_mut::<f32>()?)?;
+    let mut kept = KEPT.lock().unwrap_or_else(|e| e.into_inner());
+    kept.push(t.clone());
+    let bytes = |k: &[Arc<Tensor>]| k.iter().map(|t| t.len() * 4).sum::<usize>();
+    while kept.len() > 1 && bytes(&kept) > KEPT_BYTES {
+        kept.remove(0);
+    }
     Ok(t.into_tvalue())
 }
 
