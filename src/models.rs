@@ -22,6 +22,10 @@ const SHIPPED: &[(&str, &[u8])] = &[
         include_bytes!("../models/neuspike-fused-8.onnx"),
     ),
     (
+        "neuspike-fused-8-lite.onnx",
+        include_bytes!("../models/neuspike-fused-8-lite.onnx"),
+    ),
+    (
         "neuspike-fused-8-anycam.onnx",
         include_bytes!("../models/neuspike-fused-8-anycam.onnx"),
     ),
