@@ -11,6 +11,7 @@ use eyre::WrapErr;
 use ndarray::Array3;
 
 use neuspike_reconstruction::learned::{ConvPath, LearnedModel, NodeTime, Precision, set_threads};
+use neuspike_simd::bf16::Bf16Path;
 use neuspike_simd::dot::DotPath;
 
 /// Latency at one thread count.
@@ -30,15 +31,14 @@ pub struct Timing {
     pub precision: Precision,
 }
 
-/// Every precision and path this CPU runs, `f32` first.
+/// Every precision and path this CPU runs, `f32` first, then `bf16`'s and the 8-bit ones,
+/// narrowest first.
 pub fn every_precision() -> Vec<Precision> {
+    let bf16 = Bf16Path::ALL.into_iter().filter(|p| p.is_supported());
+    let int8 = DotPath::ALL.into_iter().filter(|p| p.is_supported());
     std::iter::once(Precision::F32)
-        .chain(
-            DotPath::ALL
-                .into_iter()
-                .filter(|p| p.is_supported())
-                .map(Precision::Int8),
-        )
+        .chain(bf16.map(Precision::Bf16))
+        .chain(int8.map(Precision::Int8))
         .collect()
 }
 

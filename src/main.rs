@@ -176,9 +176,10 @@ enum Command {
         /// fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
         #[arg(long, default_value = "auto")]
         conv: neuspike_reconstruction::learned::ConvPath,
-        /// Precisions of the 3x3 convolutions to time side by side, comma-separated: f32, int8
-        /// (the widest 8-bit path this CPU has, as the infer node runs it), int8-portable,
-        /// int8-vnni, int8-amx; by default every one this CPU runs. Ratios are against the first.
+        /// Precisions of the 3x3 convolutions to time side by side, comma-separated: f32, bf16
+        /// or int8 (the widest such path this CPU has, as the infer node runs it),
+        /// bf16-portable, bf16-avx512, int8-portable, int8-vnni, int8-amx; by default every one
+        /// this CPU runs. Ratios are against the first.
         #[arg(long, value_delimiter = ',')]
         precision: Vec<neuspike_reconstruction::learned::Precision>,
     },
@@ -493,9 +494,10 @@ fn run(cli: Cli) -> eyre::Result<()> {
                 precision
             };
             println!(
-                "{}: {height}x{width}; this CPU: {}, int8 on {}",
+                "{}: {height}x{width}; this CPU: {}, bf16 on {}, int8 on {}",
                 model.display(),
                 neuspike_simd::detect().name(),
+                neuspike_simd::bf16::detect().name(),
                 neuspike_simd::dot::detect().name()
             );
             let mut first: Option<Vec<neuspike::bench_model::Timing>> = None;

@@ -71,10 +71,11 @@ pub fn detect() -> DotPath {
 
 /// The inputs of [`accumulate`]: tap `t` of point `i` reads the word `rows[offsets[t] + i]`
 /// (four unsigned bytes) with, for output channel `o` of group `g`, the word
-/// `weights[g * group_stride + OUTS t + o]` (four signed bytes).
+/// `weights[g * group_stride + OUTS t + o]` (four signed bytes). [`crate::bf16::accumulate`]
+/// reads the same words as two `bf16` each.
 #[derive(Clone, Copy, Debug)]
-pub struct ByteTaps<'a> {
-    /// The values the taps read, a word of four channels per point.
+pub struct WordTaps<'a> {
+    /// The values the taps read, a word of several channels per point.
     pub rows: &'a [u32],
     /// Where each tap's run of points starts in `rows`.
     pub offsets: &'a [usize],
@@ -84,7 +85,7 @@ pub struct ByteTaps<'a> {
     pub group_stride: usize,
 }
 
-/// Four bytes as the word [`ByteTaps`] reads: byte `j` in bits `8j..8j + 8`.
+/// Four bytes as the word [`WordTaps`] reads: byte `j` in bits `8j..8j + 8`.
 #[inline(always)]
 pub fn word(bytes: [u8; 4]) -> u32 {
     u32::from_le_bytes(bytes)
@@ -92,7 +93,7 @@ pub fn word(bytes: [u8; 4]) -> u32 {
 
 /// For every group `g < groups`, output channel `o < OUTS` and point `i < width`, adds to
 /// `out[(OUTS g + o) out_stride + i]` every tap's four products of a value byte (unsigned) and a
-/// weight (signed), see [`ByteTaps`], wrapping modulo 2^32. A sum stays exact while the taps
+/// weight (signed), see [`WordTaps`], wrapping modulo 2^32. A sum stays exact while the taps
 /// times 4 x 255 x 128 stays below 2^31 (more than 16,000 taps).
 ///
 /// Runs on `path` or the widest path below it this CPU has.
@@ -102,13 +103,13 @@ pub fn word(bytes: [u8; 4]) -> u32 {
 /// slice (checked before any work).
 pub fn accumulate(
     path: DotPath,
-    taps: &ByteTaps,
+    taps: &WordTaps,
     out: &mut [i32],
     out_stride: usize,
     groups: usize,
     width: usize,
 ) {
-    let ByteTaps {
+    let WordTaps {
         rows,
         offsets,
         weights,
@@ -446,7 +447,7 @@ mod amx {
 
 /// The definition, in plain loops.
 #[inline(always)]
-fn portable(taps: &ByteTaps, out: &mut [i32], out_stride: usize, groups: usize, width: usize) {
+fn portable(taps: &WordTaps, out: &mut [i32], out_stride: usize, groups: usize, width: usize) {
     for g in 0..groups {
         for o in 0..OUTS {
             let dst = &mut out[(OUTS * g + o) * out_stride..][..width];
@@ -593,7 +594,7 @@ mod tests {
                 }
             }
             let (rows, weights) = (words(&rows), words(&weights));
-            let taps = ByteTaps {
+            let taps = WordTaps {
                 rows: &rows,
                 offsets: &offsets,
                 weights: &weights,
@@ -611,7 +612,7 @@ mod tests {
     #[should_panic(expected = "taps reach")]
     fn a_tap_past_its_rows_is_refused() {
         let rows = vec![0; 40];
-        let taps = ByteTaps {
+        let taps = WordTaps {
             rows: &rows,
             offsets: &[0, 30],
             weights: &[0; 8],
@@ -623,7 +624,7 @@ mod tests {
     #[test]
     #[should_panic(expected = "weights reach")]
     fn weights_past_their_slice_are_refused() {
-        let taps = ByteTaps {
+        let taps = WordTaps {
             rows: &[0; 64],
             offsets: &[0, 0],
             weights: &[0; 4],

@@ -7,7 +7,8 @@
 //! is both portable and fast. The one loop that needs more accumulators than the vectoriser
 //! keeps in registers, [`taps::accumulate`] (a convolution's inner loop), is written here with
 //! each instruction set's intrinsics, its bounds checked before the loop, and so is its 8-bit
-//! counterpart [`dot::accumulate`] (AVX-512 VNNI, where the CPU has it: [`dot::detect`]); so is the loop of
+//! counterpart [`dot::accumulate`] (AVX-512 VNNI, where the CPU has it: [`dot::detect`]) and its `bf16`
+//! one [`bf16::accumulate`] (AVX-512 BF16: [`bf16::detect`]); so is the loop of
 //! loads at computed indices the vectoriser leaves scalar, [`gather::bilinear`] (a renderer's
 //! texture samples), its indices clamped inside the image; and packing 64 flags into a word,
 //! [`bits::Pack64`], which the vectoriser does with a multiply per eight flags where AVX-512 has one
@@ -29,6 +30,7 @@
 //! C library's exact `fmaf` on [`Isa::Baseline`] (slow, but the same bits).
 #![deny(missing_docs)]
 
+pub mod bf16;
 pub mod bits;
 pub mod dot;
 pub mod fastmath;

@@ -63,6 +63,19 @@ fn bench_shape(
             })
         });
     }
+    // In `bf16`, on each path this CPU runs (the input converted as it is read).
+    for path in neuspike_simd::bf16::Bf16Path::ALL
+        .into_iter()
+        .filter(|p| p.is_supported())
+    {
+        let bf16 = conv.clone().with_precision(Precision::Bf16(path));
+        group.bench_function(format!("neuspike-bf16-{}", path.name()), |b| {
+            b.iter(|| {
+                bf16.run(black_box(&input), (h, w), &mut output, None)
+                    .expect("runs")
+            })
+        });
+    }
     // The same into the same output on two threads: how well the bands scale, page faults apart.
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)

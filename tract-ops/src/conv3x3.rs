@@ -26,9 +26,11 @@
 use std::sync::Arc;
 
 use ndarray::{Array3, ArrayView3, ArrayView4};
+use neuspike_simd::bf16::Bf16Path;
 use neuspike_simd::dot::DotPath;
 use neuspike_simd::taps::{self, POINTS, Taps};
 
+pub mod bf16;
 pub mod int8;
 use tract_onnx::prelude::*;
 use tract_onnx::tract_core::internal::*;
@@ -59,6 +61,9 @@ pub struct Conv3x3 {
     /// `[c_out][9][quads * 4]`: for an output channel and a tap, the weights of every input
     /// channel side by side, channels past `c_in` 0 (what [`int8`] quantises each call).
     by_tap: Vec<f32>,
+    /// The weights in `bf16` as [`bf16`] reads them (empty unless the precision is
+    /// [`Precision::Bf16`]).
+    bf16: Vec<u32>,
     bias: Vec<f32>,
     /// Whether the output goes through `max(0, y)` (a ReLU after the convolution).
     relu: bool,
@@ -67,13 +72,16 @@ pub struct Conv3x3 {
 }
 
 /// How a [`Conv3x3`] computes: in `f32` (the reference every other precision is tested
-/// against), or in 8 bits ([`int8`]: each frame's input quantised per channel, the weights per
+/// against), in `bf16` ([`bf16`]: inputs and weights rounded to 8 significant bits, sums in
+/// `f32`), or in 8 bits ([`int8`]: each frame's input quantised per channel, the weights per
 /// output channel, sums in 32-bit integers).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Precision {
     /// `f32` fused multiply-adds.
     #[default]
     F32,
+    /// `bf16` inputs by `bf16` weights, summed in `f32`, on the [`Bf16Path`] named.
+    Bf16(Bf16Path),
     /// Unsigned 8-bit inputs by signed 8-bit weights, on the [`DotPath`] named.
     Int8(DotPath),
 }
@@ -83,37 +91,61 @@ impl Precision {
     pub fn int8() -> Precision {
         Precision::Int8(neuspike_simd::dot::detect())
     }
+
+    /// `bf16` on the widest path this CPU has.
+    pub fn bf16() -> Precision {
+        Precision::Bf16(neuspike_simd::bf16::detect())
+    }
 }
 
-/// The name [`Precision`]'s `FromStr` reads back: `f32`, or `int8-<path>` (`int8-amx`, ...).
+/// The name [`Precision`]'s `FromStr` reads back: `f32`, `bf16-<path>` (`bf16-avx512`, ...)
+/// or `int8-<path>` (`int8-amx`, ...).
 impl std::fmt::Display for Precision {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Precision::F32 => f.write_str("f32"),
+            Precision::Bf16(path) => write!(f, "bf16-{}", path.name()),
             Precision::Int8(path) => write!(f, "int8-{}", path.name()),
         }
     }
 }
 
-/// `f32`; `int8`, the widest 8-bit path this CPU has ([`Precision::int8`]); or an 8-bit path by
-/// name, `int8-portable`, `int8-vnni` or `int8-amx`, refused where this CPU does not run it.
+/// `f32`; `bf16` or `int8`, the widest such path this CPU has ([`Precision::bf16`],
+/// [`Precision::int8`]); or a path by name, `bf16-portable`, `bf16-avx512`, `int8-portable`,
+/// `int8-vnni` or `int8-amx`, refused where this CPU does not run it.
 impl std::str::FromStr for Precision {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
             "f32" => return Ok(Precision::F32),
+            "bf16" => return Ok(Precision::bf16()),
             "int8" => return Ok(Precision::int8()),
             _ => {}
+        }
+        let unknown = || {
+            format!(
+                "precision `{s}`: expected f32, bf16, bf16-portable, bf16-avx512, int8, \
+                 int8-portable, int8-vnni or int8-amx"
+            )
+        };
+        let missing = |name: &str| format!("precision `{s}`: this CPU has no {name}");
+        if let Some(name) = s.strip_prefix("bf16-") {
+            let path = Bf16Path::ALL
+                .into_iter()
+                .find(|p| p.name() == name)
+                .ok_or_else(unknown)?;
+            return match path.is_supported() {
+                true => Ok(Precision::Bf16(path)),
+                false => Err(missing("AVX-512 BF16")),
+            };
         }
         let path = s
             .strip_prefix("int8-")
             .and_then(|name| DotPath::ALL.into_iter().find(|p| p.name() == name))
-            .ok_or_else(|| {
-                format!("precision `{s}`: expected f32, int8, int8-portable, int8-vnni or int8-amx")
-            })?;
+            .ok_or_else(unknown)?;
         if !path.is_supported() {
-            return Err(format!("precision `{s}`: this CPU has no {}", path.name()));
+            return Err(missing(path.name()));
         }
         Ok(Precision::Int8(path))
     }
@@ -210,6 +242,7 @@ impl Conv3x3 {
             stride,
             packed,
             by_tap,
+            bf16: Vec::new(),
             bias,
             relu: false,
             precision: Precision::F32,
@@ -223,7 +256,15 @@ impl Conv3x3 {
 
     /// The same convolution computed in `precision`.
     pub fn with_precision(self, precision: Precision) -> Conv3x3 {
-        Conv3x3 { precision, ..self }
+        let bf16 = match precision {
+            Precision::Bf16(_) => self.bf16_weights(),
+            _ => Vec::new(),
+        };
+        Conv3x3 {
+            precision,
+            bf16,
+            ..self
+        }
     }
 
     /// How it computes.
@@ -472,8 +513,14 @@ impl Conv3x3 {
         if ho == 0 || wo == 0 {
             return;
         }
-        if let Precision::Int8(path) = self.precision {
-            return self.drive_int8(isa, path, input, (h, w), output, pool);
+        match self.precision {
+            Precision::Int8(path) => {
+                return self.drive_int8(isa, path, input, (h, w), output, pool);
+            }
+            Precision::Bf16(path) => {
+                return self.drive_bf16(isa, path, input, (h, w), output, pool);
+            }
+            Precision::F32 => {}
         }
         let rows = crate::bands::band_rows(ho, pool);
         let tasks = crate::bands::row_bands(output, ho * wo, wo, rows);

@@ -151,13 +151,23 @@ impl std::str::FromStr for ConvPath {
 /// `neuspike-spike-8.onnx` with `--precision int8` (the trade bench's and `auto`'s name for it).
 pub const INT8_SUFFIX: &str = "-int8";
 
+/// The suffix of a network method run in `bf16`: `neuspike-spike-8-bf16` is
+/// `neuspike-spike-8.onnx` with `--precision bf16`.
+pub const BF16_SUFFIX: &str = "-bf16";
+
 /// A network method's name as its file's stem and the precision it runs in (see
-/// [`INT8_SUFFIX`]).
+/// [`INT8_SUFFIX`], [`BF16_SUFFIX`]; the widest path of that precision this CPU has).
 pub fn network_variant(name: &str) -> (&str, Precision) {
-    match name.strip_suffix(INT8_SUFFIX) {
-        Some(stem) if !stem.is_empty() => (stem, Precision::int8()),
-        _ => (name, Precision::F32),
+    for (suffix, precision) in [
+        (INT8_SUFFIX, Precision::int8()),
+        (BF16_SUFFIX, Precision::bf16()),
+    ] {
+        match name.strip_suffix(suffix) {
+            Some(stem) if !stem.is_empty() => return (stem, precision),
+            _ => {}
+        }
     }
+    (name, Precision::F32)
 }
 
 /// Runs of each candidate plan [`ConvPath::Auto`] times (the fastest counts: the machines here

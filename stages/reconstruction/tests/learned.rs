@@ -476,46 +476,54 @@ fn reused_input_tensors_never_leak_one_frame_into_the_next() {
     assert_eq!(run(&mut model, &a3), first);
 }
 
-/// In 8 bits, every shipped network gives nearly the `f32` image on its reference input widened
-/// so that every layer runs neuspike's kernels: the PSNR of the 8-bit image against the `f32`
-/// one, peak the `f32` image's largest value, at least [`INT8_PSNR_DB`]. The accuracy that counts
-/// (against the ground truth, on the held-out scenes) is in each model's card.
+/// In 8 bits and in `bf16`, every shipped network gives nearly the `f32` image on its reference
+/// input widened so that every layer runs neuspike's kernels: the PSNR of the image against the
+/// `f32` one, peak the `f32` image's largest value, at least 45 dB in 8 bits and
+/// `BF16_PSNR_DB` in `bf16`. The accuracy that counts (against the ground truth, on the held-out
+/// scenes) is in each model's card.
 #[test]
-fn in_8_bits_every_shipped_network_stays_close_to_its_f32_image() {
+fn in_8_bits_and_bf16_every_shipped_network_stays_close_to_its_f32_image() {
     /// The least PSNR of an 8-bit image against the `f32` one.
     const INT8_PSNR_DB: f64 = 45.0;
+    /// The least PSNR of a `bf16` image against the `f32` one.
+    const BF16_PSNR_DB: f64 = 55.0;
     for path in shipped() {
         let wide = wide_reference_inputs(&path);
         let views: Vec<ArrayView3<f32>> = wide.iter().map(|a| a.view()).collect();
         let mut model = LearnedModel::load(&path).expect("load");
         let exact = model.run(&views).expect("f32 run");
-        model.set_precision(Precision::int8());
-        let ops: Vec<String> = model
-            .profile(&views)
-            .expect("profile")
-            .into_iter()
-            .map(|t| t.op)
-            .collect();
-        assert!(
-            ops.iter().filter(|op| *op == "NeuspikeConv3x3").count() >= 3,
-            "{}: {ops:?}",
-            path.display()
-        );
-        let int8 = model.run(&views).expect("int8 run");
-        let peak = exact.iter().fold(0f32, |m, &v| m.max(v.abs())) as f64;
-        let mse = exact
-            .iter()
-            .zip(&int8)
-            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
-            .sum::<f64>()
-            / exact.len() as f64;
-        let psnr = 10.0 * (peak * peak / mse.max(f64::MIN_POSITIVE)).log10();
-        eprintln!("{}: int8 against f32 {psnr:.2} dB", path.display());
-        assert!(
-            psnr >= INT8_PSNR_DB,
-            "{}: int8 against f32 {psnr:.2} dB",
-            path.display()
-        );
+        for (precision, least) in [
+            (Precision::int8(), INT8_PSNR_DB),
+            (Precision::bf16(), BF16_PSNR_DB),
+        ] {
+            model.set_precision(precision);
+            let ops: Vec<String> = model
+                .profile(&views)
+                .expect("profile")
+                .into_iter()
+                .map(|t| t.op)
+                .collect();
+            assert!(
+                ops.iter().filter(|op| *op == "NeuspikeConv3x3").count() >= 3,
+                "{}: {ops:?}",
+                path.display()
+            );
+            let got = model.run(&views).expect("run");
+            let peak = exact.iter().fold(0f32, |m, &v| m.max(v.abs())) as f64;
+            let mse = exact
+                .iter()
+                .zip(&got)
+                .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+                .sum::<f64>()
+                / exact.len() as f64;
+            let psnr = 10.0 * (peak * peak / mse.max(f64::MIN_POSITIVE)).log10();
+            eprintln!("{}: {precision} against f32 {psnr:.2} dB", path.display());
+            assert!(
+                psnr >= least,
+                "{}: {precision} against f32 {psnr:.2} dB",
+                path.display()
+            );
+        }
     }
 }
 
@@ -552,6 +560,11 @@ fn an_8_bit_method_is_its_networks_file_in_8_bits() {
         network_variant("neuspike-spike-8"),
         ("neuspike-spike-8", Precision::F32)
     );
+    assert_eq!(
+        network_variant("neuspike-fused-8-bf16"),
+        ("neuspike-fused-8", Precision::bf16())
+    );
     // The suffix alone names no network.
     assert_eq!(network_variant("-int8"), ("-int8", Precision::F32));
+    assert_eq!(network_variant("-bf16"), ("-bf16", Precision::F32));
 }

@@ -25,7 +25,7 @@
 //! output channel whose scaled weights are all 0, or beyond `f32`'s range, gives its bias. The
 //! 32-bit sums are exact up to [`MAX_CHANNELS`] input channels.
 
-use neuspike_simd::dot::{self, ByteTaps};
+use neuspike_simd::dot::{self, WordTaps};
 
 use super::*;
 
@@ -619,7 +619,7 @@ impl Conv3x3 {
                             offsets.extend(Self::taps::<S>(at, len));
                         }
                     }
-                    let taps = ByteTaps {
+                    let taps = WordTaps {
                         rows: scratch,
                         offsets,
                         weights: &plan.words[q0 * TAPS * OUTS..],
