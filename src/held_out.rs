@@ -1,7 +1,7 @@
 //! `neuspike evaluate`: methods scored on a held-out `neuspike dataset` set, as
 //! `training/evaluate.py` scores them, with tract running the networks as the infer node does
-//! (and in 8 bits: `<name>-int8`), so a precision's cost in accuracy is measured on the same
-//! samples without PyTorch or onnxruntime.
+//! (and in 8 bits or bf16: `<name>-int8`, `<name>-bf16`), so a precision's cost in accuracy is
+//! measured on the same samples without PyTorch or onnxruntime.
 //!
 //! Per sample: the method's luminance (a network's rate times the sample's `lum_per_rate`,
 //! clipped to [0, 1] by the infer node's own conversion; TFP and TFI as the set holds them),
@@ -22,7 +22,8 @@ pub struct EvaluateOptions {
     #[arg(long)]
     pub test: PathBuf,
     /// Methods, comma-separated: `tfp` and `tfi` (the set's own), and networks by file stem in
-    /// `--models` (`neuspike-spike-8`), in 8 bits with `-int8` (`neuspike-spike-8-int8`).
+    /// `--models` (`neuspike-spike-8`), in 8 bits with `-int8` (`neuspike-spike-8-int8`), in bf16
+    /// with `-bf16`.
     #[arg(long, value_delimiter = ',', default_value = "tfp,tfi")]
     pub methods: Vec<String>,
     /// The folder of the networks.

@@ -118,7 +118,8 @@ enum Command {
     Dataset(neuspike::dataset::DatasetOptions),
     /// Score methods on a held-out `neuspike dataset` set as training/evaluate.py does (PSNR
     /// and SSIM, normal and complex scenes, per light scale), the networks run by tract as the
-    /// infer node runs them, in 8 bits too (`<name>-int8`): what a precision costs in accuracy.
+    /// infer node runs them, in 8 bits and bf16 too (`<name>-int8`, `<name>-bf16`): what a
+    /// precision costs in accuracy.
     Evaluate(neuspike::held_out::EvaluateOptions),
     /// Run the DVS on a sequence of intensity frames (a float32 [T, H, W] .npy), as v2e runs
     /// its emulator on video frames: events as text, and a one-line JSON summary (counts and

@@ -11,12 +11,13 @@ use eyre::{WrapErr, bail, eyre};
 use ndarray::Array2;
 use neuspike_align::{AlignConfig, AlignStage};
 use neuspike_event_camera::{DvsConfig, EventCamera};
-use neuspike_reconstruction::learned::{INT8_SUFFIX, LearnedModel, Precision};
+use neuspike_reconstruction::learned::{BF16_SUFFIX, INT8_SUFFIX, LearnedModel, Precision};
 use neuspike_reconstruction::{EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor};
 use neuspike_representations::{RepresentConfig, Representer, WindowStats};
 use neuspike_schemas::{
     AlignedWindow, EventBatch, RepresentationKind, SpikeChunk, bytes_per_plane,
 };
+use neuspike_simd::bf16::Bf16Path;
 use neuspike_simd::dot::DotPath;
 use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 use neuspike_stage::{Chain, Msg, MsgType, Replay};
@@ -96,17 +97,18 @@ impl MethodSpec {
         })
     }
 
-    /// The same network in 8 bits, named with [`INT8_SUFFIX`]; `None` for a classical method.
-    pub fn int8(&self) -> Option<MethodSpec> {
+    /// The same network in `precision`, named with `suffix` ([`INT8_SUFFIX`],
+    /// [`BF16_SUFFIX`]); `None` for a classical method.
+    pub fn in_precision(&self, suffix: &str, precision: Precision) -> Option<MethodSpec> {
         let Recon::Network { path, inputs, .. } = &self.recon else {
             return None;
         };
         Some(MethodSpec {
-            name: format!("{}{INT8_SUFFIX}", self.name),
+            name: format!("{}{suffix}", self.name),
             recon: Recon::Network {
                 path: path.clone(),
                 inputs: inputs.clone(),
-                precision: Precision::int8(),
+                precision,
             },
             ..self.clone()
         })
@@ -201,7 +203,8 @@ impl MethodSpec {
 
 /// The methods the bench compares: TFP over 8, 33, 128 and 256 planes, TFI, TFSTP, HF, CF, the
 /// physics fusion on ISIs (Eq. 5-7) and on TFP rates (`fusion-tfp`), and every network in `models` (`*.onnx`, by name),
-/// each also in 8 bits (`<name>-int8`) where this CPU runs 8 bits faster than `f32` (VNNI or AMX).
+/// each also in 8 bits (`<name>-int8`) where this CPU runs 8 bits faster than `f32` (VNNI or AMX)
+/// and in `bf16` (`<name>-bf16`) where it does so (AVX-512 BF16).
 ///
 /// # Errors
 /// A network that does not load.
@@ -233,15 +236,24 @@ pub fn methods(models: &Path) -> eyre::Result<Vec<MethodSpec>> {
             models.display()
         );
     }
-    // The 8-bit variants where this CPU has a path that pays (VNNI or AMX; plain loops are
-    // slower than `f32`).
-    let int8 = Precision::int8() != Precision::Int8(DotPath::Portable);
+    // The variants where this CPU has a path that pays (VNNI or AMX; AVX-512 BF16; plain loops
+    // are slower than `f32`).
+    let mut variants = Vec::new();
+    if Precision::bf16() != Precision::Bf16(Bf16Path::Portable) {
+        variants.push((BF16_SUFFIX, Precision::bf16()));
+    }
+    if Precision::int8() != Precision::Int8(DotPath::Portable) {
+        variants.push((INT8_SUFFIX, Precision::int8()));
+    }
     for f in files {
         let spec =
             MethodSpec::network(&f).wrap_err_with(|| format!("--models {}", models.display()))?;
-        let variant = spec.int8().filter(|_| int8);
+        let more: Vec<MethodSpec> = variants
+            .iter()
+            .filter_map(|&(suffix, p)| spec.in_precision(suffix, p))
+            .collect();
         out.push(spec);
-        out.extend(variant);
+        out.extend(more);
     }
     Ok(out)
 }

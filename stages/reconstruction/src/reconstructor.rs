@@ -32,10 +32,12 @@ pub struct InferConfig {
     /// size, keep the fastest), direct, im2col or blocked (neuspike's 3x3 kernel on wide rows).
     #[arg(long, default_value = "auto")]
     pub conv: ConvPath,
-    /// learned: the precision of the 3x3 convolutions: f32, or int8 (each frame's input
-    /// quantised per channel, on the widest 8-bit path this CPU has: AMX tiles, AVX-512 VNNI,
-    /// or plain loops; int8-amx, int8-vnni or int8-portable names one). The other operators
-    /// stay f32; neuspike's kernels only, so --conv auto or blocked.
+    /// learned: the precision of the 3x3 convolutions: f32; bf16 (inputs and weights rounded
+    /// to bf16, sums in f32, on AVX-512 BF16 or plain loops; bf16-avx512 or bf16-portable names
+    /// one); or int8 (each frame's input quantised per channel, on the widest 8-bit path this
+    /// CPU has: AMX tiles, AVX-512 VNNI, or plain loops; int8-amx, int8-vnni or int8-portable
+    /// names one). The other operators stay f32; neuspike's kernels only, so --conv auto or
+    /// blocked.
     #[arg(long, default_value = "f32")]
     pub precision: crate::learned::Precision,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).
@@ -228,7 +230,16 @@ impl InferConfig {
         };
         let mut model = LearnedModel::load(path)?;
         model.set_conv_path(self.conv);
-        model.set_precision(self.precision);
+        let precision = effective_precision(self.precision);
+        if precision != self.precision {
+            tracing::warn!(
+                model = %path.display(),
+                "--precision {}: this CPU has no vector path for it (8 bits: AVX-512 VNNI or AMX; \
+                 bf16: AVX-512 BF16), and plain loops are slower than f32: running f32",
+                self.precision
+            );
+        }
+        model.set_precision(precision);
         for i in model.inputs() {
             if !has(i.input_id()) {
                 return Err(InferError::Wiring(format!(
@@ -634,8 +645,44 @@ fn learned(
     Ok((t_ref_ns, data))
 }
 
+/// The precision a stage runs for the one asked: `f32` in place of a reduced precision this CPU
+/// has only plain loops for (they are slower than `f32`: any CPU but an x86-64 with AVX-512
+/// VNNI or AMX for 8 bits, AVX-512 BF16 for `bf16`); `bench-model` still times those loops.
+pub fn effective_precision(asked: crate::learned::Precision) -> crate::learned::Precision {
+    use crate::learned::Precision;
+    match asked {
+        Precision::Int8(neuspike_simd::dot::DotPath::Portable)
+        | Precision::Bf16(neuspike_simd::bf16::Bf16Path::Portable) => Precision::F32,
+        p => p,
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    use super::effective_precision;
+    use crate::learned::Precision;
+    use neuspike_simd::{bf16::Bf16Path, dot::DotPath};
+
+    #[test]
+    fn plain_loops_in_a_reduced_precision_run_f32() {
+        assert_eq!(
+            effective_precision(Precision::Int8(DotPath::Portable)),
+            Precision::F32
+        );
+        assert_eq!(
+            effective_precision(Precision::Bf16(Bf16Path::Portable)),
+            Precision::F32
+        );
+        for p in [
+            Precision::F32,
+            Precision::Int8(DotPath::Vnni),
+            Precision::Int8(DotPath::Amx),
+            Precision::Bf16(Bf16Path::Avx512),
+        ] {
+            assert_eq!(effective_precision(p), p);
+        }
+    }
+
     use super::*;
     use ndarray::Array3;
 
