@@ -3,7 +3,7 @@
 //!
 //! | module | operator | replaces |
 //! |---|---|---|
-//! | [`conv3x3`] | 3x3 convolution, pad 1, stride 1 or 2, its ReLU and a preceding channel concatenation taken in; an input's first convolution run on the input where it lies, its edge padding read in place; in `f32` or 8 bits ([`conv3x3::int8`]) | tract's direct convolution, or im2col and a matrix product |
+//! | [`conv3x3`] | 3x3 convolution, pad 1, stride 1 or 2, its ReLU and a preceding channel concatenation taken in; an input's first convolution run on the input where it lies, its edge padding read in place; in `f32`, `bf16` ([`conv3x3::bf16`]) or 8 bits ([`conv3x3::int8`]) | tract's direct convolution, or im2col and a matrix product |
 //! | [`deconv2x2`] | 2x2 stride-2 transposed convolution and its ReLU | a matrix product and a one-thread scatter (`DeconvSum`) |
 //! | [`depthwise`] | the networks' last layers: 3x3 depthwise convolution, 1x1 convolution and sigmoid, in one pass | a one-thread depthwise convolution, a packing and a matrix product |
 //! | [`subpixel`] | the last layers of a network whose decoder stops at half resolution: the sub-pixel shuffle of its output, the 1x1 convolutions of the head features added to it, and the sigmoid, in one pass | a four-step shuffle, a packing and a matrix product per head, a sum and a sigmoid |

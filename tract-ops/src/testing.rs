@@ -11,6 +11,17 @@ pub(crate) fn pattern(n: usize, seed: u32) -> Vec<f32> {
         .collect()
 }
 
+/// `n` inputs of a layer as the networks' are, from [`pattern`] and `seed`: after a ReLU (0 and
+/// above) for `kind % 3 == 0`, signed for 1, spikes (0 or 1) for 2.
+pub(crate) fn layer_input(n: usize, seed: u32, kind: u32) -> Vec<f32> {
+    let v = pattern(n, seed);
+    match kind % 3 {
+        0 => v.into_iter().map(|x| x.max(0.0) * 3.0).collect(),
+        1 => v,
+        _ => v.into_iter().map(|x| f32::from(x > 0.6)).collect(),
+    }
+}
+
 /// The networks' 3x3 layers the convolution tests run at: `(c_in, c_out, stride, (h, w))`
 /// (the head at full width, a half-width layer, the deepest at 50 wide, the stride-2 ones).
 pub(crate) const NETWORK_LAYERS: [(usize, usize, usize, (usize, usize)); 5] = [

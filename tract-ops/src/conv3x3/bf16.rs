@@ -222,17 +222,7 @@ thread_local! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{conv, pattern, runs_give};
-
-    /// Inputs as the networks' are: after a ReLU (0 and above), or signed, or spikes (0 or 1).
-    fn input(n: usize, seed: u32, kind: u32) -> Vec<f32> {
-        let v = pattern(n, seed);
-        match kind % 3 {
-            0 => v.into_iter().map(|x| x.max(0.0) * 3.0).collect(),
-            1 => v,
-            _ => v.into_iter().map(|x| f32::from(x > 0.6)).collect(),
-        }
-    }
+    use crate::testing::{conv, layer_input as input, runs_give};
 
     /// The portable path gives the definition's bits at every thread count; every other path
     /// this CPU has comes within a rounding of the sum per step (`9 C` steps, each off by at

@@ -659,19 +659,9 @@ thread_local! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{conv, pattern, runs_give};
+    use crate::testing::{conv, layer_input as input, pattern, runs_give};
     use ndarray::Array4;
     use proptest::prelude::*;
-
-    /// Inputs as the networks' are: after a ReLU (0 and above), or signed, or spikes (0 or 1).
-    fn input(n: usize, seed: u32, kind: u32) -> Vec<f32> {
-        let v = pattern(n, seed);
-        match kind % 3 {
-            0 => v.into_iter().map(|x| x.max(0.0) * 3.0).collect(),
-            1 => v,
-            _ => v.into_iter().map(|x| f32::from(x > 0.6)).collect(),
-        }
-    }
 
     /// Every path, instruction set and thread count gives the 8-bit definition's bits.
     fn check(c_in: usize, c_out: usize, stride: usize, (h, w): (usize, usize), seed: u32) {
