@@ -204,7 +204,7 @@ impl Auto {
                     net.set_conv_path(conv);
                     // Plain loops in a reduced precision run `f32` (slower otherwise).
                     let asked = crate::learned::network_variant(&m).1;
-                    net.set_precision(crate::reconstructor::effective_precision(asked));
+                    net.set_precision(crate::learned::effective_precision(asked));
                     for (i, c) in net.inputs().iter().zip(net.channels()) {
                         let c = u32::try_from(*c).unwrap_or(u32::MAX);
                         match i.representation() {

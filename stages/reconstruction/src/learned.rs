@@ -170,6 +170,17 @@ pub fn network_variant(name: &str) -> (&str, Precision) {
     (name, Precision::F32)
 }
 
+/// The precision a stage runs for the one asked: `f32` in place of a reduced precision this CPU
+/// has only plain loops for (they are slower than `f32`: any CPU but an x86-64 with AVX-512
+/// VNNI or AMX for 8 bits, AVX-512 BF16 for `bf16`); `bench-model` still times those loops.
+pub fn effective_precision(asked: Precision) -> Precision {
+    match asked {
+        Precision::Int8(neuspike_simd::dot::DotPath::Portable)
+        | Precision::Bf16(neuspike_simd::bf16::Bf16Path::Portable) => Precision::F32,
+        p => p,
+    }
+}
+
 /// Runs of each candidate plan [`ConvPath::Auto`] times (the fastest counts: the machines here
 /// are noisy, and noise only ever adds time). Two runs each, one after the other, once kept
 /// im2col for the large model at 2 threads, 1.5x slower than the blocked path.

@@ -230,7 +230,7 @@ impl InferConfig {
         };
         let mut model = LearnedModel::load(path)?;
         model.set_conv_path(self.conv);
-        let precision = effective_precision(self.precision);
+        let precision = crate::learned::effective_precision(self.precision);
         if precision != self.precision {
             tracing::warn!(
                 model = %path.display(),
@@ -645,44 +645,8 @@ fn learned(
     Ok((t_ref_ns, data))
 }
 
-/// The precision a stage runs for the one asked: `f32` in place of a reduced precision this CPU
-/// has only plain loops for (they are slower than `f32`: any CPU but an x86-64 with AVX-512
-/// VNNI or AMX for 8 bits, AVX-512 BF16 for `bf16`); `bench-model` still times those loops.
-pub fn effective_precision(asked: crate::learned::Precision) -> crate::learned::Precision {
-    use crate::learned::Precision;
-    match asked {
-        Precision::Int8(neuspike_simd::dot::DotPath::Portable)
-        | Precision::Bf16(neuspike_simd::bf16::Bf16Path::Portable) => Precision::F32,
-        p => p,
-    }
-}
-
 #[cfg(test)]
 mod tests {
-    use super::effective_precision;
-    use crate::learned::Precision;
-    use neuspike_simd::{bf16::Bf16Path, dot::DotPath};
-
-    #[test]
-    fn plain_loops_in_a_reduced_precision_run_f32() {
-        assert_eq!(
-            effective_precision(Precision::Int8(DotPath::Portable)),
-            Precision::F32
-        );
-        assert_eq!(
-            effective_precision(Precision::Bf16(Bf16Path::Portable)),
-            Precision::F32
-        );
-        for p in [
-            Precision::F32,
-            Precision::Int8(DotPath::Vnni),
-            Precision::Int8(DotPath::Amx),
-            Precision::Bf16(Bf16Path::Avx512),
-        ] {
-            assert_eq!(effective_precision(p), p);
-        }
-    }
-
     use super::*;
     use ndarray::Array3;
 

@@ -568,3 +568,25 @@ fn an_8_bit_method_is_its_networks_file_in_8_bits() {
     assert_eq!(network_variant("-int8"), ("-int8", Precision::F32));
     assert_eq!(network_variant("-bf16"), ("-bf16", Precision::F32));
 }
+
+#[test]
+fn plain_loops_in_a_reduced_precision_run_f32() {
+    use neuspike_reconstruction::learned::effective_precision;
+    use neuspike_simd::{bf16::Bf16Path, dot::DotPath};
+    assert_eq!(
+        effective_precision(Precision::Int8(DotPath::Portable)),
+        Precision::F32
+    );
+    assert_eq!(
+        effective_precision(Precision::Bf16(Bf16Path::Portable)),
+        Precision::F32
+    );
+    for p in [
+        Precision::F32,
+        Precision::Int8(DotPath::Vnni),
+        Precision::Int8(DotPath::Amx),
+        Precision::Bf16(Bf16Path::Avx512),
+    ] {
+        assert_eq!(effective_precision(p), p);
+    }
+}
