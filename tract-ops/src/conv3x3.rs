@@ -1184,15 +1184,23 @@ mod tests {
             let padded = crate::pad_edge(view, hp, wp);
             let padded = ArrayView3::from_shape((c, hp, wp), &padded).unwrap();
             let want = conv.reference(padded).unwrap();
-            for pool in [None, Some(&pool)] {
+            // The same values as a crop of a larger array: rows contiguous, the whole not one
+            // run of memory.
+            let mut larger = ndarray::Array3::<f32>::from_elem((c, h + 2, w + 3), f32::NAN);
+            larger
+                .slice_mut(ndarray::s![.., 1..h + 1, 2..w + 2])
+                .assign(&view);
+            let crop = larger.slice(ndarray::s![.., 1..h + 1, 2..w + 2]);
+            for (pool, view) in [(None, view), (Some(&pool), view), (Some(&pool), crop)] {
                 let mut got = vec![f32::NAN; want.len()];
                 conv.run_edge_padded(view, (hp, wp), &mut got, pool)
                     .unwrap();
                 assert_eq!(
                     got.as_slice(),
                     want.as_slice().unwrap(),
-                    "{c}->{o}, stride {stride}, {h}x{w} as {hp}x{wp}, pool {}",
-                    pool.is_some()
+                    "{c}->{o}, stride {stride}, {h}x{w} as {hp}x{wp}, pool {}, one run {}",
+                    pool.is_some(),
+                    view.as_slice().is_some()
                 );
             }
         }
