@@ -204,7 +204,15 @@ impl Auto {
                     net.set_conv_path(conv);
                     // Plain loops in a reduced precision run `f32` (slower otherwise).
                     let asked = crate::learned::network_variant(&m).1;
-                    net.set_precision(crate::learned::effective_precision(asked));
+                    let precision = crate::learned::effective_precision(asked);
+                    if precision != asked {
+                        tracing::warn!(
+                            method = %m,
+                            "auto: {asked} has no vector path on this CPU (8 bits: AVX-512 \
+                             VNNI or AMX; bf16: AVX-512 BF16): running it in f32"
+                        );
+                    }
+                    net.set_precision(precision);
                     for (i, c) in net.inputs().iter().zip(net.channels()) {
                         let c = u32::try_from(*c).unwrap_or(u32::MAX);
                         match i.representation() {
