@@ -110,9 +110,35 @@ pub fn frames_config(
     })
 }
 
+/// The frames of `path`, a float32 `[T, H, W]` `.npy` of at least 2 frames of 1..=65535 pixels
+/// a side, and `(T, H, W)`: read a frame at a time, or, in Fortran order (which spreads each
+/// frame over the whole file), read whole and every frame checked ([`check_frame`]) before
+/// anything is made of them.
+///
+/// # Errors
+/// The file cannot be read, is not such an array, or (Fortran order) holds a bad value.
+pub(crate) fn open_frames(path: &std::path::Path) -> eyre::Result<(Frames, (usize, usize, usize))> {
+    let name = path.display();
+    let reader = NpyFrames::open(path).map_err(|e| eyre!("not a float32 [T, H, W] .npy: {e}"))?;
+    let (t, h, w) = reader.shape();
+    if t < 2 || h == 0 || w == 0 || h > u16::MAX as usize || w > u16::MAX as usize {
+        bail!("{name}: shape [{t}, {h}, {w}]: needs at least 2 frames of 1..=65535 pixels a side");
+    }
+    if !reader.fortran_order() {
+        return Ok((Frames::Stream(reader), (t, h, w)));
+    }
+    let all: Array3<f32> = ndarray_npy::read_npy(path)
+        .map_err(|e| eyre!("{name}: not a float32 [T, H, W] .npy: {e}"))?;
+    let all = all.as_standard_layout().into_owned();
+    for (k, frame) in all.outer_iter().enumerate() {
+        check_frame(frame.as_slice().unwrap_or_default(), k, w, &name)?;
+    }
+    Ok((Frames::Whole(all, 0), (t, h, w)))
+}
+
 /// The first pixel of `frame` (frame `k`, `w` pixels a row) that is not finite and `>= 0`, as
 /// the error that names it.
-fn check_frame(
+pub(crate) fn check_frame(
     frame: &[f32],
     k: usize,
     w: usize,
@@ -151,29 +177,8 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
         );
     }
     let name = o.frames.display();
-    let reader =
-        NpyFrames::open(&o.frames).map_err(|e| eyre!("not a float32 [T, H, W] .npy: {e}"))?;
-    let (t, h, w) = reader.shape();
-    if t < 2 || h == 0 || w == 0 || h > u16::MAX as usize || w > u16::MAX as usize {
-        bail!("{name}: shape [{t}, {h}, {w}]: needs at least 2 frames of 1..=65535 pixels a side");
-    }
+    let (mut frames, (t, h, w)) = open_frames(&o.frames)?;
     let cfg = frames_config(&o.dvs, w, h, "frames-to-events")?;
-    // Fortran order spreads each frame over the whole file: read whole, as a standard layout.
-    let whole = if reader.fortran_order() {
-        let all: Array3<f32> = ndarray_npy::read_npy(&o.frames)
-            .map_err(|e| eyre!("{name}: not a float32 [T, H, W] .npy: {e}"))?;
-        let all = all.as_standard_layout().into_owned();
-        for (k, frame) in all.outer_iter().enumerate() {
-            check_frame(frame.as_slice().unwrap_or_default(), k, w, &name)?;
-        }
-        Some(all)
-    } else {
-        None
-    };
-    let mut frames = match &whole {
-        Some(all) => Frames::Whole(all, 0),
-        None => Frames::Stream(reader),
-    };
     let (mut prev, mut cur) = (Vec::with_capacity(h * w), Vec::with_capacity(h * w));
     frames.next_into(&mut prev, &name)?;
     check_frame(&prev, 0, w, &name)?;
@@ -234,22 +239,22 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     Ok(summary)
 }
 
-/// `<out>.partial`: where the events are written until the run is done.
-fn partial_path(out: &std::path::Path) -> std::path::PathBuf {
+/// `<out>.partial`: where the output is written until the run is done.
+pub(crate) fn partial_path(out: &std::path::Path) -> std::path::PathBuf {
     let mut name = out.file_name().unwrap_or_default().to_os_string();
     name.push(".partial");
     out.with_file_name(name)
 }
 
 /// Where the frames come from: the file a frame at a time, or an array read whole.
-enum Frames<'a> {
+pub(crate) enum Frames {
     Stream(NpyFrames),
-    Whole(&'a Array3<f32>, usize),
+    Whole(Array3<f32>, usize),
 }
 
-impl Frames<'_> {
+impl Frames {
     /// The next frame into `frame`.
-    fn next_into(
+    pub(crate) fn next_into(
         &mut self,
         frame: &mut Vec<f32>,
         name: &std::path::Display<'_>,

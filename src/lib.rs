@@ -12,6 +12,7 @@ pub mod calibrate;
 pub mod cluster;
 pub mod dataset;
 pub mod frames_to_events;
+pub mod frames_to_spikes;
 pub mod graph;
 pub mod held_out;
 pub mod in_process;

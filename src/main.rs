@@ -125,6 +125,10 @@ enum Command {
     /// its emulator on video frames: events as text, and a one-line JSON summary (counts and
     /// the emulation's time).
     FramesToEvents(neuspike::frames_to_events::FramesToEventsOptions),
+    /// Run the spike camera's pixels (integrate-and-fire, no noise) on a sequence of intensity
+    /// frames (a float32 [T, H, W] .npy), the light linear in time between frames: the planes
+    /// as a PKU .dat, and a one-line JSON summary (planes, spikes, firing probability).
+    FramesToSpikes(neuspike::frames_to_spikes::FramesToSpikesOptions),
     /// Check the DVS against a DAVIS recording (AEDAT 4 with APS frames): emulate the events
     /// of its own frames and compare them with the recorded events (counts, over time, over the
     /// pixels, what the frames cannot show); `--fit-threshold` fits the contrast threshold.
@@ -454,6 +458,11 @@ fn run(cli: Cli) -> eyre::Result<()> {
         Command::ApsCheck(opts) => neuspike::aps_check::main(&opts),
         Command::FramesToEvents(opts) => {
             let s = neuspike::frames_to_events::run(&opts)?;
+            println!("{}", s.json());
+            Ok(())
+        }
+        Command::FramesToSpikes(opts) => {
+            let s = neuspike::frames_to_spikes::run(&opts)?;
             println!("{}", s.json());
             Ok(())
         }
