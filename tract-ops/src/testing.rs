@@ -90,3 +90,38 @@ pub(crate) fn runs_give(
         }
     }
 }
+
+/// Runs `conv` (8 input channels) on an input of each stride's size, `(9, 37)` at stride 1 and
+/// `(8, 20)` at stride 2: as the parts of a concatenation of 3 and 5 channels (an odd split) on
+/// this thread and on a pool of two, and read in place as if padded to `(h + 3, w + 5)` by
+/// repeating the last row and column; asserts each gives `definition`'s bits on the whole
+/// input (the padded copy for the second).
+pub(crate) fn parts_and_edge_give(
+    conv: &crate::conv3x3::Conv3x3,
+    definition: impl Fn(&crate::conv3x3::Conv3x3, ndarray::ArrayView3<f32>) -> ndarray::Array3<f32>,
+) {
+    use ndarray::ArrayView3;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("a pool");
+    let (h, w) = if conv.stride() == 1 { (9, 37) } else { (8, 20) };
+    let x = layer_input(8 * h * w, 3, 0);
+    let view = ArrayView3::from_shape((8, h, w), &x).expect("a view");
+    let want = definition(conv, view).into_raw_vec_and_offset().0;
+    let (a, b) = x.split_at(3 * h * w);
+    for pool in [None, Some(&pool)] {
+        let mut got = vec![f32::NAN; want.len()];
+        conv.run_concat(&[(a, 3), (b, 5)], (h, w), &mut got, pool)
+            .expect("runs");
+        assert_eq!(got, want, "stride {}", conv.stride());
+    }
+    let (hp, wp) = (h + 3, w + 5);
+    let padded = crate::pad_edge(view, hp, wp);
+    let padded = ArrayView3::from_shape((8, hp, wp), &padded).expect("a view");
+    let want = definition(conv, padded).into_raw_vec_and_offset().0;
+    let mut got = vec![f32::NAN; want.len()];
+    conv.run_edge_padded(view, (hp, wp), &mut got, Some(&pool))
+        .expect("runs");
+    assert_eq!(got, want, "edge, stride {}", conv.stride());
+}

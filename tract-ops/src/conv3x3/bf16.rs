@@ -306,41 +306,11 @@ mod tests {
 
     #[test]
     fn parts_and_edge_padding_give_the_bf16_definitions_bits() {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(2)
-            .build()
-            .unwrap();
-        for (stride, (h, w)) in [(1, (9, 37)), (2, (8, 20))] {
+        for stride in [1, 2] {
             let conv = conv(8, 8, stride, 4)
                 .with_relu()
                 .with_precision(Precision::Bf16(Bf16Path::Portable));
-            let x = input(8 * h * w, 3, 0);
-            let view = ArrayView3::from_shape((8, h, w), &x).unwrap();
-            let want = conv
-                .reference_bf16(view)
-                .unwrap()
-                .into_raw_vec_and_offset()
-                .0;
-            // Parts of an odd number of channels: a pair spans two parts.
-            let (a, b) = x.split_at(3 * h * w);
-            for pool in [None, Some(&pool)] {
-                let mut got = vec![f32::NAN; want.len()];
-                conv.run_concat(&[(a, 3), (b, 5)], (h, w), &mut got, pool)
-                    .unwrap();
-                assert_eq!(got, want, "stride {stride}");
-            }
-            let (hp, wp) = (h + 3, w + 5);
-            let padded = crate::pad_edge(view, hp, wp);
-            let padded = ArrayView3::from_shape((8, hp, wp), &padded).unwrap();
-            let want = conv
-                .reference_bf16(padded)
-                .unwrap()
-                .into_raw_vec_and_offset()
-                .0;
-            let mut got = vec![f32::NAN; want.len()];
-            conv.run_edge_padded(view, (hp, wp), &mut got, Some(&pool))
-                .unwrap();
-            assert_eq!(got, want, "edge, stride {stride}");
+            crate::testing::parts_and_edge_give(&conv, |c, x| c.reference_bf16(x).unwrap());
         }
     }
 
