@@ -22,6 +22,11 @@
 //! rise as light falls (`theta = 0.2 (1 + 0.25 ln(1 / light))`, jittered +-15% per polarity).
 //! The spike camera keeps its noise: random initial accumulators and the fixed-pattern ISI cap.
 //!
+//! With `--clips` the scenes are real video instead: each sample a clip of frames at the tick
+//! rate that `training/video.py` made around a real frame (the reference plane's time), seen by
+//! the same cameras and stages; its truth that real frame, its speed the clip's own, its light the
+//! grid's by index (sample `i` at `LIGHT_SCALES[i % 5]`).
+//!
 //! Train and test never share a texture: procedural seeds come from disjoint streams, the
 //! parametric generators (grating, checkerboard) are used for training only, and photographs
 //! come from folders the caller splits (training/prepare_textures.py does).
@@ -44,7 +49,7 @@ use neuspike_align::{AlignConfig, AlignStage};
 use neuspike_event_camera::{DvsConfig, EventCamera};
 use neuspike_reconstruction::{luminance_from_isi_into, luminance_from_rate_into};
 use neuspike_representations::{RepresentConfig, RepresentStage, Representer};
-use neuspike_scene::Scene;
+use neuspike_scene::{Clip, Scene};
 use neuspike_schemas::{AlignedWindow, EventBatch, Representation, RepresentationKind, SpikeChunk};
 use neuspike_spike_camera::noise::{Noise, NoiseArgs};
 use neuspike_spike_camera::{CameraConfig, SpikeCamera};
@@ -125,6 +130,134 @@ pub struct DatasetOptions {
     /// light scale within its cell. Not with `--profile` or a per-term override.
     #[arg(long)]
     pub randomise_camera: bool,
+    /// Video instead of textures: a folder of clips as `training/video.py clips` writes them
+    /// (`clips.csv` and one float32 `[T, size, size]` `.npy` of frames a sample). Each clip is
+    /// one sample, its speed and direction as the clip measured them; the lights cycle through
+    /// the grid's. `--per-cell` and `--textures` do not apply.
+    #[arg(long, conflicts_with = "textures")]
+    pub clips: Option<PathBuf>,
+}
+
+/// One clip of a `--clips` folder: a row of its `clips.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClipRow {
+    /// The `.npy` of frames, `[T, size, size]` float32 luminance, frame `k` at `k dt_ns`; the
+    /// window's reference plane `c` is at `c` periods.
+    pub file: PathBuf,
+    /// Which video it came from, and the frame that is the window's reference (for the
+    /// sample's `texture` column: `source@frame`).
+    pub source: String,
+    /// The reference frame in that video.
+    pub frame: u64,
+    /// The motion's speed in the window, pixels per second (median over the crop).
+    pub speed_px_s: f64,
+    /// Its direction, degrees.
+    pub angle_deg: f64,
+    /// Time between frames of the `.npy`.
+    pub dt_ns: i64,
+}
+
+/// Largest clip file read, bytes.
+pub const MAX_CLIP_BYTES: u64 = 1 << 30;
+
+/// The clips of a `--clips` folder, from its `clips.csv` (columns `file,source,frame,
+/// speed_px_s,angle_deg,dt_ns` in any order, more allowed); a bad row is named by line and
+/// field.
+pub fn clips_in(dir: &Path) -> eyre::Result<Vec<ClipRow>> {
+    let path = dir.join("clips.csv");
+    let name = path.display();
+    let text =
+        fs::read_to_string(&path).wrap_err_with(|| format!("--clips: cannot read {name}"))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let col = |field: &str| {
+        header
+            .iter()
+            .position(|h| h.trim() == field)
+            .ok_or_else(|| eyre!("{name}: no column {field:?} in the header"))
+    };
+    let [file, source, frame, speed, angle, dt] = [
+        "file",
+        "source",
+        "frame",
+        "speed_px_s",
+        "angle_deg",
+        "dt_ns",
+    ]
+    .map(col);
+    let (file, source, frame, speed, angle, dt) = (file?, source?, frame?, speed?, angle?, dt?);
+    let mut rows = Vec::new();
+    for (i, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+        let cells: Vec<&str> = line.split(',').collect();
+        let at = |k: usize, field: &str| {
+            cells.get(k).map(|c| c.trim()).ok_or_else(|| {
+                eyre!(
+                    "{name}: line {}: no field {field} ({} fields)",
+                    i + 2,
+                    cells.len()
+                )
+            })
+        };
+        fn num<T: std::str::FromStr>(
+            v: &str,
+            name: &str,
+            line: usize,
+            field: &str,
+        ) -> eyre::Result<T> {
+            v.parse()
+                .map_err(|_| eyre!("{name}: line {line}: field {field}: {v:?} is not a number"))
+        }
+        let n = &name.to_string();
+        let speed_px_s: f64 = num(at(speed, "speed_px_s")?, n, i + 2, "speed_px_s")?;
+        let angle_deg: f64 = num(at(angle, "angle_deg")?, n, i + 2, "angle_deg")?;
+        if !(speed_px_s.is_finite() && speed_px_s >= 0.0 && angle_deg.is_finite()) {
+            bail!(
+                "{name}: line {}: speed_px_s {speed_px_s} must be finite and >= 0, angle_deg finite",
+                i + 2
+            );
+        }
+        rows.push(ClipRow {
+            file: dir.join(at(file, "file")?),
+            source: at(source, "source")?.to_owned(),
+            frame: num(at(frame, "frame")?, n, i + 2, "frame")?,
+            speed_px_s,
+            angle_deg,
+            dt_ns: num(at(dt, "dt_ns")?, n, i + 2, "dt_ns")?,
+        });
+    }
+    if rows.is_empty() {
+        bail!("{name}: no clips");
+    }
+    Ok(rows)
+}
+
+impl ClipRow {
+    /// The clip as a scene at `light`: its frames must be `size x size` and reach the window's
+    /// last plane (`last_ns`).
+    fn scene(&self, size: usize, last_ns: i64, light: f64) -> eyre::Result<Scene> {
+        let name = self.file.display();
+        let bytes = fs::metadata(&self.file)
+            .wrap_err_with(|| format!("{name}: cannot read"))?
+            .len();
+        if bytes > MAX_CLIP_BYTES {
+            bail!("{name}: {bytes} bytes, more than the {MAX_CLIP_BYTES} a clip may hold");
+        }
+        let frames: Array3<f32> = ndarray_npy::read_npy(&self.file)
+            .map_err(|e| eyre!("{name}: not a float32 [T, H, W] .npy: {e}"))?;
+        let (t, h, w) = frames.dim();
+        if (h, w) != (size, size) {
+            bail!("{name}: frames of {h}x{w}, the set's --size is {size}");
+        }
+        let clip = Clip::new(frames, self.dt_ns, &name.to_string())?;
+        if clip.last_ns() < last_ns {
+            bail!(
+                "{name}: {t} frames {} ns apart end at {} ns, before the window's last plane at {last_ns} ns",
+                self.dt_ns,
+                clip.last_ns()
+            );
+        }
+        Ok(Scene::from_clip(clip, light)?)
+    }
 }
 
 /// One sample's spike camera under `--randomise-camera`: what the network must not depend on.
@@ -478,6 +611,42 @@ pub fn sample(
     light: f64,
     speed: f64,
 ) -> eyre::Result<Sample> {
+    sample_seen(opts, index, light, speed, |rng, light| {
+        let (yaml, texture, angle_deg) = scene_yaml(opts, rng, photos, light, speed)?;
+        let scene = Scene::from_yaml_str(&yaml, &format!("dataset sample {index}"), None)?;
+        Ok((scene, texture, angle_deg))
+    })
+}
+
+/// Generates sample `index` from a clip of video at the cell's `light`, as [`sample`] does from
+/// a texture: the same cameras, draws and stages; the truth the clip's frame at `t_ref`.
+pub fn sample_of_clip(
+    opts: &DatasetOptions,
+    clip: &ClipRow,
+    index: usize,
+    light: f64,
+) -> eyre::Result<Sample> {
+    let period_ns = (1e9 / opts.rate_hz).round().max(1.0) as i64;
+    let last_ns = period_ns * (opts.window_planes as i64 - 1);
+    sample_seen(opts, index, light, clip.speed_px_s, |_, light| {
+        let scene = clip.scene(opts.size, last_ns, light)?;
+        Ok((
+            scene,
+            format!("{}@{}", clip.source, clip.frame),
+            clip.angle_deg,
+        ))
+    })
+}
+
+/// A sample of the scene `look` makes from the sample's generator and its light (with the
+/// texture's label and the direction of motion).
+fn sample_seen(
+    opts: &DatasetOptions,
+    index: usize,
+    light: f64,
+    speed: f64,
+    look: impl FnOnce(&mut ChaCha8Rng, f64) -> eyre::Result<(Scene, String, f64)>,
+) -> eyre::Result<Sample> {
     let stream = match opts.split {
         Split::Train => 0,
         Split::Test => 1,
@@ -496,8 +665,7 @@ pub fn sample(
     };
     let cell_light = light;
     let light = cam.light;
-    let (yaml, texture, angle_deg) = scene_yaml(opts, &mut rng, photos, light, speed)?;
-    let scene = Scene::from_yaml_str(&yaml, &format!("dataset sample {index}"), None)?;
+    let (scene, texture, angle_deg) = look(&mut rng, light)?;
 
     let n = opts.window_planes;
     let s = opts.size;
@@ -734,7 +902,15 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         bail!("dataset: --out {} exists and is not empty", out.display());
     }
     fs::create_dir_all(out).wrap_err_with(|| format!("cannot create {}", out.display()))?;
-    let total = opts.per_cell * LIGHT_SCALES.len() * SPEEDS_PX_S.len();
+    let clips = match &opts.clips {
+        Some(dir) => clips_in(dir)?,
+        None => Vec::new(),
+    };
+    let total = if clips.is_empty() {
+        opts.per_cell * LIGHT_SCALES.len() * SPEEDS_PX_S.len()
+    } else {
+        clips.len()
+    };
     let bar = progress.then(|| indicatif::ProgressBar::new(total as u64));
     let csv_path = out.join("samples.csv");
     let mut csv = std::io::BufWriter::new(
@@ -759,8 +935,13 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
             .into_par_iter()
             .map(|i| {
                 let (light, speed) = cell_of(i);
-                let s = sample(opts, &photos, i, light, speed)
-                    .wrap_err_with(|| format!("dataset: sample {i}"));
+                let s = match clips.get(i) {
+                    Some(clip) => {
+                        sample_of_clip(opts, clip, i, LIGHT_SCALES[i % LIGHT_SCALES.len()])
+                    }
+                    None => sample(opts, &photos, i, light, speed),
+                }
+                .wrap_err_with(|| format!("dataset: sample {i}"));
                 if let Some(bar) = &bar {
                     bar.inc(1);
                 }
@@ -845,7 +1026,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         "# neuspike dataset: see src/dataset.rs\nsplit: {:?}\nsamples: {}\nshards: {}\ncomplex: {}\n\
          per_cell: {}\nsize: {}\nwindow_planes: {}\nreference_plane: {}\nchannels: {}\ntau_ns: {}\n\
          rate_hz: {}\nphi: {}\nlight_scales: {:?}\nspeeds_px_s: {:?}\nphotos: {}\nseed: {}\nalso: [{}]\n\
-         camera: {}\n",
+         camera: {}\nclips: {}\n",
         opts.split,
         summary.samples,
         summary.shards,
@@ -867,7 +1048,12 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
             .map(|k| k.name())
             .collect::<Vec<_>>()
             .join(", "),
-        camera
+        camera,
+        opts.clips.as_ref().map_or("none".to_string(), |d| format!(
+            "{:?} ({} clips)",
+            d.display().to_string(),
+            clips.len()
+        ))
     );
     let yml_path = out.join("dataset.yml");
     neuspike_formats::atomic::write(&yml_path, yml)
@@ -893,6 +1079,7 @@ pub(crate) fn tiny_options(split: Split, out: PathBuf) -> DatasetOptions {
         also: Vec::new(),
         noise: NoiseArgs::default(),
         randomise_camera: false,
+        clips: None,
     }
 }
 
@@ -901,6 +1088,98 @@ mod tests {
     use super::*;
 
     use super::tiny_options as opts;
+
+    /// A `--clips` folder of two 16x16 clips of `frames` frames, a bright bar moving right
+    /// by a pixel a frame over a dim ramp.
+    fn clip_folder(dir: &Path, frames: usize) {
+        fs::create_dir_all(dir).expect("dir");
+        let mut csv = String::from("file,source,frame,speed_px_s,angle_deg,dt_ns,note\n");
+        for k in 0..2 {
+            let clip = Array3::<f32>::from_shape_fn((frames, 16, 16), |(t, r, c)| {
+                if c == (t + k) % 16 {
+                    0.9
+                } else {
+                    0.05 + 0.01 * r as f32
+                }
+            });
+            ndarray_npy::write_npy(dir.join(format!("{k}.npy")), &clip).expect("npy");
+            csv += &format!("{k}.npy,video{k},{},20000,0,50000,x\n", 10 + k);
+        }
+        fs::write(dir.join("clips.csv"), csv).expect("csv");
+    }
+
+    #[test]
+    fn clips_of_video_are_samples_with_their_frame_as_truth() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        clip_folder(&dir.path().join("clips"), 34);
+        let o = DatasetOptions {
+            clips: Some(dir.path().join("clips")),
+            randomise_camera: true,
+            noise: profile_only("paper"),
+            ..opts(Split::Train, dir.path().join("set"))
+        };
+        let summary = generate(&o, false).expect("generate");
+        assert_eq!(summary.samples, 2);
+        let truth: Array3<f32> = ndarray_npy::read_npy(o.out.join("000/truth.npy")).expect("truth");
+        // The reference plane 16 is at 16 periods: frame 16, whose bar is at column 16 + k.
+        for k in 0..2 {
+            let row = truth.index_axis(Axis(0), k);
+            let bar = (16 + k) % 16;
+            assert!((row[[3, bar]] - 0.9).abs() < 1e-6, "sample {k}: {row:?}");
+            assert!((row[[3, (bar + 5) % 16]] - 0.08).abs() < 1e-6, "sample {k}");
+        }
+        let rows = fs::read_to_string(o.out.join("samples.csv")).expect("csv");
+        assert!(
+            rows.contains(",video0@10,") && rows.contains(",video1@11,"),
+            "{rows}"
+        );
+        // The moving bar makes events and spikes; the lights are the grid's first two.
+        let spike: ndarray::Array4<f32> =
+            ndarray_npy::read_npy(o.out.join("000/spike.npy")).expect("spike");
+        assert!(spike.iter().any(|&v| v > 0.0));
+        assert!(
+            rows.lines().nth(1).expect("row").contains(",0.05,20000,"),
+            "{rows}"
+        );
+        assert!(
+            fs::read_to_string(o.out.join("dataset.yml"))
+                .expect("yml")
+                .contains("(2 clips)")
+        );
+    }
+
+    #[test]
+    fn bad_clips_are_named() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let clips = dir.path().join("clips");
+        clip_folder(&clips, 20);
+        let o = DatasetOptions {
+            clips: Some(clips.clone()),
+            ..opts(Split::Train, dir.path().join("set"))
+        };
+        let e = format!("{:#}", generate(&o, false).unwrap_err());
+        assert!(
+            e.contains("0.npy") && e.contains("before the window's last plane"),
+            "{e}"
+        );
+        fs::write(
+            clips.join("clips.csv"),
+            "file,source,frame,speed_px_s,dt_ns\n0.npy,a,1,2,3\n",
+        )
+        .expect("csv");
+        let e = format!("{:#}", clips_in(&clips).unwrap_err());
+        assert!(e.contains("clips.csv") && e.contains("angle_deg"), "{e}");
+        fs::write(
+            clips.join("clips.csv"),
+            "file,source,frame,speed_px_s,angle_deg,dt_ns\n0.npy,a,1,fast,0,3\n",
+        )
+        .expect("csv");
+        let e = format!("{:#}", clips_in(&clips).unwrap_err());
+        assert!(
+            e.contains("line 2") && e.contains("speed_px_s") && e.contains("fast"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn also_writes_the_other_representations_of_each_window() {

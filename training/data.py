@@ -59,6 +59,26 @@ def load(folder: pathlib.Path) -> Split:
     )
 
 
+def load_all(folders: list[pathlib.Path]) -> Split:
+    """Every folder's samples, one after another (the sets must share their crop size)."""
+    splits = [load(f) for f in folders]
+    if len(splits) == 1:
+        return splits[0]
+    sizes = {s.spike.shape[1:] for s in splits}
+    if len(sizes) != 1:
+        raise SystemExit(f"{', '.join(map(str, folders))}: samples of different shapes {sorted(sizes)}")
+    return Split(
+        spike=torch.cat([s.spike for s in splits]),
+        events=torch.cat([s.events for s in splits]),
+        truth=torch.cat([s.truth for s in splits]),
+        tfp=np.concatenate([s.tfp for s in splits]),
+        tfi=np.concatenate([s.tfi for s in splits]),
+        lum_per_rate=torch.cat([s.lum_per_rate for s in splits]),
+        complex=np.concatenate([s.complex for s in splits]),
+        rows=[r for s in splits for r in s.rows],
+    )
+
+
 def camera_of(folder: pathlib.Path) -> str:
     """The spike camera a set was made with, from its `dataset.yml`: `random` (made with
     `--randomise-camera`), `profile <name>` for a profile other than the paper's, else `paper`."""

@@ -155,7 +155,7 @@ def initial_weights(path: pathlib.Path, model: NeuSpikeNet, partial: bool = Fals
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--train", type=pathlib.Path, required=True)
+    ap.add_argument("--train", type=pathlib.Path, nargs="+", required=True, help="one or more sets, mixed")
     ap.add_argument("--base", type=int, default=16)
     ap.add_argument("--mode", default="fused", choices=["fused", "spike", "event"])
     ap.add_argument("--steps", type=int, default=4000)
@@ -177,7 +177,9 @@ def main() -> None:
         help="fused: the motion path enters each fusion through a per-channel weight that starts at 0",
     )
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
-    ap.add_argument("--val", type=pathlib.Path, help="validation set: keep the best checkpoint on it")
+    ap.add_argument(
+        "--val", type=pathlib.Path, nargs="+", help="validation sets: keep the best checkpoint on their mean PSNR"
+    )
     ap.add_argument("--val-every", type=int, default=500)
     ap.add_argument("--init", type=pathlib.Path, help="start from these weights (.pt or .onnx)")
     ap.add_argument(
@@ -201,7 +203,7 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    train = data.load(args.train).to(device)
+    train = data.load_all(args.train).to(device)
     model = NeuSpikeNet(
         base=args.base, channels=train.spike.shape[1], mode=args.mode, gated=args.gated, features=args.features
     ).to(device)
@@ -215,7 +217,7 @@ def main() -> None:
         f"{args.mode} base {args.base}: {parameters(model):,} parameters, {len(train)} samples, "
         f"{args.steps} steps of {args.batch} on {device} ({torch.get_num_threads()} threads)"
     )
-    val = data.load(args.val).to(device) if args.val else None
+    val = data.load_all(args.val).to(device) if args.val else None
     best = (-float("inf"), 0, None)  # (mean PSNR, step, weights)
     start, log_every, running = time.monotonic(), max(args.steps // 40, 1), 0.0
     model.train()
@@ -261,16 +263,16 @@ def main() -> None:
         "aux": args.aux,
         "aux_weight": args.aux_weight,
         "seed": args.seed,
-        "train": str(args.train),
+        "train": " ".join(map(str, args.train)),
         "train_samples": len(train),
         **({"init": str(args.init)} if args.init else {}),
-        "camera": data.camera_of(args.train),
+        "camera": " ".join(sorted({data.camera_of(t) for t in args.train})),
         "parameters": parameters(model),
         "train_seconds": round(seconds, 1),
         # CPU time of every thread: on a machine shared with builds, the wall clock overstates.
         "cpu_seconds": round(time.process_time(), 1),
         "device": str(device) if device.type == "cuda" else f"cpu x{torch.get_num_threads()}",
-        **({"val": str(args.val), "val_samples": len(val), "best_step": best[1],
+        **({"val": " ".join(map(str, args.val)), "val_samples": len(val), "best_step": best[1],
             "best_val_psnr": round(best[0], 3)} if val is not None else {}),
         "torch": str(torch.__version__),
     }

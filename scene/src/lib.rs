@@ -3,7 +3,8 @@
 //!
 //! A scene is a YAML file: a texture (procedural generator or PNG), constant-rate motion, a light
 //! scale the cameras apply, an optional high-dynamic-range gain map, the view size, the duration
-//! and a seed. Rendering is deterministic for a given seed.
+//! and a seed. Rendering is deterministic for a given seed. A scene can also be a clip of video
+//! frames ([`Scene::from_clip`], [`Clip`]): the light linear in time between them.
 //!
 //! ```yaml
 //! width: 400            # view width in scene pixels (default 400)
@@ -69,6 +70,7 @@
 #![deny(missing_docs)]
 
 mod builtin;
+mod clip;
 mod error;
 mod fft;
 mod gain;
@@ -82,6 +84,7 @@ use std::sync::Arc;
 
 use ndarray::{Array2, ArrayViewMut2};
 
+pub use clip::{Clip, MAX_CLIP_FRAMES};
 pub use error::SceneError;
 pub use spec::{
     GainMapKind, GainMapSpec, LightSpec, MotionSpec, SceneSpec, TextureKind, TextureSpec,
@@ -99,6 +102,8 @@ pub struct Scene {
     texture: Arc<Texture>,
     texture_min: f32,
     gain: Option<GainMap>,
+    /// The frames of a clip scene ([`Scene::from_clip`]), which replace texture and motion.
+    clip: Option<Arc<Clip>>,
 }
 
 impl Scene {
@@ -123,7 +128,56 @@ impl Scene {
             texture: Arc::new(texture),
             gain,
             spec,
+            clip: None,
         })
+    }
+
+    /// A scene of video frames: the view is the clip's frames (`width x height` their sides,
+    /// one sample a pixel), the light linear in time between them, held before the first and
+    /// after the last ([`Clip`]); the duration runs to the last frame (at least 1 ns). There
+    /// is no texture motion or gain map: [`Scene::texture`] is the first frame, and
+    /// [`Scene::content_shift`] and [`Scene::content_path`] are 0.
+    ///
+    /// # Errors
+    /// A `light_scale` that is not finite and above 0.
+    pub fn from_clip(clip: Clip, light_scale: f64) -> Result<Scene, SceneError> {
+        let mut spec = SceneSpec::new(TextureSpec::new(TextureKind::Png));
+        spec.width = clip.width();
+        spec.height = clip.height();
+        spec.light_scale = light_scale;
+        spec.samples_per_pixel = 1;
+        spec.texture.min = 0.0;
+        spec.duration_ns = Some(clip.last_ns().max(1) as u64);
+        if !(light_scale.is_finite() && light_scale > 0.0) {
+            return Err(SceneError::Invalid {
+                origin: "clip".to_owned(),
+                field: "light_scale".to_owned(),
+                value: light_scale.to_string(),
+                reason: "must be finite and > 0".to_owned(),
+            });
+        }
+        let first = clip.frames().index_axis(ndarray::Axis(0), 0);
+        let texture =
+            Texture::from_texels(clip.width(), clip.height(), first.iter().copied().collect());
+        Ok(Scene {
+            duration_ns: clip.last_ns().max(1),
+            texture: Arc::new(texture),
+            texture_min: 0.0,
+            gain: None,
+            spec,
+            clip: Some(Arc::new(clip)),
+        })
+    }
+
+    /// The frames, for a scene made by [`Scene::from_clip`].
+    pub fn clip(&self) -> Option<&Clip> {
+        self.clip.as_deref()
+    }
+
+    /// The longest time over which the scene's light is linear in time, where it has one: a
+    /// clip's time between frames. Cameras step at most this far between renders.
+    pub fn linear_for_ns(&self) -> Option<i64> {
+        self.clip.as_ref().map(|c| c.dt_ns())
     }
 
     /// Parses and builds a scene from YAML; `origin` names the source in errors, `base_dir`
@@ -310,6 +364,9 @@ impl Scene {
     /// Whether the image never changes: no translation, rotation or zoom (nothing else in a scene
     /// depends on time).
     pub fn is_static(&self) -> bool {
+        if let Some(clip) = &self.clip {
+            return clip.len() == 1;
+        }
         let m = &self.spec.motion;
         m.vx_px_s == 0.0 && m.vy_px_s == 0.0 && m.rotation_deg_s == 0.0 && m.zoom_per_s == 0.0
     }

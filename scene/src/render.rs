@@ -168,6 +168,10 @@ pub(crate) fn render_reference_region(
     if rows == 0 || cols == 0 {
         return;
     }
+    if let Some(clip) = scene.clip() {
+        let n = scene.spec().samples_per_pixel;
+        return crate::clip::render_region(clip, n, t_ns, region, dst, false);
+    }
     let map = ViewMap::at(scene, t_ns);
     let n = scene.spec().samples_per_pixel;
     let offsets = sub_offsets(n);
@@ -198,6 +202,10 @@ pub(crate) fn render_mapped(
     let (rows, cols) = dst.dim();
     if rows == 0 || cols == 0 {
         return;
+    }
+    if let Some(clip) = scene.clip() {
+        let n = scene.spec().samples_per_pixel;
+        return crate::clip::render_mapped(clip, n, t_ns, map, dst);
     }
     let view = ViewMap::at(scene, t_ns);
     let n = scene.spec().samples_per_pixel;
@@ -610,6 +618,10 @@ pub(crate) fn render_fast_region(
     let (rows, cols) = dst.dim();
     if rows == 0 || cols == 0 {
         return;
+    }
+    if let Some(clip) = scene.clip() {
+        let n = scene.spec().samples_per_pixel;
+        return crate::clip::render_region(clip, n, t_ns, region, dst, parallel);
     }
     let plan = Plan::new(scene, t_ns, region, cols);
     if parallel {

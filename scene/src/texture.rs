@@ -58,6 +58,16 @@ impl fmt::Debug for Texture {
 }
 
 impl Texture {
+    /// A texture of the given texels (`width x height`, row-major; the caller checks the count).
+    pub(crate) fn from_texels(width: usize, height: usize, data: Vec<f32>) -> Texture {
+        debug_assert_eq!(data.len(), width * height);
+        Texture {
+            width,
+            height,
+            data,
+        }
+    }
+
     /// Period (canvas width) in texture pixels.
     pub fn width(&self) -> usize {
         self.width

@@ -1188,10 +1188,16 @@ impl EventCamera {
         } else {
             cfg.max_step_ns
         };
+        // A clip's light is linear between its frames only: a step at most a frame.
+        let step_ns = scene
+            .linear_for_ns()
+            .map_or(step_ns, |ns| step_ns.min(ns.max(1)));
         let mut frame = Array2::zeros((cfg.height, cfg.width));
         render_view(&scene, &cfg, t_start_ns, &mut frame);
         let pixels = DvsPixels::new(&cfg, scene.light_scale() as f32, pixels_of(&frame))?;
-        let warp = (cfg.warp_step_ns > step_ns && !scene.is_static()).then(|| {
+        // A clip has no motion to move renders along.
+        let moving = !scene.is_static() && scene.clip().is_none();
+        let warp = (cfg.warp_step_ns > step_ns && moving).then(|| {
             Interpolator::new(&scene, cfg.height, cfg.width, t_start_ns, cfg.warp_step_ns)
         });
         Ok(EventCamera {
@@ -1301,6 +1307,36 @@ pub mod ros2;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_clip_fires_where_its_frames_change() {
+        // Pixel 0 holds still; pixel 1's log intensity rises 0.45 over frames 1 ms apart.
+        let frames = ndarray::Array3::from_shape_fn((3, 1, 2), |(k, _, c)| {
+            if c == 0 {
+                0.5
+            } else {
+                0.5 * (0.225 * k as f32).exp()
+            }
+        });
+        let clip = neuspike_scene::Clip::new(frames, 1_000_000, "test").expect("clip");
+        let scene = Scene::from_clip(clip, 1.0).expect("scene");
+        let cfg = DvsConfig {
+            width: 2,
+            height: 1,
+            theta_sigma: 0.0,
+            ..DvsConfig::default()
+        };
+        let mut cam = EventCamera::new(scene, cfg, 0).expect("camera");
+        // A step at most a frame, though nothing moves.
+        assert!(cam.step_ns() <= 1_000_000, "{}", cam.step_ns());
+        let batch = cam.advance_to(3_000_000, 0);
+        let on: Vec<_> = (0..batch.len()).map(|i| batch.get(i)).collect();
+        assert_eq!(on.len(), 2, "{on:?}");
+        assert!(on.iter().all(|e| e.x == 1 && e.polarity == 1), "{on:?}");
+        // The first crossing (0.2 of 0.45, linear in intensity between frames) is in the first
+        // frame interval, the second in the second.
+        assert!(on[0].t_ns < 1_000_000 && on[1].t_ns >= 1_000_000, "{on:?}");
+    }
 
     fn scene(yaml_motion: &str, light: f64) -> Scene {
         let yaml = format!(

@@ -74,7 +74,8 @@ pub struct CameraConfig {
     #[arg(long, default_value_t = 50.0)]
     pub fpn_sigma: f64,
     /// Render the scene every this many ticks and interpolate between (0 = choose from the scene's
-    /// motion so that no point moves more than a quarter pixel between renders, at most 64).
+    /// motion so that no point moves more than a quarter pixel between renders, at most 64 and at
+    /// most a clip scene's time between frames).
     #[arg(long, default_value_t = 0)]
     pub render_step_ticks: u32,
     /// Motion-compensated interpolation: render the scene only every this many ticks (rounded up
@@ -298,7 +299,9 @@ impl SpikeCamera {
         };
         // Renders on key ticks, a whole number of key steps apart.
         let warp_step = u64::from(cfg.warp_step_ticks).div_ceil(render_step) * render_step;
-        let warp = (warped && warp_step > render_step && !scene.is_static()).then(|| {
+        // A clip has no motion to move renders along.
+        let moving = !scene.is_static() && scene.clip().is_none();
+        let warp = (warped && warp_step > render_step && moving).then(|| {
             let step_ns =
                 i64::try_from(warp_step).map_or(i64::MAX, |s| s.saturating_mul(period_ns));
             let origin = mid_tick_ns(period_ns, 0);
@@ -569,11 +572,15 @@ fn auto_render_step(scene: &Scene, period_ns: i64, width: usize, max_shift_px: f
     // Scene pixels to sensor pixels.
     let scale = width as f64 / scene.width().max(1) as f64;
     let speed = scene.max_speed_px_per_s() * scale;
+    // A clip's light is linear between its frames only: render at least once a frame.
+    let linear = scene.linear_for_ns().map_or(MAX_STEP, |ns| {
+        (ns / period_ns.max(1)).clamp(1, MAX_STEP as i64) as u64
+    });
     if speed <= 0.0 {
-        return MAX_STEP;
+        return linear;
     }
     let ticks = max_shift_px / (speed * period_ns as f64 * 1e-9);
-    (ticks.floor() as u64).clamp(1, MAX_STEP)
+    (ticks.floor() as u64).clamp(1, linear)
 }
 
 /// The light every pixel receives in one tick: `start[i] + slope * k`, `slope = (end[i] -
@@ -1219,6 +1226,48 @@ mod tests {
     use super::*;
     use ndarray::Array3;
     use neuspike_schemas::unpack_planes_into;
+
+    #[test]
+    fn a_clip_is_seen_frame_by_frame() {
+        // Pixel 0 at 0.25 throughout; pixel 1 ramping from 0 by 0.05 a frame; a frame every 4
+        // ticks.
+        let period = 50_000;
+        let frames = Array3::from_shape_fn(
+            (12, 1, 2),
+            |(k, _, c)| {
+                if c == 0 { 0.25 } else { 0.05 * k as f32 }
+            },
+        );
+        let clip = neuspike_scene::Clip::new(frames, 4 * period, "test").expect("clip");
+        let scene = Scene::from_clip(clip, 1.0).expect("scene");
+        let cfg = CameraConfig {
+            width: 2,
+            height: 1,
+            random_init: false,
+            fpn_cap: false,
+            ..CameraConfig::default()
+        };
+        let mut cam = SpikeCamera::new(scene, cfg).expect("camera");
+        // The automatic step renders once a frame, not every 64 ticks of a scene without motion.
+        assert_eq!(cam.render_step(), 4);
+        let chunk = cam.next_chunk(41, 0);
+        let mut p = Array3::<u8>::zeros((41, 1, 2));
+        unpack_planes_into(&chunk.bits, p.view_mut());
+        let fired = |c: usize| -> Vec<usize> { (0..41).filter(|&k| p[[k, 0, c]] == 1).collect() };
+        // 0.25 a tick from 0 fires every fourth tick, exactly (plane `i` is tick `i`, which
+        // sees the light at `(i - 1/2) T`; tick 0 the first frame's).
+        assert_eq!(fired(0), (1..=10).map(|i| 4 * i - 1).collect::<Vec<_>>());
+        // The ramp: tick k sees 0.0125 (k - 1/2) (its middle, linear between frames), so the
+        // charge after tick k is 0.0125 k^2 / 2 (first spike at k = 13); 10 in all by tick
+        // 40, give or take the rounding at the 10th.
+        let ramp = fired(1);
+        assert_eq!(ramp.first(), Some(&13), "{ramp:?}");
+        assert!((9..=10).contains(&ramp.len()), "{ramp:?}");
+        // Ground truth reads the frames, linear between them.
+        let gt = cam.ground_truth(6);
+        let t = cam.plane_time_ns(6) as f32 / (4 * period) as f32;
+        assert!((gt[[0, 1]] - 0.05 * t).abs() < 1e-6, "{gt:?}");
+    }
 
     fn flat_scene(lum: f32, light_scale: f64) -> Scene {
         // A checkerboard with huge squares is one flat grey level over a small view.
