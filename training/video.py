@@ -50,6 +50,7 @@ SPEEDS_PX_S = [0.0, 300.0, 1_000.0, 3_000.0, 8_000.0]
 WORK_SHORT_SIDE = 288
 MIN_TICKS_PER_FRAME = 2.0
 FLOOR = 0.01
+TICKS_PER_FRAME_CHOICES = [2, 5, 10, 25, 50]  # the divisors of `frames --every 50`
 CUT = 0.12  # mean absolute grey change between frames above which a shot ends
 
 
@@ -199,6 +200,60 @@ def draw_sample(video: Video, rng: np.random.Generator, size: int, speed_px_s: f
     return np.ascontiguousarray(out), info
 
 
+def frames_cmd(args) -> None:
+    """Long clips for other simulators (`training/outside.py windows` cuts them): `--ticks` ticks
+    at a fixed number of ticks a real frame, chosen from `TICKS_PER_FRAME_CHOICES` so that the
+    crop's motion is near the clip's speed and every scored window's reference tick (`--warmup +
+    16`, then every `--every`) is a real frame; the light is the clip's."""
+    import json
+
+    rows = manifest(args.split)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=False)
+    rng = np.random.default_rng(args.seed)
+    clips_made = []
+    ref0 = args.warmup + REF
+    for r in rows:
+        video = Video(args.videos / r["file"])
+        h, w = video.frames[0].shape
+        for k in range(args.per_video):
+            speed = args.speeds[k % len(args.speeds)]
+            light = args.lights[(k // len(args.speeds)) % len(args.lights)]
+            target = speed / RATE_HZ
+            for _ in range(20):
+                x0, y0 = int(rng.integers(0, w - args.size + 1)), int(rng.integers(0, h - args.size + 1))
+                c = int(rng.integers(1, len(video) - 1))
+                fl = video.flow(c, c + 1)[y0 : y0 + args.size, x0 : x0 + args.size]
+                d = float(np.percentile(np.hypot(fl[..., 0], fl[..., 1]), 95))
+                # Ticks a frame that divide the window spacing: real frames at every reference;
+                # the one nearest the speed that the video holds.
+                fits = [
+                    q
+                    for q in sorted(TICKS_PER_FRAME_CHOICES, key=lambda q: abs(math.log((d / q + 1e-6) / target)))
+                    if math.floor(c - ref0 / q) >= 0
+                    and math.ceil(c + (args.ticks - 1 - ref0) / q) < len(video)
+                    and video.same_shot(math.floor(c - ref0 / q), math.ceil(c + (args.ticks - 1 - ref0) / q))
+                ]
+                if fits:
+                    kpf = fits[0]
+                    break
+            else:
+                print(f"{r['file']}: no {speed:.0f} px/s clip fits; skipped")
+                continue
+            clip = np.stack([video.at(c + (j - ref0) / kpf, x0, y0, args.size) for j in range(args.ticks)])
+            gamma = float(rng.uniform(1.0, 2.2))
+            clip = light * np.maximum(np.clip(clip, 0.0, 1.0) ** gamma, FLOOR)
+            name = f"{pathlib.Path(r['file']).stem}-{k:02d}"
+            np.save(out / f"{name}.npy", clip.astype(np.float32))
+            clips_made.append(
+                {"clip": name, "photo": r["file"], "speed_px_s": round(d / kpf * RATE_HZ, 1), "light": light,
+                 "ticks_per_frame": kpf, "frame": c, "gamma": round(gamma, 3), "x0": x0, "y0": y0}
+            )
+            print(f"{name}: {d / kpf * RATE_HZ:.0f} px/s, {kpf} ticks a frame, light {light}", flush=True)
+    (out / "clips.json").write_text(json.dumps(clips_made, indent=1))
+    print(f"{out}: {len(clips_made)} clips of {args.ticks} ticks at {args.size}x{args.size}")
+
+
 def clips(args) -> None:
     rows = manifest(args.split)
     if not rows:
@@ -248,10 +303,23 @@ def main() -> None:
     c.add_argument("--samples", type=int, default=1000)
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--out", type=pathlib.Path, required=True)
+    f = sub.add_parser("frames", help="long clips, one frame a tick, for other simulators (training/outside.py)")
+    f.add_argument("--split", default="test", choices=["train", "val", "test"])
+    f.add_argument("--videos", type=pathlib.Path, default=DEFAULT_VIDEOS)
+    f.add_argument("--size", type=int, default=96)
+    f.add_argument("--ticks", type=int, default=600)
+    f.add_argument("--warmup", type=int, default=400, help="as outside.py windows --warmup")
+    f.add_argument("--per-video", type=int, default=6)
+    f.add_argument("--speeds", type=float, nargs="+", default=[300.0, 1000.0, 3000.0])
+    f.add_argument("--lights", type=float, nargs="+", default=[1.0, 0.25])
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--out", type=pathlib.Path, required=True)
     sub.add_parser("list", help="the manifest: each video's split, scene and licence")
     args = ap.parse_args()
     if args.cmd == "clips":
         clips(args)
+    elif args.cmd == "frames":
+        frames_cmd(args)
     else:
         for r in manifest():
             print(f"{r['split']:5} {r['file']:45} {r['place']:10} {r['content']} [{r['licence']}]")
