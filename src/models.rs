@@ -49,6 +49,10 @@ const SHIPPED: &[(&str, &[u8])] = &[
         "neuspike-spike-8-lite.onnx",
         include_bytes!("../models/neuspike-spike-8-lite.onnx"),
     ),
+    (
+        "neuspike-spike-8-video.onnx",
+        include_bytes!("../models/neuspike-spike-8-video.onnx"),
+    ),
 ];
 
 /// The user's cache folder: `$XDG_CACHE_HOME`, else `~/.cache`, else the temporary folder.
