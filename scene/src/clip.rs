@@ -7,14 +7,13 @@
 //! tile). A destination grid of another size samples it as a texture scene's does: each pixel
 //! the mean of its `n x n` sub-samples (`samples_per_pixel`), so a grid of the clip's own size
 //! with one sample a pixel reads the frames exactly, and one of half the size with two reads
-//! the mean of each 2x2 block. Rendering is scalar, in `f64`, rows in parallel where worth it:
-//! it is its own reference.
+//! the mean of each 2x2 block. Rendering is scalar, in `f64`, rows in parallel: it is its own
+//! reference.
 
 use ndarray::{Array3, ArrayViewMut2, Axis};
-use rayon::prelude::*;
 
 use crate::error::SceneError;
-use crate::render::Region;
+use crate::render::{self, Region};
 use crate::spec::MAX_VIEW_SIDE;
 
 /// Most frames a clip holds (a bound on what a caller may build a scene of, not on memory:
@@ -128,7 +127,7 @@ impl Clip {
 
     /// The two frames around `t_ns` and the weight of the second: `(k, k + 1, w)`, or `(k, k,
     /// 0)` at or beyond either end.
-    fn bracket(&self, t_ns: i64) -> (usize, usize, f64) {
+    pub(crate) fn bracket(&self, t_ns: i64) -> (usize, usize, f64) {
         let last = self.len() - 1;
         if t_ns <= 0 {
             return (0, 0, 0.0);
@@ -143,7 +142,7 @@ impl Clip {
 
     /// The light at view point `(x, y)` between frames `a` and `b` (weight `w` of `b`):
     /// bilinear between texel centres, held at the edges; a non-finite coordinate reads as 0.
-    fn sample(&self, (a, b, w): (usize, usize, f64), x: f64, y: f64) -> f64 {
+    pub(crate) fn sample(&self, (a, b, w): (usize, usize, f64), x: f64, y: f64) -> f64 {
         let (h, wd) = (self.height(), self.width());
         let x = if x.is_finite() { x - 0.5 } else { 0.0 };
         let y = if y.is_finite() { y - 0.5 } else { 0.0 };
@@ -178,39 +177,12 @@ pub(crate) fn render_region(
     n: usize,
     t_ns: i64,
     region: Region,
-    mut dst: ArrayViewMut2<'_, f32>,
-    parallel: bool,
+    dst: ArrayViewMut2<'_, f32>,
 ) {
-    let (rows, cols) = dst.dim();
-    if rows == 0 || cols == 0 {
-        return;
-    }
-    let when = clip.bracket(t_ns);
-    let offsets: Vec<f64> = (0..n).map(|k| (k as f64 + 0.5) / n as f64).collect();
     let sx = clip.width() as f64 / region.sensor_cols.max(1) as f64;
     let sy = clip.height() as f64 / region.sensor_rows.max(1) as f64;
-    let row = |r: usize, mut out: ndarray::ArrayViewMut1<'_, f32>| {
-        for (c, d) in out.iter_mut().enumerate() {
-            let mut sum = 0.0f64;
-            for &oy in &offsets {
-                let y = (region.row0 + r as f64 + oy) * sy;
-                for &ox in &offsets {
-                    sum += clip.sample(when, (region.col0 + c as f64 + ox) * sx, y);
-                }
-            }
-            *d = finish(sum / (n * n) as f64);
-        }
-    };
-    if parallel {
-        dst.axis_iter_mut(Axis(0))
-            .into_par_iter()
-            .enumerate()
-            .for_each(|(r, out)| row(r, out));
-    } else {
-        dst.axis_iter_mut(Axis(0))
-            .enumerate()
-            .for_each(|(r, out)| row(r, out));
-    }
+    let map = move |x: f64, y: f64| Some(((region.col0 + x) * sx, (region.row0 + y) * sy));
+    render_mapped(clip, n, t_ns, &map, dst);
 }
 
 /// [`crate::Scene::render_mapped_into`] of a clip: black where `map` sends a sub-sample nowhere.
@@ -219,26 +191,10 @@ pub(crate) fn render_mapped(
     n: usize,
     t_ns: i64,
     map: &(dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync),
-    mut dst: ArrayViewMut2<'_, f32>,
+    dst: ArrayViewMut2<'_, f32>,
 ) {
     let when = clip.bracket(t_ns);
-    let offsets: Vec<f64> = (0..n).map(|k| (k as f64 + 0.5) / n as f64).collect();
-    dst.axis_iter_mut(Axis(0))
-        .into_par_iter()
-        .enumerate()
-        .for_each(|(r, mut row)| {
-            for (c, d) in row.iter_mut().enumerate() {
-                let mut sum = 0.0f64;
-                for &oy in &offsets {
-                    for &ox in &offsets {
-                        if let Some((x, y)) = map(c as f64 + ox, r as f64 + oy) {
-                            sum += clip.sample(when, x, y);
-                        }
-                    }
-                }
-                *d = finish(sum / (n * n) as f64);
-            }
-        });
+    render::mapped_means(n, map, dst, &|x, y| clip.sample(when, x, y), &finish);
 }
 
 #[cfg(test)]
@@ -254,14 +210,7 @@ mod tests {
 
     fn render(clip: &Clip, n: usize, t_ns: i64, rows: usize, cols: usize) -> Array2<f32> {
         let mut out = Array2::zeros((rows, cols));
-        render_region(
-            clip,
-            n,
-            t_ns,
-            Region::whole(rows, cols),
-            out.view_mut(),
-            false,
-        );
+        render_region(clip, n, t_ns, Region::whole(rows, cols), out.view_mut());
         out
     }
 
@@ -295,7 +244,7 @@ mod tests {
     }
 
     #[test]
-    fn edges_hold_and_threads_agree() {
+    fn edges_hold_and_nothing_seen_is_black() {
         let clip = Clip::new(ramp(2, 5, 7), 100, "test").unwrap();
         // A region one pixel beyond the top-left corner reads the corner texel.
         let mut out = Array2::zeros((2, 2));
@@ -305,16 +254,13 @@ mod tests {
             0,
             Region::at([5, 7], [-1.0, -1.0]),
             out.view_mut(),
-            false,
         );
         assert_eq!(out[[0, 0]], clip.frames()[[0, 0, 0]]);
         assert_eq!(out[[1, 1]], clip.frames()[[0, 0, 0]]);
-        let mut par = Array2::zeros((9, 11));
-        let mut seq = Array2::zeros((9, 11));
-        let whole = Region::whole(9, 11);
-        render_region(&clip, 3, 37, whole, par.view_mut(), true);
-        render_region(&clip, 3, 37, whole, seq.view_mut(), false);
-        assert_eq!(par, seq);
+        // A map that sends nothing anywhere sees black.
+        let mut dark = Array2::from_elem((3, 3), 1.0f32);
+        render_mapped(&clip, 2, 0, &|_, _| None, dark.view_mut());
+        assert!(dark.iter().all(|&v| v == 0.0));
     }
 
     #[test]

@@ -170,7 +170,7 @@ pub(crate) fn render_reference_region(
     }
     if let Some(clip) = scene.clip() {
         let n = scene.spec().samples_per_pixel;
-        return crate::clip::render_region(clip, n, t_ns, region, dst, false);
+        return crate::clip::render_region(clip, n, t_ns, region, dst);
     }
     let map = ViewMap::at(scene, t_ns);
     let n = scene.spec().samples_per_pixel;
@@ -197,18 +197,43 @@ pub(crate) fn render_mapped(
     scene: &Scene,
     t_ns: i64,
     map: &(dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync),
+    dst: ArrayViewMut2<'_, f32>,
+) {
+    let n = scene.spec().samples_per_pixel;
+    if let Some(clip) = scene.clip() {
+        return crate::clip::render_mapped(clip, n, t_ns, map, dst);
+    }
+    let view = ViewMap::at(scene, t_ns);
+    // Black where nothing is seen; else the clamp of a plain render.
+    mapped_means(
+        n,
+        map,
+        dst,
+        &|x, y| sample_view(scene, &view, x, y),
+        &|mean| {
+            if mean == 0.0 {
+                0.0
+            } else {
+                finish(scene, mean as f32)
+            }
+        },
+    );
+}
+
+/// Each destination pixel `(r, c)` the mean of its `n x n` sub-samples at `(c + ox, r + oy)`,
+/// taken by `map` to the view's coordinates and read there by `sample` (0 where `map` sends one
+/// nowhere), turned into the pixel's value by `finish`. Scalar, in `f64`, rows in parallel.
+pub(crate) fn mapped_means(
+    n: usize,
+    map: &(dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync),
     mut dst: ArrayViewMut2<'_, f32>,
+    sample: &(dyn Fn(f64, f64) -> f64 + Sync),
+    finish: &(dyn Fn(f64) -> f32 + Sync),
 ) {
     let (rows, cols) = dst.dim();
     if rows == 0 || cols == 0 {
         return;
     }
-    if let Some(clip) = scene.clip() {
-        let n = scene.spec().samples_per_pixel;
-        return crate::clip::render_mapped(clip, n, t_ns, map, dst);
-    }
-    let view = ViewMap::at(scene, t_ns);
-    let n = scene.spec().samples_per_pixel;
     let offsets = sub_offsets(n);
     dst.axis_iter_mut(Axis(0))
         .into_par_iter()
@@ -219,13 +244,11 @@ pub(crate) fn render_mapped(
                 for &oy in &offsets {
                     for &ox in &offsets {
                         if let Some((x, y)) = map(c as f64 + ox, r as f64 + oy) {
-                            sum += sample_view(scene, &view, x, y);
+                            sum += sample(x, y);
                         }
                     }
                 }
-                let mean = (sum / (n * n) as f64) as f32;
-                // Black where nothing is seen; else the clamp of a plain render.
-                *d = if sum == 0.0 { 0.0 } else { finish(scene, mean) };
+                *d = finish(sum / (n * n) as f64);
             }
         });
 }
@@ -621,7 +644,7 @@ pub(crate) fn render_fast_region(
     }
     if let Some(clip) = scene.clip() {
         let n = scene.spec().samples_per_pixel;
-        return crate::clip::render_region(clip, n, t_ns, region, dst, parallel);
+        return crate::clip::render_region(clip, n, t_ns, region, dst);
     }
     let plan = Plan::new(scene, t_ns, region, cols);
     if parallel {
