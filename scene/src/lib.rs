@@ -264,6 +264,10 @@ impl Scene {
     /// `light_scale` is not applied. Never NaN or infinite.
     pub fn render_into(&self, t_ns: i64, dst: ArrayViewMut2<'_, f32>) {
         let (rows, cols) = dst.dim();
+        if let Some(clip) = &self.clip {
+            let whole = render::Region::whole(rows, cols);
+            return clip::render_region(clip, self.spec.samples_per_pixel, t_ns, whole, dst);
+        }
         render::render_fast(self, t_ns, dst, render::worth_parallel(self, rows, cols));
     }
 
@@ -278,7 +282,10 @@ impl Scene {
         map: &(dyn Fn(f64, f64) -> Option<(f64, f64)> + Sync),
         dst: ArrayViewMut2<'_, f32>,
     ) {
-        render::render_mapped(self, t_ns, map, dst);
+        match &self.clip {
+            Some(clip) => clip::render_mapped(clip, self.spec.samples_per_pixel, t_ns, map, dst),
+            None => render::render_mapped(self, t_ns, map, dst),
+        }
     }
 
     /// Part of what a `sensor_rows x sensor_cols` camera sees, as [`Scene::render_into`] renders
@@ -295,6 +302,9 @@ impl Scene {
     ) {
         let (rows, cols) = dst.dim();
         let region = render::Region::at(sensor, origin);
+        if let Some(clip) = &self.clip {
+            return clip::render_region(clip, self.spec.samples_per_pixel, t_ns, region, dst);
+        }
         let parallel = render::worth_parallel(self, rows, cols);
         render::render_fast_region(self, t_ns, region, dst, parallel);
     }
@@ -420,6 +430,10 @@ fn field_prefixed(message: String) -> String {
 /// for tests and benchmarks.
 #[doc(hidden)]
 pub fn render_reference(scene: &Scene, t_ns: i64, dst: ArrayViewMut2<'_, f32>) {
+    if scene.clip.is_some() {
+        // A clip's render is scalar already: its own reference.
+        return scene.render_into(t_ns, dst);
+    }
     render::render_reference(scene, t_ns, dst);
 }
 
@@ -431,6 +445,9 @@ pub fn render_reference_region(
     origin: [f64; 2],
     dst: ArrayViewMut2<'_, f32>,
 ) {
+    if scene.clip.is_some() {
+        return scene.render_region_into(t_ns, sensor, origin, dst);
+    }
     let region = render::Region::at(sensor, origin);
     render::render_reference_region(scene, t_ns, region, dst);
 }
@@ -438,6 +455,9 @@ pub fn render_reference_region(
 /// [`Scene::render_into`] with the thread choice forced (tests of the parallel path).
 #[doc(hidden)]
 pub fn render_fast_with(scene: &Scene, t_ns: i64, dst: ArrayViewMut2<'_, f32>, parallel: bool) {
+    if scene.clip.is_some() {
+        return scene.render_into(t_ns, dst);
+    }
     render::render_fast(scene, t_ns, dst, parallel);
 }
 

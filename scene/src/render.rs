@@ -168,10 +168,6 @@ pub(crate) fn render_reference_region(
     if rows == 0 || cols == 0 {
         return;
     }
-    if let Some(clip) = scene.clip() {
-        let n = scene.spec().samples_per_pixel;
-        return crate::clip::render_region(clip, n, t_ns, region, dst);
-    }
     let map = ViewMap::at(scene, t_ns);
     let n = scene.spec().samples_per_pixel;
     let offsets = sub_offsets(n);
@@ -200,9 +196,6 @@ pub(crate) fn render_mapped(
     dst: ArrayViewMut2<'_, f32>,
 ) {
     let n = scene.spec().samples_per_pixel;
-    if let Some(clip) = scene.clip() {
-        return crate::clip::render_mapped(clip, n, t_ns, map, dst);
-    }
     let view = ViewMap::at(scene, t_ns);
     // Black where nothing is seen; else the clamp of a plain render.
     mapped_means(
@@ -641,10 +634,6 @@ pub(crate) fn render_fast_region(
     let (rows, cols) = dst.dim();
     if rows == 0 || cols == 0 {
         return;
-    }
-    if let Some(clip) = scene.clip() {
-        let n = scene.spec().samples_per_pixel;
-        return crate::clip::render_region(clip, n, t_ns, region, dst);
     }
     let plan = Plan::new(scene, t_ns, region, cols);
     if parallel {
