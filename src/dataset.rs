@@ -50,6 +50,8 @@ use neuspike_event_camera::{DvsConfig, EventCamera};
 use neuspike_reconstruction::{luminance_from_isi_into, luminance_from_rate_into};
 use neuspike_representations::{RepresentConfig, RepresentStage, Representer};
 use neuspike_scene::{Clip, Scene};
+
+use crate::table::Table;
 use neuspike_schemas::{AlignedWindow, EventBatch, Representation, RepresentationKind, SpikeChunk};
 use neuspike_spike_camera::noise::{Noise, NoiseArgs};
 use neuspike_spike_camera::{CameraConfig, SpikeCamera};
@@ -149,7 +151,8 @@ pub struct ClipRow {
     pub source: String,
     /// The reference frame in that video.
     pub frame: u64,
-    /// The motion's speed in the window, pixels per second (median over the crop).
+    /// The motion's speed in the window, pixels per second (of the fastest motion in the crop, as
+    /// `training/video.py` measures it).
     pub speed_px_s: f64,
     /// Its direction, degrees.
     pub angle_deg: f64,
@@ -161,21 +164,10 @@ pub struct ClipRow {
 pub const MAX_CLIP_BYTES: u64 = 1 << 30;
 
 /// The clips of a `--clips` folder, from its `clips.csv` (columns `file,source,frame,
-/// speed_px_s,angle_deg,dt_ns` in any order, more allowed); a bad row is named by line and
-/// field.
+/// speed_px_s,angle_deg,dt_ns` in any order, more allowed); a bad row is named by line, field
+/// and value.
 pub fn clips_in(dir: &Path) -> eyre::Result<Vec<ClipRow>> {
-    let path = dir.join("clips.csv");
-    let name = path.display();
-    let text =
-        fs::read_to_string(&path).wrap_err_with(|| format!("--clips: cannot read {name}"))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let col = |field: &str| {
-        header
-            .iter()
-            .position(|h| h.trim() == field)
-            .ok_or_else(|| eyre!("{name}: no column {field:?} in the header"))
-    };
+    let table = Table::read(&dir.join("clips.csv"), "")?;
     let [file, source, frame, speed, angle, dt] = [
         "file",
         "source",
@@ -184,49 +176,27 @@ pub fn clips_in(dir: &Path) -> eyre::Result<Vec<ClipRow>> {
         "angle_deg",
         "dt_ns",
     ]
-    .map(col);
+    .map(|name| table.column(name));
     let (file, source, frame, speed, angle, dt) = (file?, source?, frame?, speed?, angle?, dt?);
-    let mut rows = Vec::new();
-    for (i, line) in lines.enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-        let cells: Vec<&str> = line.split(',').collect();
-        let at = |k: usize, field: &str| {
-            cells.get(k).map(|c| c.trim()).ok_or_else(|| {
-                eyre!(
-                    "{name}: line {}: no field {field} ({} fields)",
-                    i + 2,
-                    cells.len()
-                )
+    let rows = table
+        .rows()
+        .map(|row| {
+            let speed_px_s = row.number(speed, "speed_px_s")?;
+            if speed_px_s < 0.0 {
+                return Err(row.bad("speed_px_s", &speed_px_s.to_string(), "at least 0"));
+            }
+            Ok(ClipRow {
+                file: dir.join(row.field(file, "file")?),
+                source: row.field(source, "source")?.to_owned(),
+                frame: row.parse(frame, "frame", "a frame number")?,
+                speed_px_s,
+                angle_deg: row.number(angle, "angle_deg")?,
+                dt_ns: row.parse(dt, "dt_ns", "a whole number of nanoseconds")?,
             })
-        };
-        fn num<T: std::str::FromStr>(
-            v: &str,
-            name: &str,
-            line: usize,
-            field: &str,
-        ) -> eyre::Result<T> {
-            v.parse()
-                .map_err(|_| eyre!("{name}: line {line}: field {field}: {v:?} is not a number"))
-        }
-        let n = &name.to_string();
-        let speed_px_s: f64 = num(at(speed, "speed_px_s")?, n, i + 2, "speed_px_s")?;
-        let angle_deg: f64 = num(at(angle, "angle_deg")?, n, i + 2, "angle_deg")?;
-        if !(speed_px_s.is_finite() && speed_px_s >= 0.0 && angle_deg.is_finite()) {
-            bail!(
-                "{name}: line {}: speed_px_s {speed_px_s} must be finite and >= 0, angle_deg finite",
-                i + 2
-            );
-        }
-        rows.push(ClipRow {
-            file: dir.join(at(file, "file")?),
-            source: at(source, "source")?.to_owned(),
-            frame: num(at(frame, "frame")?, n, i + 2, "frame")?,
-            speed_px_s,
-            angle_deg,
-            dt_ns: num(at(dt, "dt_ns")?, n, i + 2, "dt_ns")?,
-        });
-    }
+        })
+        .collect::<eyre::Result<Vec<_>>>()?;
     if rows.is_empty() {
-        bail!("{name}: no clips");
+        bail!("{}: no clips", dir.join("clips.csv").display());
     }
     Ok(rows)
 }

@@ -10,6 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::table::Table;
 use eyre::{WrapErr, bail, eyre};
 use ndarray::{Array2, ArrayView2, ArrayView3};
 use neuspike_formats::npy::NpyFrames;
@@ -80,69 +81,27 @@ impl MethodScores {
 /// A missing file, a header without `shard`, `light`, `lum_per_rate` or `complex`, or a row
 /// whose field does not parse (named with its line).
 pub fn read_samples(set: &Path) -> eyre::Result<Vec<SampleRow>> {
-    let path = set.join("samples.csv");
-    let text = std::fs::read_to_string(&path).wrap_err_with(|| {
-        format!(
-            "{}: cannot read (is it a `neuspike dataset` folder?)",
-            path.display()
-        )
-    })?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let column = |name: &str| {
-        header
-            .iter()
-            .position(|h| *h == name)
-            .ok_or_else(|| eyre!("{}: no column `{name}` in the header", path.display()))
-    };
+    let table = Table::read(
+        &set.join("samples.csv"),
+        " (is it a `neuspike dataset` folder?)",
+    )?;
     let (shard, light, lum, complex) = (
-        column("shard")?,
-        column("light")?,
-        column("lum_per_rate")?,
-        column("complex")?,
+        table.column("shard")?,
+        table.column("light")?,
+        table.column("lum_per_rate")?,
+        table.column("complex")?,
     );
-    lines
-        .enumerate()
-        .filter(|(_, l)| !l.is_empty())
-        .map(|(i, line)| {
-            let f: Vec<&str> = line.split(',').collect();
-            let field = |c: usize, name: &str| {
-                f.get(c)
-                    .copied()
-                    .ok_or_else(|| eyre!("{} line {}: no field `{name}`", path.display(), i + 2))
-            };
-            let number = |c: usize, name: &str| -> eyre::Result<f64> {
-                let v = field(c, name)?;
-                v.parse::<f64>()
-                    .ok()
-                    .filter(|x| x.is_finite())
-                    .ok_or_else(|| {
-                        eyre!(
-                            "{} line {}: `{name}` is {v:?}, not a finite number",
-                            path.display(),
-                            i + 2
-                        )
-                    })
-            };
-            let shard_v = field(shard, "shard")?;
+    table
+        .rows()
+        .map(|row| {
             Ok(SampleRow {
-                shard: shard_v.parse().map_err(|_| {
-                    eyre!(
-                        "{} line {}: `shard` is {shard_v:?}, not a shard number",
-                        path.display(),
-                        i + 2
-                    )
-                })?,
-                light: number(light, "light")?,
-                lum_per_rate: number(lum, "lum_per_rate")?,
-                complex: match field(complex, "complex")? {
+                shard: row.parse(shard, "shard", "a shard number")?,
+                light: row.number(light, "light")?,
+                lum_per_rate: row.number(lum, "lum_per_rate")?,
+                complex: match row.field(complex, "complex")? {
                     "1" => true,
                     "0" => false,
-                    v => bail!(
-                        "{} line {}: `complex` is {v:?}, not 0 or 1",
-                        path.display(),
-                        i + 2
-                    ),
+                    v => return Err(row.bad("complex", v, "0 or 1")),
                 },
             })
         })

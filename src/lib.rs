@@ -24,6 +24,7 @@ pub mod reconstruct;
 pub mod record;
 pub mod rig;
 pub mod soak;
+mod table;
 pub mod trade;
 
 pub mod demo;

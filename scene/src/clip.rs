@@ -10,7 +10,7 @@
 //! the mean of each 2x2 block. Rendering is scalar, in `f64`, rows in parallel: it is its own
 //! reference.
 
-use ndarray::{Array3, ArrayViewMut2, Axis};
+use ndarray::{Array3, ArrayViewMut2};
 
 use crate::error::SceneError;
 use crate::render::{self, Region};
@@ -85,8 +85,6 @@ impl Clip {
                 "luminance must be finite and >= 0".to_owned(),
             ));
         }
-        // Standard layout, so that rows are slices.
-        let frames = frames.as_standard_layout().into_owned();
         Ok(Clip { frames, dt_ns })
     }
 
@@ -152,8 +150,7 @@ impl Clip {
         let (c0, c1) = (clamp(x0, wd), clamp(x0 + 1.0, wd));
         let (r0, r1) = (clamp(y0, h), clamp(y0 + 1.0, h));
         let at = |k: usize| {
-            let f = self.frames.index_axis(Axis(0), k);
-            let t = |r: usize, c: usize| f64::from(f[[r, c]]);
+            let t = |r: usize, c: usize| f64::from(self.frames[[k, r, c]]);
             (1.0 - fy) * ((1.0 - fx) * t(r0, c0) + fx * t(r0, c1))
                 + fy * ((1.0 - fx) * t(r1, c0) + fx * t(r1, c1))
         };
@@ -200,7 +197,7 @@ pub(crate) fn render_mapped(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndarray::{Array2, s};
+    use ndarray::{Array2, Axis, s};
 
     fn ramp(t: usize, h: usize, w: usize) -> Array3<f32> {
         Array3::from_shape_fn((t, h, w), |(k, r, c)| {

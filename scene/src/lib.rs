@@ -141,13 +141,6 @@ impl Scene {
     /// # Errors
     /// A `light_scale` that is not finite and above 0.
     pub fn from_clip(clip: Clip, light_scale: f64) -> Result<Scene, SceneError> {
-        let mut spec = SceneSpec::new(TextureSpec::new(TextureKind::Png));
-        spec.width = clip.width();
-        spec.height = clip.height();
-        spec.light_scale = light_scale;
-        spec.samples_per_pixel = 1;
-        spec.texture.min = 0.0;
-        spec.duration_ns = Some(clip.last_ns().max(1) as u64);
         if !(light_scale.is_finite() && light_scale > 0.0) {
             return Err(SceneError::Invalid {
                 origin: "clip".to_owned(),
@@ -156,6 +149,13 @@ impl Scene {
                 reason: "must be finite and > 0".to_owned(),
             });
         }
+        let mut spec = SceneSpec::new(TextureSpec::new(TextureKind::Png));
+        spec.width = clip.width();
+        spec.height = clip.height();
+        spec.light_scale = light_scale;
+        spec.samples_per_pixel = 1;
+        spec.texture.min = 0.0;
+        spec.duration_ns = Some(clip.last_ns().max(1) as u64);
         let first = clip.frames().index_axis(ndarray::Axis(0), 0);
         let texture =
             Texture::from_texels(clip.width(), clip.height(), first.iter().copied().collect());
