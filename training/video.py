@@ -59,6 +59,11 @@ def manifest(split: str | None = None) -> list[dict]:
     return [r for r in rows if split is None or r["split"] == split]
 
 
+def light_of(grey: np.ndarray, gamma: float) -> np.ndarray:
+    """The video's 8-bit grey in [0, 1] as light: `max(g^gamma, FLOOR)`, float32."""
+    return np.maximum(np.clip(grey, 0.0, 1.0) ** gamma, FLOOR).astype(np.float32)
+
+
 class Video:
     """One video at its working scale: grey frames in [0, 1], shots, flows on demand."""
 
@@ -101,6 +106,11 @@ class Video:
             u8 = lambda k: (self.frames[k] * 255.0 + 0.5).astype(np.uint8)  # noqa: E731
             self.flows[key] = self.dis.calc(u8(a), u8(b), None)
         return self.flows[key]
+
+    def fastest(self, a: int, x0: int, y0: int, size: int) -> float:
+        """The 95th percentile of the flow's length from frame `a` to `a + 1` over a crop."""
+        fl = self.flow(a, a + 1)[y0 : y0 + size, x0 : x0 + size]
+        return float(np.percentile(np.hypot(fl[..., 0], fl[..., 1]), 95))
 
     def same_shot(self, a: int, b: int) -> bool:
         return 0 <= a and b < len(self) and self.shot[a] == self.shot[b]
@@ -147,10 +157,7 @@ def draw_sample(video: Video, rng: np.random.Generator, size: int, speed_px_s: f
             if not (video.same_shot(c - span, c) and video.same_shot(c, c + span)):
                 ok = False
                 break
-            d = max(
-                float(np.percentile(np.hypot(*np.moveaxis(video.flow(a, a + 1)[y0 : y0 + size, x0 : x0 + size], -1, 0)), 95))
-                for a in range(c - span, c + span)
-            )
+            d = max(video.fastest(a, x0, y0, size) for a in range(c - span, c + span))
             k = max(d / target, MIN_TICKS_PER_FRAME)
             # The window's real frames (and one more each side) must lie in one shot.
             need = math.ceil((REF + 1) / k) + 1
@@ -185,7 +192,7 @@ def draw_sample(video: Video, rng: np.random.Generator, size: int, speed_px_s: f
         angle = 180.0 - angle
     if backward:
         angle += 180.0
-    out = np.maximum(np.clip(out, 0.0, 1.0) ** gamma, FLOOR).astype(np.float32)
+    out = light_of(out, gamma)
     info = dict(
         frame=c,
         speed_px_s=px_tick * RATE_HZ,
@@ -223,8 +230,7 @@ def frames_cmd(args) -> None:
             for _ in range(20):
                 x0, y0 = int(rng.integers(0, w - args.size + 1)), int(rng.integers(0, h - args.size + 1))
                 c = int(rng.integers(1, len(video) - 1))
-                fl = video.flow(c, c + 1)[y0 : y0 + args.size, x0 : x0 + args.size]
-                d = float(np.percentile(np.hypot(fl[..., 0], fl[..., 1]), 95))
+                d = video.fastest(c, x0, y0, args.size)
                 # Ticks a frame that divide the window spacing: real frames at every reference;
                 # the one nearest the speed that the video holds.
                 fits = [
@@ -242,7 +248,7 @@ def frames_cmd(args) -> None:
                 continue
             clip = np.stack([video.at(c + (j - ref0) / kpf, x0, y0, args.size) for j in range(args.ticks)])
             gamma = float(rng.uniform(1.0, 2.2))
-            clip = light * np.maximum(np.clip(clip, 0.0, 1.0) ** gamma, FLOOR)
+            clip = light * light_of(clip, gamma)
             name = f"{pathlib.Path(r['file']).stem}-{k:02d}"
             np.save(out / f"{name}.npy", clip.astype(np.float32))
             clips_made.append(
