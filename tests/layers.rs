@@ -132,3 +132,42 @@ fn no_node_depends_on_another_and_every_stage_has_its_node() {
         );
     }
 }
+
+/// The Python package's native part is built on the dora-free libraries: what `cargo tree`
+/// resolves for it (its own features, as maturin builds it) holds neither dora nor zenoh.
+#[test]
+fn the_python_package_links_neither_dora_nor_zenoh() {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = std::process::Command::new(cargo)
+        .args([
+            "tree",
+            "--offline",
+            "-p",
+            "neuspike-python",
+            "-e",
+            "normal",
+            "--prefix",
+            "none",
+        ])
+        .current_dir(root())
+        .output()
+        .expect("cargo tree runs");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let crates: Vec<&str> = text.lines().filter_map(|l| l.split(' ').next()).collect();
+    for needed in ["neuspike-formats", "neuspike-representations", "pyo3"] {
+        assert!(
+            crates.contains(&needed),
+            "{needed} is not in the tree:\n{text}"
+        );
+    }
+    let network: Vec<&&str> = crates
+        .iter()
+        .filter(|c| c.starts_with("dora") || c.starts_with("zenoh") || **c == "neuspike-net")
+        .collect();
+    assert!(network.is_empty(), "the Python package links {network:?}");
+}

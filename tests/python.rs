@@ -4,6 +4,9 @@
 //! - Messages the Rust side writes (as Arrow IPC, `schemas::ipc`) are read by the Python package,
 //!   values checked one for one; damaged ones give the Python package the very error text the
 //!   Rust side gives; messages the Python package writes are read back here.
+//! - The package's own tests (`python/tests`), with its native module built here by cargo and
+//!   laid out as `pip install ./python` lays it out: the library on numpy arrays
+//!   (`test_native.py`) and the messages.
 //! - The example node's unit test (canned events, no daemon) runs, then its graph, whose frames
 //!   must equal the Rust example node's (the same gamma curve) to within one 16-bit level.
 //!
@@ -15,7 +18,7 @@ use common::{python_has, root, run_graph};
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use ndarray::{Array2, Array3};
 use neuspike_schemas::arrow::array::{ArrayRef, Float32Array, Int32Array, UInt8Array};
@@ -24,9 +27,63 @@ use neuspike_schemas::{
     RepresentationKind, SpikeChunk, end_of_stream, ipc,
 };
 
+/// The Python package as `pip install ./python` lays it out: its modules and the native module,
+/// built here by cargo, in `<target>/<profile>/python-package/` (for `PYTHONPATH`).
+fn package() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.args([
+            "build",
+            "-p",
+            "neuspike-python",
+            "--message-format=json-render-diagnostics",
+        ]);
+        if !cfg!(debug_assertions) {
+            cmd.arg("--release");
+        }
+        let out = cmd.current_dir(root()).output().expect("cargo runs");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "building the native module failed:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        // The cdylib's path, from cargo's artifact message.
+        let so = text
+            .lines()
+            .filter(|l| l.contains("\"name\":\"_native\""))
+            .find_map(|l| {
+                let end = l.find("lib_native.so\"")? + "lib_native.so".len();
+                let start = l[..end].rfind('"')? + 1;
+                Some(PathBuf::from(&l[start..end]))
+            })
+            .expect("cargo names lib_native.so");
+        let dir = so.parent().expect("a folder").join("python-package");
+        let pkg = dir.join("neuspike");
+        let _ = std::fs::remove_dir_all(&pkg);
+        std::fs::create_dir_all(&pkg).expect("mkdir");
+        for entry in std::fs::read_dir(root().join("python/neuspike")).expect("python/neuspike") {
+            let p = entry.expect("entry").path();
+            if p.extension()
+                .is_some_and(|e| e == "py" || e == "pyi" || e == "typed")
+            {
+                std::fs::copy(&p, pkg.join(p.file_name().expect("name"))).expect("copy");
+            }
+        }
+        std::fs::copy(&so, pkg.join("_native.abi3.so")).expect("copy the native module");
+        dir
+    })
+}
+
+/// Runs `python3 args` in the root with the package (native module included) first on its path.
 fn python(args: &[&str], env: &[(&str, &Path)]) {
     let mut cmd = Command::new("python3");
-    cmd.args(args).current_dir(root());
+    cmd.args(args)
+        .current_dir(root())
+        .env("PYTHONPATH", package())
+        .env("NEUSPIKE_REQUIRE_NATIVE", "1");
     for (k, v) in env {
         cmd.env(k, v);
     }
@@ -305,9 +362,11 @@ fn damaged() -> Vec<(&'static str, &'static str, Meta, ArrayRef, String)> {
     out
 }
 
-/// Rust writes, Python reads (values and errors); Python writes, Rust reads.
+/// The package's own tests, the native module's included (`python/tests/test_native.py`: every
+/// kernel against numpy, files, the simulator, errors, workers); and the messages: Rust writes,
+/// Python reads (values and errors); Python writes, Rust reads.
 #[test]
-fn the_python_package_reads_and_writes_what_the_rust_schemas_do() {
+fn the_python_package_passes_its_tests_and_reads_and_writes_what_the_rust_schemas_do() {
     if !python_has("pyarrow, numpy") {
         return;
     }

@@ -1,10 +1,75 @@
-"""neuspike's messages and node protocol for Python nodes (pyarrow, numpy; dora-rs to run).
+"""neuspike for Python: the library on numpy arrays, and the messages and node protocol of graphs.
+
+The library (the native module ``neuspike._native``, built by ``pip install ./python``), every
+kernel run by neuspike's Rust crates with the GIL released:
+
+- files: :func:`read_spikes`, :class:`SpikeReader`, :func:`write_spikes` (PKU ``.dat``);
+  :func:`read_events`, :class:`EventReader`, :func:`write_events` (text, Prophesee RAW and DAT,
+  AEDAT 4); :func:`read_aps_frames` (AEDAT 4 frames);
+- values: :class:`Spikes` (bit-packed planes and their clock), :class:`Events` (four columns);
+- :func:`simulate`: both cameras on one scene, with ground truth, deterministic for a seed;
+- representations: :func:`tfp`, :func:`tfi`, :func:`isi`, :func:`tfstp`,
+  :func:`spike_representation`, :func:`event_count`, :func:`event_integration`,
+  :func:`voxel_grid`, :func:`event_stack`, :func:`time_surface`;
+- metrics: :func:`psnr`, :func:`psnr_after_gain`, :func:`gain`, :func:`ssim`, :func:`entropy_2d`;
+- :func:`set_threads`; errors: :class:`Error` and its kinds :class:`FormatError`,
+  :class:`ConfigError`, :class:`InputError`.
+
+The messages and node protocol (pure Python: pyarrow, numpy; dora-rs to run a node):
 
 - :mod:`neuspike.messages`: Frame, Representation, SpikeChunk, EventBatch, Credit, end-of-stream
   markers; the layouts, header keys and errors of the Rust crate ``neuspike-schemas``.
 - :mod:`neuspike.ipc`: a message as Arrow IPC bytes, as neuspike publishes it on zenoh.
 - :mod:`neuspike.link`: a node's link to its graph (order, loss counting, credits, markers).
 """
+
+try:
+    from ._native import (
+        ConfigError,
+        Error,
+        EventReader,
+        Events,
+        FormatError,
+        InputError,
+        Simulation,
+        SpikeReader,
+        Spikes,
+        entropy_2d,
+        event_count,
+        event_integration,
+        event_stack,
+        gain,
+        isi,
+        psnr,
+        psnr_after_gain,
+        read_aps_frames,
+        read_events,
+        read_spikes,
+        scenes,
+        set_threads,
+        simulate,
+        spike_representation,
+        ssim,
+        tfi,
+        tfp,
+        tfstp,
+        threads,
+        time_surface,
+        voxel_grid,
+        write_events,
+        write_spikes,
+    )
+
+    NATIVE = True
+except ImportError as _missing:  # the sources without the build: messages and nodes only
+    NATIVE = False
+    _why = str(_missing)
+
+    def __getattr__(name):
+        raise AttributeError(
+            f"neuspike.{name} is in the native module, which this copy lacks ({_why}): "
+            "install the package with `pip install ./python` (it builds with Rust)"
+        )
 
 from .ipc import IpcError, decode, encode
 from .link import Link
@@ -21,6 +86,7 @@ from .messages import (
 )
 
 __all__ = [
+    "NATIVE",
     "VERSION",
     "Credit",
     "EventBatch",
@@ -35,3 +101,39 @@ __all__ = [
     "end_of_stream",
     "is_end_of_stream",
 ]
+if NATIVE:
+    __all__ += [
+        "ConfigError",
+        "Error",
+        "EventReader",
+        "Events",
+        "FormatError",
+        "InputError",
+        "Simulation",
+        "SpikeReader",
+        "Spikes",
+        "entropy_2d",
+        "event_count",
+        "event_integration",
+        "event_stack",
+        "gain",
+        "isi",
+        "psnr",
+        "psnr_after_gain",
+        "read_aps_frames",
+        "read_events",
+        "read_spikes",
+        "scenes",
+        "set_threads",
+        "simulate",
+        "spike_representation",
+        "ssim",
+        "tfi",
+        "tfp",
+        "tfstp",
+        "threads",
+        "time_surface",
+        "voxel_grid",
+        "write_events",
+        "write_spikes",
+    ]

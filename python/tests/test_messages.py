@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# The package installed (or on PYTHONPATH) first, else the sources beside these tests.
+sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 from neuspike import (  # noqa: E402
     Credit,

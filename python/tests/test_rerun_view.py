@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(HERE))
+# The package installed (or on PYTHONPATH) first, else the sources beside these tests.
+sys.path.append(str(HERE))
 
 from neuspike import EventBatch, Frame, Link, end_of_stream  # noqa: E402
 

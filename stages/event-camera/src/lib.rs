@@ -1302,6 +1302,7 @@ fn pixels_of(frame: &Array2<f32>) -> &[f32] {
 }
 
 pub mod playback;
+#[cfg(feature = "ros2")]
 pub mod ros2;
 
 #[cfg(test)]

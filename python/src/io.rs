@@ -1,0 +1,454 @@
+//! Every reader and writer of `neuspike-formats`, on [`Spikes`] and [`Events`]; streaming
+//! iterators for files larger than memory.
+
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use ndarray::Array3;
+use numpy::PyArray1;
+use pyo3::prelude::*;
+
+use neuspike_formats::aedat4::{Aedat4Frames, Aedat4Writer, Compression};
+use neuspike_formats::dat::DatWriter;
+use neuspike_formats::pku::{self, PkuGeometry, PkuOptions, PkuReader, PkuWriter};
+use neuspike_formats::raw::{Evt2Writer, Evt3Writer};
+use neuspike_formats::text::TextWriter;
+use neuspike_formats::{
+    Event, EventWriter, FormatError, ReadOptions, Resolution, WriteSummary, open_events,
+};
+
+use crate::values::{Events, Spikes, SpikesIn, spikes_in};
+use crate::{errors, threads};
+
+/// Events a reader hands out at once unless told otherwise.
+const DEFAULT_CHUNK_EVENTS: usize = 1 << 20;
+/// Planes a spike reader hands out at once unless told otherwise.
+const DEFAULT_CHUNK_PLANES: usize = 1000;
+
+fn pku_options(
+    width: usize,
+    height: usize,
+    head_columns: usize,
+    plane_period_ns: i64,
+    t_first_ns: i64,
+) -> PyResult<PkuOptions> {
+    if head_columns != 0 && head_columns != pku::HEAD_COLUMNS {
+        return Err(errors::config(format!(
+            "head_columns = {head_columns}: must be 0 or {}",
+            pku::HEAD_COLUMNS
+        )));
+    }
+    if plane_period_ns <= 0 {
+        return Err(errors::config(format!(
+            "plane_period_ns = {plane_period_ns}: must be > 0"
+        )));
+    }
+    Ok(PkuOptions {
+        geometry: PkuGeometry {
+            width,
+            height,
+            head_columns,
+        },
+        plane_period_ns,
+        t_first_ns,
+    })
+}
+
+/// Reads a PKU spike ``.dat`` file (rows stored bottom-up, turned top-down) into one
+/// :class:`Spikes`: every plane, or the first ``max_planes``. Use :class:`SpikeReader` for files
+/// larger than memory, and to keep the planes before a damaged tail.
+#[pyfunction]
+#[pyo3(signature = (path, *, width = 400, height = 250, head_columns = 0, plane_period_ns = 50_000, t_first_ns = 0, max_planes = None))]
+pub fn read_spikes(
+    py: Python<'_>,
+    path: PathBuf,
+    width: usize,
+    height: usize,
+    head_columns: usize,
+    plane_period_ns: i64,
+    t_first_ns: i64,
+    max_planes: Option<u64>,
+) -> PyResult<Spikes> {
+    let opts = pku_options(width, height, head_columns, plane_period_ns, t_first_ns)?;
+    let chunk = threads::run(py, || -> Result<_, FormatError> {
+        let count = pku::plane_count(&path, &opts.geometry)?;
+        let n = max_planes.map_or(count, |m| m.min(count));
+        let mut reader = PkuReader::open(&path, &opts)?;
+        reader.next_chunk(usize::try_from(n).unwrap_or(usize::MAX))
+    })?
+    .map_err(errors::format)?;
+    match chunk {
+        Some(c) => Spikes::from_chunk(py, c),
+        None => Spikes::from_bits(
+            py,
+            Vec::new(),
+            0,
+            opts.geometry.plane_bytes(),
+            crate::values::Clock {
+                width,
+                height,
+                first_plane: 0,
+                t_first_ns,
+                plane_period_ns,
+                lum_per_rate: None,
+            },
+        ),
+    }
+}
+
+/// A PKU spike ``.dat`` file read as it is iterated: :class:`Spikes` of ``chunk_planes`` planes
+/// each (the last one shorter), with bounded memory whatever the file's size. A damaged tail
+/// raises :class:`FormatError` after every whole plane before it was handed out.
+#[pyclass(module = "neuspike", frozen)]
+pub struct SpikeReader {
+    reader: Mutex<PkuReader<File>>,
+    chunk_planes: usize,
+}
+
+#[pymethods]
+impl SpikeReader {
+    #[new]
+    #[pyo3(signature = (path, *, chunk_planes = DEFAULT_CHUNK_PLANES, width = 400, height = 250, head_columns = 0, plane_period_ns = 50_000, t_first_ns = 0))]
+    fn new(
+        path: PathBuf,
+        chunk_planes: usize,
+        width: usize,
+        height: usize,
+        head_columns: usize,
+        plane_period_ns: i64,
+        t_first_ns: i64,
+    ) -> PyResult<SpikeReader> {
+        if chunk_planes == 0 {
+            return Err(errors::config("chunk_planes = 0: must be at least 1"));
+        }
+        let opts = pku_options(width, height, head_columns, plane_period_ns, t_first_ns)?;
+        let reader = PkuReader::open(&path, &opts).map_err(errors::format)?;
+        Ok(SpikeReader {
+            reader: Mutex::new(reader),
+            chunk_planes,
+        })
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__(&self, py: Python<'_>) -> PyResult<Option<Spikes>> {
+        let mut reader = self.reader.lock().unwrap_or_else(|p| p.into_inner());
+        let reader = &mut *reader;
+        let n = self.chunk_planes;
+        match threads::run(py, || reader.next_chunk(n))?.map_err(errors::format)? {
+            Some(chunk) => Spikes::from_chunk(py, chunk).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// Planes handed out so far.
+    #[getter]
+    fn planes_read(&self) -> u64 {
+        self.reader
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .planes_read()
+    }
+}
+
+/// Writes spike planes (a :class:`Spikes` or unpacked ``[N, H, W]``) as a PKU ``.dat`` file,
+/// rows bottom-up as the camera stores them; returns the planes written.
+#[pyfunction]
+#[pyo3(signature = (path, spikes, *, head_columns = 0))]
+pub fn write_spikes(
+    py: Python<'_>,
+    path: PathBuf,
+    spikes: &Bound<'_, PyAny>,
+    head_columns: usize,
+) -> PyResult<u64> {
+    let input = spikes_in(spikes)?;
+    let (_, height, width) = input.dim();
+    let opts = pku_options(width, height, head_columns, 1, 0)?;
+    let packed;
+    let bits: &[u8] = match &input {
+        SpikesIn::Packed { bits, .. } => bits.as_slice().map_err(errors::input)?,
+        SpikesIn::Planes(p) => {
+            let view = crate::values::view3(p)?;
+            packed = threads::run(py, || neuspike_schemas::pack_planes(view))?;
+            &packed
+        }
+    };
+    let summary = threads::run(py, || -> Result<WriteSummary, FormatError> {
+        let file = create(&path)?;
+        let mut w = PkuWriter::new(BufWriter::new(file), &path, opts.geometry)?;
+        w.write_planes(bits)?;
+        let (w, summary) = w.finish()?;
+        flush(w, &path)?;
+        Ok(summary)
+    })?
+    .map_err(errors::format)?;
+    Ok(summary.items)
+}
+
+fn create(path: &Path) -> Result<File, FormatError> {
+    File::create(path).map_err(|source| FormatError::Open {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+fn flush(w: BufWriter<File>, path: &Path) -> Result<(), FormatError> {
+    w.into_inner()
+        .map_err(|e| e.into_error())
+        .and_then(|f| f.sync_all().map(|()| f))
+        .map(drop)
+        .map_err(|source| FormatError::Io {
+            path: path.to_path_buf(),
+            offset: 0,
+            source,
+        })
+}
+
+fn read_options(width: Option<u16>, height: Option<u16>) -> PyResult<ReadOptions> {
+    match (width, height) {
+        (Some(w), Some(h)) => Ok(ReadOptions::with_resolution(w, h)),
+        (None, None) => Ok(ReadOptions::default()),
+        _ => Err(errors::config(
+            "width and height: give both (for a file that does not state its sensor) or neither",
+        )),
+    }
+}
+
+/// Reads an event file of any format neuspike reads (Event Camera Dataset text, Prophesee RAW
+/// EVT 2.0/3.0 and DAT, AEDAT 4; told apart by content) into one :class:`Events`: every event,
+/// or the first ``max_events``. ``width`` and ``height`` give the sensor of a file that does not
+/// state it. Use :class:`EventReader` for files larger than memory.
+#[pyfunction]
+#[pyo3(signature = (path, *, width = None, height = None, max_events = None))]
+pub fn read_events(
+    py: Python<'_>,
+    path: PathBuf,
+    width: Option<u16>,
+    height: Option<u16>,
+    max_events: Option<usize>,
+) -> PyResult<Events> {
+    let opts = read_options(width, height)?;
+    let batch = threads::run(py, || -> Result<_, FormatError> {
+        let mut reader = open_events(&path, &opts)?;
+        let r = reader.resolution();
+        let mut batch =
+            neuspike_schemas::EventBatch::empty(r.width.into(), r.height.into(), 0, 0, 0);
+        let mut left = max_events.unwrap_or(usize::MAX);
+        while left > 0 {
+            let got = reader.read_into(&mut batch, left.min(DEFAULT_CHUNK_EVENTS))?;
+            if got == 0 {
+                break;
+            }
+            left -= got;
+        }
+        if let (Some(&first), Some(&last)) = (batch.t_ns.first(), batch.t_ns.last()) {
+            batch.t_start_ns = first;
+            batch.t_end_ns = last.saturating_add(1);
+        }
+        Ok(batch)
+    })?
+    .map_err(errors::format)?;
+    Ok(Events::from_batch(py, batch))
+}
+
+/// An event file read as it is iterated: :class:`Events` of up to ``chunk_events`` events each,
+/// with bounded memory. A damaged part raises :class:`FormatError` after every event before it
+/// was handed out.
+#[pyclass(module = "neuspike", frozen)]
+pub struct EventReader {
+    reader: Mutex<Box<dyn neuspike_formats::EventReader + Send>>,
+    chunk_events: usize,
+}
+
+#[pymethods]
+impl EventReader {
+    #[new]
+    #[pyo3(signature = (path, *, chunk_events = DEFAULT_CHUNK_EVENTS, width = None, height = None))]
+    fn new(
+        path: PathBuf,
+        chunk_events: usize,
+        width: Option<u16>,
+        height: Option<u16>,
+    ) -> PyResult<EventReader> {
+        if chunk_events == 0 {
+            return Err(errors::config("chunk_events = 0: must be at least 1"));
+        }
+        let opts = read_options(width, height)?;
+        let reader = open_events(&path, &opts).map_err(errors::format)?;
+        Ok(EventReader {
+            reader: Mutex::new(reader),
+            chunk_events,
+        })
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__(&self, py: Python<'_>) -> PyResult<Option<Events>> {
+        let mut reader = self.reader.lock().unwrap_or_else(|p| p.into_inner());
+        let reader = &mut *reader;
+        let n = self.chunk_events;
+        match threads::run(py, || reader.next_chunk(n))?.map_err(errors::format)? {
+            Some(batch) => Ok(Some(Events::from_batch(py, batch))),
+            None => Ok(None),
+        }
+    }
+
+    /// The sensor ``(width, height)`` every event is checked against.
+    #[getter]
+    fn resolution(&self) -> (u16, u16) {
+        let r = self
+            .reader
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .resolution();
+        (r.width, r.height)
+    }
+}
+
+/// The event formats neuspike writes, by name or by a file's extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum EventFormat {
+    Text,
+    Evt2,
+    Evt3,
+    Dat,
+    Aedat4,
+}
+
+impl EventFormat {
+    const NAMES: &str = "text (.txt), evt3 (.raw), evt2, dat (.dat), aedat4 (.aedat4)";
+
+    fn named(name: &str) -> Option<Self> {
+        Some(match name {
+            "text" | "txt" => EventFormat::Text,
+            "evt2" => EventFormat::Evt2,
+            "evt3" | "raw" => EventFormat::Evt3,
+            "dat" => EventFormat::Dat,
+            "aedat4" => EventFormat::Aedat4,
+            _ => return None,
+        })
+    }
+}
+
+fn write_with<W: EventWriter>(
+    mut w: W,
+    events: neuspike_representations::EventSlice<'_>,
+) -> Result<W, FormatError> {
+    for i in 0..events.len() {
+        w.write_event(&Event {
+            t_ns: events.t_ns[i],
+            x: events.x[i],
+            y: events.y[i],
+            polarity: events.polarity[i],
+        })?;
+    }
+    Ok(w)
+}
+
+/// Writes :class:`Events` to ``path`` in ``format`` (by default the one its extension names:
+/// ``.txt`` Event Camera Dataset text, ``.raw`` Prophesee EVT 3.0, ``.dat`` Prophesee DAT,
+/// ``.aedat4`` AEDAT 4 with LZ4; ``"evt2"`` for EVT 2.0); returns the events written. Formats
+/// that keep microseconds floor the nanoseconds.
+#[pyfunction]
+#[pyo3(signature = (path, events, *, format = None))]
+pub fn write_events(
+    py: Python<'_>,
+    path: PathBuf,
+    events: &Bound<'_, Events>,
+    format: Option<&str>,
+) -> PyResult<u64> {
+    let name = match format {
+        Some(f) => f.to_owned(),
+        None => path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase(),
+    };
+    let fmt = EventFormat::named(&name).ok_or_else(|| {
+        errors::config(format!(
+            "{}: format {name:?}: not one neuspike writes ({})",
+            path.display(),
+            EventFormat::NAMES
+        ))
+    })?;
+    let ev = events.get();
+    let (height, width) = ev.sensor();
+    let side = |v: usize, what: &str| {
+        u16::try_from(v).map_err(|_| errors::config(format!("events {what} = {v}: above 65535")))
+    };
+    let res = Resolution::new(side(width, "width")?, side(height, "height")?);
+    let columns = ev.columns(py);
+    let slice = columns.slice()?;
+    let summary = threads::run(py, || -> Result<WriteSummary, FormatError> {
+        let w = BufWriter::new(create(&path)?);
+        let (w, summary) = match fmt {
+            EventFormat::Text => {
+                write_with(TextWriter::new(w, &path, res, true)?, slice)?.finish()?
+            }
+            EventFormat::Evt2 => write_with(Evt2Writer::new(w, &path, res)?, slice)?.finish()?,
+            EventFormat::Evt3 => write_with(Evt3Writer::new(w, &path, res)?, slice)?.finish()?,
+            EventFormat::Dat => write_with(DatWriter::new(w, &path, res)?, slice)?.finish()?,
+            EventFormat::Aedat4 => {
+                write_with(Aedat4Writer::new(w, &path, res, Compression::Lz4)?, slice)?.finish()?
+            }
+        };
+        flush(w, &path)?;
+        Ok(summary)
+    })?
+    .map_err(errors::format)?;
+    Ok(summary.items)
+}
+
+/// The APS frames of an AEDAT 4 file (its first frame stream): ``(t_ns, frames)``, ``int64 [K]``
+/// and ``float32 [K, H, W]`` luminance in ``[0, 1]`` (grey / 255 or / 65535, colour by the BT.601
+/// weights). Frames of another size than the first raise :class:`FormatError`.
+#[pyfunction]
+pub fn read_aps_frames<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyAny>)> {
+    let (times, frames) = threads::run(py, || -> Result<_, FormatError> {
+        let mut times = Vec::new();
+        let mut pixels = Vec::new();
+        let mut size = None;
+        for frame in Aedat4Frames::open(&path)? {
+            let frame = frame?;
+            let (w, h) = (usize::from(frame.width), usize::from(frame.height));
+            match size {
+                None => size = Some((h, w)),
+                Some(s) if s == (h, w) => {}
+                Some((h0, w0)) => {
+                    return Err(FormatError::Unsupported {
+                        path: path.clone(),
+                        what: format!(
+                            "APS frame {} is {w}x{h}, the first was {w0}x{h0}",
+                            times.len()
+                        ),
+                    });
+                }
+            }
+            times.push(frame.t_ns);
+            pixels.extend(frame.luminance());
+        }
+        let (h, w) = size.unwrap_or((0, 0));
+        let frames = Array3::from_shape_vec((times.len(), h, w), pixels).map_err(|e| {
+            FormatError::Unsupported {
+                path: path.clone(),
+                what: e.to_string(),
+            }
+        })?;
+        Ok((times, frames))
+    })?
+    .map_err(errors::format)?;
+    Ok((
+        PyArray1::from_vec(py, times),
+        crate::values::to_numpy(py, frames)?,
+    ))
+}

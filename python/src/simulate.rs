@@ -1,0 +1,219 @@
+//! Both cameras on one scene: a built-in scene, a scene YAML file, or frames the user passes.
+//!
+//! The cameras' settings are the node arguments of the graphs (`spike-source`, `event-source`),
+//! given as a dict whose keys are the arguments without their dashes (`{"phi": 2.0, "profile":
+//! "vidar"}`), and parsed by the same definitions, so every setting, profile and noise term is
+//! there and refused with the same message.
+
+use clap::Parser;
+use ndarray::Array3;
+use numpy::{PyArray1, PyReadonlyArray3};
+use pyo3::prelude::*;
+use pyo3::types::{PyBool, PyDict};
+
+use neuspike_event_camera::{DvsConfig, EventCamera};
+use neuspike_scene::Clip;
+use neuspike_scene::Scene;
+use neuspike_spike_camera::{CameraConfig, SpikeCamera};
+
+use crate::values::{Events, Spikes};
+use crate::{errors, threads};
+
+/// The most planes one call simulates (2^20: 13 GB of 400x250 planes).
+const MAX_PLANES: u64 = 1 << 20;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "spike_camera",
+    args_override_self = true,
+    no_binary_name = true
+)]
+struct SpikeArgs {
+    #[command(flatten)]
+    camera: CameraConfig,
+}
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "event_camera",
+    args_override_self = true,
+    no_binary_name = true
+)]
+struct DvsArgs {
+    #[command(flatten)]
+    camera: DvsConfig,
+}
+
+/// A settings dict as command-line words: `{"fpn_mu": 150}` is `--fpn-mu=150`.
+fn flags(what: &str, settings: Option<&Bound<'_, PyDict>>) -> PyResult<Vec<String>> {
+    let mut out = Vec::new();
+    let Some(settings) = settings else {
+        return Ok(out);
+    };
+    for (k, v) in settings.iter() {
+        let key: String = k.extract().map_err(|_| {
+            errors::config(format!(
+                "{what}: a setting's name must be a string, got {k}"
+            ))
+        })?;
+        let value = if v.is_instance_of::<PyBool>() {
+            if v.is_truthy()? { "true" } else { "false" }.to_owned()
+        } else {
+            v.str()?.to_string()
+        };
+        out.push(format!("--{}={value}", key.replace('_', "-")));
+    }
+    Ok(out)
+}
+
+fn parse<P: Parser>(what: &str, args: &[String]) -> PyResult<P> {
+    P::try_parse_from(args).map_err(|e| {
+        let text = e.to_string();
+        let first = text
+            .lines()
+            .next()
+            .unwrap_or_default()
+            .trim_start_matches("error: ")
+            .to_owned();
+        errors::config(format!("{what}: {first}"))
+    })
+}
+
+/// What :func:`simulate` made: the spike planes, the events (or ``None``), and the ground truth
+/// (the scene's luminance, clipped to ``[0, 1]``) at every ``truth_every``-th plane.
+#[pyclass(module = "neuspike", frozen, get_all)]
+pub struct Simulation {
+    /// The spike camera's planes.
+    spikes: Py<Spikes>,
+    /// The DVS's events of ``[0, planes * plane_period_ns)``, or ``None``.
+    events: Option<Py<Events>>,
+    /// Ground truth, ``float32 [K, H, W]``.
+    truth: Py<PyAny>,
+    /// The plane each truth frame belongs to, ``uint64 [K]``.
+    truth_planes: Py<PyArray1<u64>>,
+    /// Each truth frame's time, ``int64 [K]`` ns (its plane's time stamp).
+    truth_t_ns: Py<PyArray1<i64>>,
+}
+
+#[pymethods]
+impl Simulation {
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        let events = match &self.events {
+            Some(e) => e.bind(py).repr()?.to_string(),
+            None => "None".into(),
+        };
+        Ok(format!(
+            "Simulation(spikes={}, events={events}, truth={} frames)",
+            self.spikes.bind(py).repr()?,
+            self.truth_planes.bind(py).len()?
+        ))
+    }
+}
+
+/// The built-in scenes' names.
+#[pyfunction]
+pub fn scenes() -> Vec<&'static str> {
+    Scene::builtin_names().to_vec()
+}
+
+/// Simulates the spike camera (and the DVS, unless ``events=False``) on one scene for ``planes``
+/// planes, deterministically for ``seed``.
+///
+/// The scene is a built-in name (:func:`scenes`), a scene YAML file, or ``frames``: luminance
+/// ``[T, H, W]`` (``float32``, a frame every ``frame_dt_ns``, linear in time between frames and
+/// held after the last), seen at ``light_scale``. ``spike_camera`` and ``event_camera`` hold the
+/// cameras' settings under the node arguments' names (``{"phi": 2.0, "profile": "vidar"}``;
+/// the sensors default to the frames' size for ``frames``). Ground truth comes every
+/// ``truth_every`` planes (0: none).
+#[pyfunction]
+#[pyo3(signature = (scene = "bright-slow", planes = 400, *, seed = 0, truth_every = 20, events = true, spike_camera = None, event_camera = None, frames = None, frame_dt_ns = 1_000_000, light_scale = 1.0))]
+pub fn simulate(
+    py: Python<'_>,
+    scene: &str,
+    planes: u64,
+    seed: u64,
+    truth_every: u64,
+    events: bool,
+    spike_camera: Option<&Bound<'_, PyDict>>,
+    event_camera: Option<&Bound<'_, PyDict>>,
+    frames: Option<PyReadonlyArray3<'_, f32>>,
+    frame_dt_ns: i64,
+    light_scale: f64,
+) -> PyResult<Simulation> {
+    if !(1..=MAX_PLANES).contains(&planes) {
+        return Err(errors::config(format!(
+            "planes = {planes}: must be 1..={MAX_PLANES}"
+        )));
+    }
+    let mut base = vec![format!("--seed={seed}")];
+    let scene = match frames {
+        Some(f) => {
+            let f = crate::values::view3(&f)?.to_owned();
+            let (_, h, w) = f.dim();
+            base.push(format!("--width={w}"));
+            base.push(format!("--height={h}"));
+            let clip = Clip::new(f, frame_dt_ns, "frames").map_err(errors::config)?;
+            Scene::from_clip(clip, light_scale).map_err(errors::config)?
+        }
+        None => Scene::load(scene).map_err(errors::config)?,
+    };
+    let spike_args: SpikeArgs = parse(
+        "spike_camera",
+        &[base.clone(), flags("spike_camera", spike_camera)?].concat(),
+    )?;
+    let dvs_args: Option<DvsArgs> = if events {
+        Some(parse(
+            "event_camera",
+            &[base, flags("event_camera", event_camera)?].concat(),
+        )?)
+    } else {
+        None
+    };
+    let n = usize::try_from(planes).map_err(errors::config)?;
+    let (chunk, truth, truth_planes, batch) = threads::run(py, || -> Result<_, String> {
+        let mut camera =
+            SpikeCamera::new(scene.clone(), spike_args.camera).map_err(|e| e.to_string())?;
+        let period = camera.period_ns();
+        let chunk = camera.next_chunk(n, 0);
+        let truth_planes: Vec<u64> = if truth_every == 0 {
+            Vec::new()
+        } else {
+            (0..planes)
+                .step_by(truth_every.try_into().unwrap_or(usize::MAX))
+                .collect()
+        };
+        let (h, w) = (chunk.height, chunk.width);
+        let mut truth = Array3::<f32>::zeros((truth_planes.len(), h, w));
+        for (i, &k) in truth_planes.iter().enumerate() {
+            truth
+                .index_axis_mut(ndarray::Axis(0), i)
+                .assign(&camera.ground_truth(k));
+        }
+        let batch = match dvs_args {
+            Some(a) => {
+                let mut dvs = EventCamera::new(scene, a.camera, 0)
+                    .map_err(|e| format!("event camera: {e}"))?;
+                Some(dvs.advance_to((planes as i64).saturating_mul(period), 0))
+            }
+            None => None,
+        };
+        Ok((chunk, truth, truth_planes, batch))
+    })?
+    .map_err(errors::config)?;
+    let truth_t_ns: Vec<i64> = truth_planes
+        .iter()
+        .map(|&k| (k as i64).saturating_mul(chunk.plane_period_ns))
+        .collect();
+    let spikes = Py::new(py, Spikes::from_chunk(py, chunk)?)?;
+    let events = match batch {
+        Some(b) => Some(Py::new(py, Events::from_batch(py, b))?),
+        None => None,
+    };
+    Ok(Simulation {
+        spikes,
+        events,
+        truth: crate::values::to_numpy(py, truth)?.unbind(),
+        truth_planes: PyArray1::from_vec(py, truth_planes).unbind(),
+        truth_t_ns: PyArray1::from_vec(py, truth_t_ns).unbind(),
+    })
+}
