@@ -10,9 +10,9 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::table::Table;
 use eyre::{WrapErr, bail, eyre};
 use ndarray::{Array2, ArrayView2, ArrayView3};
+use neuspike_dataset::table::Table;
 use neuspike_formats::npy::NpyFrames;
 use neuspike_reconstruction::learned::{LearnedModel, LearnedOutput, network_variant};
 
@@ -355,7 +355,7 @@ pub fn tables(scores: &[MethodScores]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::{DatasetOptions, Split, generate, tiny_options};
+    use neuspike_dataset::{DatasetOptions, Split, generate, tiny_options};
 
     fn set(dir: &Path) -> PathBuf {
         let out = dir.join("set");

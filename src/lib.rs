@@ -10,7 +10,6 @@ pub mod bench_live;
 pub mod bench_model;
 pub mod calibrate;
 pub mod cluster;
-pub mod dataset;
 pub mod frames_to_events;
 pub mod frames_to_spikes;
 pub mod graph;
@@ -24,7 +23,6 @@ pub mod reconstruct;
 pub mod record;
 pub mod rig;
 pub mod soak;
-mod table;
 pub mod trade;
 
 pub mod demo;

@@ -115,7 +115,7 @@ enum Command {
     /// speeds of small simulated scenes, each with the spike representation and the event
     /// integration of one window, its ground truth and the TFP/TFI baselines, as .npy shards
     /// (see training/README.md).
-    Dataset(neuspike::dataset::DatasetOptions),
+    Dataset(neuspike_dataset::DatasetOptions),
     /// Score methods on a held-out `neuspike dataset` set as training/evaluate.py does (PSNR
     /// and SSIM, normal and complex scenes, per light scale), the networks run by tract as the
     /// infer node runs them, in 8 bits and bf16 too (`<name>-int8`, `<name>-bf16`): what a
@@ -477,7 +477,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
             Ok(())
         }
         Command::Dataset(opts) => {
-            let sum = neuspike::dataset::generate(&opts, true)?;
+            let sum = neuspike_dataset::generate(&opts, true)?;
             println!(
                 "{}: {} samples ({} complex) in {} shards, {} photographs",
                 opts.out.display(),

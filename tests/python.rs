@@ -393,11 +393,17 @@ fn the_python_package_passes_its_tests_and_reads_and_writes_what_the_rust_schema
         std::fs::write(rust.join(format!("bad-{name}.txt")), err).expect("write");
     }
 
+    // A small set as `neuspike dataset` writes it: the package's `Samples` must make the same.
+    let set = dir.path().join("set");
+    let opts = neuspike_dataset::tiny_options(neuspike_dataset::Split::Train, set.clone());
+    neuspike_dataset::generate(&opts, false).expect("a small set");
+
     python(
         &["-m", "unittest", "discover", "-v", "-s", "python/tests"],
         &[
             ("NEUSPIKE_RUST_MESSAGES", &rust),
             ("NEUSPIKE_PYTHON_OUT", &py),
+            ("NEUSPIKE_DATASET_DIR", &set),
         ],
     );
 

@@ -1,4 +1,4 @@
-"""Reading a `neuspike dataset` folder (see src/dataset.rs): its .npy shards and samples.csv."""
+"""Reading a `neuspike dataset` folder (see dataset/src/lib.rs): its .npy shards and samples.csv."""
 
 import csv
 import pathlib

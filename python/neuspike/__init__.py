@@ -8,6 +8,8 @@ kernel run by neuspike's Rust crates with the GIL released:
   AEDAT 4); :func:`read_aps_frames` (AEDAT 4 frames);
 - values: :class:`Spikes` (bit-packed planes and their clock), :class:`Events` (four columns);
 - :func:`simulate`: both cameras on one scene, with ground truth, deterministic for a seed;
+- :class:`Samples`: training samples made on demand, each deterministic in its index
+  (:mod:`neuspike.data` makes them a PyTorch dataset);
 - representations: :func:`tfp`, :func:`tfi`, :func:`isi`, :func:`tfstp`,
   :func:`spike_representation`, :func:`event_count`, :func:`event_integration`,
   :func:`voxel_grid`, :func:`event_stack`, :func:`time_surface`;
@@ -31,6 +33,7 @@ try:
         Events,
         FormatError,
         InputError,
+        Samples,
         Simulation,
         SpikeReader,
         Spikes,
@@ -109,6 +112,7 @@ if NATIVE:
         "Events",
         "FormatError",
         "InputError",
+        "Samples",
         "Simulation",
         "SpikeReader",
         "Spikes",

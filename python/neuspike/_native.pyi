@@ -270,3 +270,19 @@ def simulate(
     light_scale: float = 1.0,
 ) -> Simulation:
     """Both cameras on one scene (a built-in, a YAML file, or ``frames``), deterministic for a seed."""
+
+class Samples:
+    """A simulated training or test set, its samples made on demand: ``samples[i]`` is sample
+    ``i`` of ``neuspike dataset`` with the same options (their names without dashes), the spike
+    camera drawn per sample unless ``randomise_camera=False``."""
+
+    size: int
+    channels: int
+    def __init__(self, split: str = "train", **options: Union[Setting, Sequence[str]]) -> None: ...
+    def __len__(self) -> int: ...
+    def __getitem__(self, index: int) -> dict:
+        """``spike``, ``events`` ``[C, S, S]``; ``truth``, ``tfp``, ``tfi`` ``[S, S]``; ``also``;
+        ``texture``, ``light``, ``speed_px_s``, ``angle_deg``, ``theta_on``, ``theta_off``,
+        ``lum_per_rate``, ``event_count``, ``complex``."""
+    def batch(self, indices: Sequence[int]) -> dict:
+        """Samples made side by side and stacked: arrays ``[B, ...]``, scalars as arrays ``[B]``."""

@@ -12,9 +12,11 @@
 // A Python function's keyword arguments are the Rust function's parameters.
 #![allow(clippy::too_many_arguments)]
 
+mod dataset;
 mod errors;
 mod io;
 mod kernels;
+mod settings;
 mod simulate;
 mod threads;
 mod values;
@@ -65,5 +67,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
     m.add_class::<simulate::Simulation>()?;
     m.add_function(wrap_pyfunction!(simulate::scenes, m)?)?;
+    m.add_class::<dataset::Samples>()?;
     Ok(())
 }

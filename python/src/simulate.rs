@@ -6,10 +6,12 @@
 //! there and refused with the same message.
 
 use clap::Parser;
+
+use crate::settings::{flags, parse};
 use ndarray::Array3;
 use numpy::{PyArray1, PyReadonlyArray3};
 use pyo3::prelude::*;
-use pyo3::types::{PyBool, PyDict};
+use pyo3::types::PyDict;
 
 use neuspike_event_camera::{DvsConfig, EventCamera};
 use neuspike_scene::Clip;
@@ -42,41 +44,6 @@ struct SpikeArgs {
 struct DvsArgs {
     #[command(flatten)]
     camera: DvsConfig,
-}
-
-/// A settings dict as command-line words: `{"fpn_mu": 150}` is `--fpn-mu=150`.
-fn flags(what: &str, settings: Option<&Bound<'_, PyDict>>) -> PyResult<Vec<String>> {
-    let mut out = Vec::new();
-    let Some(settings) = settings else {
-        return Ok(out);
-    };
-    for (k, v) in settings.iter() {
-        let key: String = k.extract().map_err(|_| {
-            errors::config(format!(
-                "{what}: a setting's name must be a string, got {k}"
-            ))
-        })?;
-        let value = if v.is_instance_of::<PyBool>() {
-            if v.is_truthy()? { "true" } else { "false" }.to_owned()
-        } else {
-            v.str()?.to_string()
-        };
-        out.push(format!("--{}={value}", key.replace('_', "-")));
-    }
-    Ok(out)
-}
-
-fn parse<P: Parser>(what: &str, args: &[String]) -> PyResult<P> {
-    P::try_parse_from(args).map_err(|e| {
-        let text = e.to_string();
-        let first = text
-            .lines()
-            .next()
-            .unwrap_or_default()
-            .trim_start_matches("error: ")
-            .to_owned();
-        errors::config(format!("{what}: {first}"))
-    })
 }
 
 /// What :func:`simulate` made: the spike planes, the events (or ``None``), and the ground truth
@@ -159,12 +126,16 @@ pub fn simulate(
     };
     let spike_args: SpikeArgs = parse(
         "spike_camera",
-        &[base.clone(), flags("spike_camera", spike_camera)?].concat(),
+        &[
+            base.clone(),
+            flags::<SpikeArgs>("spike_camera", spike_camera)?,
+        ]
+        .concat(),
     )?;
     let dvs_args: Option<DvsArgs> = if events {
         Some(parse(
             "event_camera",
-            &[base, flags("event_camera", event_camera)?].concat(),
+            &[base, flags::<DvsArgs>("event_camera", event_camera)?].concat(),
         )?)
     } else {
         None

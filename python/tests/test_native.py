@@ -57,6 +57,12 @@ def random_events(n, h, w, seed=0, t_span=1_000_000):
     return ns.Events(t, x, y, p, w, h)
 
 
+def truth_in_worker(args):
+    """A spawned or forked worker's sample, from a pickled set."""
+    samples, i = args
+    return samples[i]["truth"]
+
+
 def tfp_in_worker(seed):
     """A DataLoader worker's work: simulate and represent."""
     sim = ns.simulate("bright-slow", 40, seed=seed, events=False, truth_every=0)
@@ -362,6 +368,84 @@ class SimulateTest(unittest.TestCase):
             ns.simulate("nowhere")
         with self.assertRaisesRegex(ns.ConfigError, "planes = 0"):
             ns.simulate(planes=0)
+
+
+@unittest.skipUnless(ns.NATIVE, "neuspike's native module is not built")
+class SamplesTest(unittest.TestCase):
+    def setUp(self):
+        self.samples = ns.Samples(size=16, per_cell=2, seed=5, also=["voxel_grid"])
+
+    def test_a_sample_is_its_index_and_seed(self):
+        s = self.samples
+        self.assertEqual(len(s), 50)
+        a, b = s[7], s[7]
+        for k in ("spike", "events", "truth", "tfp", "tfi"):
+            np.testing.assert_array_equal(a[k], b[k])
+        self.assertEqual(a["spike"].shape, (32, 16, 16))
+        self.assertEqual(a["truth"].shape, (16, 16))
+        self.assertEqual(a["also"]["voxel_grid"].shape, (5, 16, 16))
+        self.assertFalse(np.array_equal(s[8]["truth"], a["truth"]))
+        other = ns.Samples(size=16, per_cell=2, seed=6)
+        self.assertFalse(np.array_equal(other[7]["truth"], a["truth"]))
+        np.testing.assert_array_equal(s[-43]["truth"], a["truth"])
+        with self.assertRaises(IndexError):
+            s[50]
+
+    def test_a_batch_is_its_samples_stacked(self):
+        b = self.samples.batch([3, 9, 3])
+        self.assertEqual(b["spike"].shape, (3, 32, 16, 16))
+        self.assertEqual(b["also"]["voxel_grid"].shape, (3, 5, 16, 16))
+        for j, i in enumerate([3, 9, 3]):
+            one = self.samples[i]
+            np.testing.assert_array_equal(b["events"][j], one["events"])
+            self.assertEqual(b["lum_per_rate"][j], one["lum_per_rate"])
+            self.assertEqual(b["texture"][j], one["texture"])
+        with self.assertRaises(IndexError):
+            self.samples.batch([0, 99])
+
+    def test_options_are_the_dataset_commands(self):
+        with self.assertRaisesRegex(ns.ConfigError, "--size = 4 is invalid"):
+            ns.Samples(size=4)
+        with self.assertRaisesRegex(ns.ConfigError, "unexpected argument '--bogus'"):
+            ns.Samples(bogus=1)
+        with self.assertRaisesRegex(ns.ConfigError, "give one or the other"):
+            ns.Samples(profile="vidar")
+        fixed = ns.Samples(size=16, per_cell=1, profile="vidar", randomise_camera=False)
+        self.assertIn("16x16", repr(fixed))
+        self.assertNotIn("cameras drawn", repr(fixed))
+
+    def test_workers_forked_or_spawned_make_the_same_samples(self):
+        want = [self.samples[i]["truth"] for i in (4, 11)]
+        for method in ("fork", "spawn"):
+            with multiprocessing.get_context(method).Pool(2) as pool:
+                got = pool.map_async(truth_in_worker, [(self.samples, 4), (self.samples, 11)]).get(timeout=120)
+            for g, w in zip(got, want):
+                np.testing.assert_array_equal(g, w, err_msg=method)
+
+    def test_the_stream_shares_each_epoch_between_workers(self):
+        from neuspike.data import SampleDataset, SampleStream
+
+        stream = SampleStream(self.samples, batch_size=8, seed=1)
+        first = stream.order()
+        self.assertEqual(sorted(first), list(range(50)))
+        self.assertEqual([len(b) for b in stream.batches()], [8] * 6 + [2])
+        stream.set_epoch(1)
+        self.assertNotEqual(stream.order(), first)
+        stream.set_epoch(0)
+        self.assertEqual(stream.order(), first)
+        got = next(iter(stream))
+        np.testing.assert_array_equal(np.asarray(got["truth"][0]), self.samples[first[0]]["truth"])
+        self.assertEqual(len(SampleDataset(self.samples)), 50)
+
+    @unittest.skipUnless(os.environ.get("NEUSPIKE_DATASET_DIR"), "no set written by neuspike dataset")
+    def test_the_samples_are_those_neuspike_dataset_writes(self):
+        # tests/python.rs writes a small set (the dataset crate's tiny options) and names it.
+        d = Path(os.environ["NEUSPIKE_DATASET_DIR"])
+        s = ns.Samples(size=16, per_cell=1, seed=7, randomise_camera=False)
+        b = s.batch(list(range(len(s))))
+        for k in ("spike", "events", "truth", "tfp", "tfi"):
+            disk = np.concatenate([np.load(d / f"{i:03}" / f"{k}.npy") for i in range(3)])
+            np.testing.assert_array_equal(b[k], disk, err_msg=k)
 
 
 @unittest.skipUnless(ns.NATIVE, "neuspike's native module is not built")

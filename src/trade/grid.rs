@@ -5,7 +5,7 @@ use neuspike_scene::Scene;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::dataset::{LIGHT_SCALES, SPEEDS_PX_S};
+use neuspike_dataset::{LIGHT_SCALES, SPEEDS_PX_S};
 
 /// Sensor width of every scene (the spike camera's; the DVS sees the same view at the same size,
 /// as the event methods need).

@@ -52,6 +52,7 @@ use neuspike_representations::{RepresentConfig, RepresentStage, Representer};
 use neuspike_scene::{Clip, Scene};
 
 use crate::table::Table;
+
 use neuspike_schemas::{AlignedWindow, EventBatch, Representation, RepresentationKind, SpikeChunk};
 use neuspike_spike_camera::noise::{Noise, NoiseArgs};
 use neuspike_spike_camera::{CameraConfig, SpikeCamera};
@@ -60,6 +61,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use std::sync::Mutex;
+
+pub mod table;
 
 /// The light scales of the grid (the spike camera's `phi` is 1: a pixel of luminance `L` fires
 /// `L * light` times a tick on average).
@@ -855,13 +858,82 @@ fn save<A: ndarray_npy::WritableElement, D: ndarray::Dimension>(
     write_npy(path, a).wrap_err_with(|| format!("cannot write {}", path.display()))
 }
 
+/// The samples of a set, each made on demand: sample `i` is the one `neuspike dataset` writes as
+/// sample `i` (deterministic in the seed, the split and `i`), whether it is asked for alone, in
+/// any order, in any process, or generated into shards.
+#[derive(Clone, Debug)]
+pub struct Samples {
+    opts: DatasetOptions,
+    photos: Vec<PathBuf>,
+    clips: Vec<ClipRow>,
+}
+
+impl Samples {
+    /// Checks the options and lists the photographs and clips they name (`out` is not used).
+    ///
+    /// # Errors
+    /// A bad option, named; a textures or clips folder that cannot be read.
+    pub fn new(opts: DatasetOptions) -> eyre::Result<Samples> {
+        check(&opts)?;
+        let photos = match &opts.textures {
+            Some(dir) => photos_in(dir)?,
+            None => Vec::new(),
+        };
+        let clips = match &opts.clips {
+            Some(dir) => clips_in(dir)?,
+            None => Vec::new(),
+        };
+        Ok(Samples {
+            opts,
+            photos,
+            clips,
+        })
+    }
+
+    /// The set's size: `per_cell` samples in each of the grid's 25 cells, or one a clip.
+    pub fn len(&self) -> usize {
+        if self.clips.is_empty() {
+            self.opts.per_cell * LIGHT_SCALES.len() * SPEEDS_PX_S.len()
+        } else {
+            self.clips.len()
+        }
+    }
+
+    /// Whether the set is empty (never: the options hold at least one sample).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The options.
+    pub fn options(&self) -> &DatasetOptions {
+        &self.opts
+    }
+
+    /// The photographs the textures come from.
+    pub fn photos(&self) -> usize {
+        self.photos.len()
+    }
+
+    /// Sample `i`, `i < len()`.
+    ///
+    /// # Errors
+    /// `i` out of range, or a clip that cannot be read; each names the sample.
+    pub fn get(&self, i: usize) -> eyre::Result<Sample> {
+        if i >= self.len() {
+            bail!("dataset: sample {i} of a set of {}", self.len());
+        }
+        let (light, speed) = cell_of(i);
+        match self.clips.get(i) {
+            Some(clip) => sample_of_clip(&self.opts, clip, i, LIGHT_SCALES[i % LIGHT_SCALES.len()]),
+            None => sample(&self.opts, &self.photos, i, light, speed),
+        }
+        .wrap_err_with(|| format!("dataset: sample {i}"))
+    }
+}
+
 /// Generates the whole set into `opts.out`.
 pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSummary> {
-    check(opts)?;
-    let photos = match &opts.textures {
-        Some(dir) => photos_in(dir)?,
-        None => Vec::new(),
-    };
+    let set = Samples::new(opts.clone())?;
     let out = &opts.out;
     if out.exists()
         && fs::read_dir(out)
@@ -872,15 +944,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         bail!("dataset: --out {} exists and is not empty", out.display());
     }
     fs::create_dir_all(out).wrap_err_with(|| format!("cannot create {}", out.display()))?;
-    let clips = match &opts.clips {
-        Some(dir) => clips_in(dir)?,
-        None => Vec::new(),
-    };
-    let total = if clips.is_empty() {
-        opts.per_cell * LIGHT_SCALES.len() * SPEEDS_PX_S.len()
-    } else {
-        clips.len()
-    };
+    let total = set.len();
     let bar = progress.then(|| indicatif::ProgressBar::new(total as u64));
     let csv_path = out.join("samples.csv");
     let mut csv = std::io::BufWriter::new(
@@ -897,21 +961,14 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         samples: 0,
         shards: 0,
         complex: 0,
-        photos: photos.len(),
+        photos: set.photos(),
     };
     for (shard, start) in (0..total).step_by(opts.shard).enumerate() {
         let end = (start + opts.shard).min(total);
         let samples: Vec<Sample> = (start..end)
             .into_par_iter()
             .map(|i| {
-                let (light, speed) = cell_of(i);
-                let s = match clips.get(i) {
-                    Some(clip) => {
-                        sample_of_clip(opts, clip, i, LIGHT_SCALES[i % LIGHT_SCALES.len()])
-                    }
-                    None => sample(opts, &photos, i, light, speed),
-                }
-                .wrap_err_with(|| format!("dataset: sample {i}"));
+                let s = set.get(i);
                 if let Some(bar) = &bar {
                     bar.inc(1);
                 }
@@ -993,7 +1050,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         )
     };
     let yml = format!(
-        "# neuspike dataset: see src/dataset.rs\nsplit: {:?}\nsamples: {}\nshards: {}\ncomplex: {}\n\
+        "# neuspike dataset: see dataset/src/lib.rs\nsplit: {:?}\nsamples: {}\nshards: {}\ncomplex: {}\n\
          per_cell: {}\nsize: {}\nwindow_planes: {}\nreference_plane: {}\nchannels: {}\ntau_ns: {}\n\
          rate_hz: {}\nphi: {}\nlight_scales: {:?}\nspeeds_px_s: {:?}\nphotos: {}\nseed: {}\nalso: [{}]\n\
          camera: {}\nclips: {}\n",
@@ -1011,7 +1068,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         CameraConfig::default().phi,
         LIGHT_SCALES,
         SPEEDS_PX_S,
-        photos.len(),
+        set.photos(),
         opts.seed,
         opts.also
             .iter()
@@ -1022,7 +1079,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         opts.clips.as_ref().map_or("none".to_string(), |d| format!(
             "{:?} ({} clips)",
             d.display().to_string(),
-            clips.len()
+            set.len()
         ))
     );
     let yml_path = out.join("dataset.yml");
@@ -1031,9 +1088,10 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
     Ok(summary)
 }
 
-/// A small set's options for tests: one sample of 16x16 a cell, shards of 10, seed 7.
-#[cfg(test)]
-pub(crate) fn tiny_options(split: Split, out: PathBuf) -> DatasetOptions {
+/// A small set's options for tests (this crate's and the program's): one sample of 16x16 a cell,
+/// shards of 10, seed 7.
+#[doc(hidden)]
+pub fn tiny_options(split: Split, out: PathBuf) -> DatasetOptions {
     DatasetOptions {
         out,
         split,

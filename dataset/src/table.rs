@@ -8,13 +8,13 @@ use std::str::FromStr;
 use eyre::{WrapErr, eyre};
 
 /// A table read whole.
-pub(crate) struct Table {
+pub struct Table {
     path: PathBuf,
     text: String,
 }
 
 /// One row: its line number (1-based, the header being line 1) and its cells.
-pub(crate) struct Row<'a> {
+pub struct Row<'a> {
     path: &'a Path,
     line: usize,
     cells: Vec<&'a str>,
@@ -22,7 +22,7 @@ pub(crate) struct Row<'a> {
 
 impl Table {
     /// Reads `path`; `hint` follows the error when it cannot be read.
-    pub(crate) fn read(path: &Path, hint: &str) -> eyre::Result<Table> {
+    pub fn read(path: &Path, hint: &str) -> eyre::Result<Table> {
         let text = std::fs::read_to_string(path)
             .wrap_err_with(|| format!("{}: cannot read{hint}", path.display()))?;
         Ok(Table {
@@ -32,7 +32,7 @@ impl Table {
     }
 
     /// The index of column `name` in the header.
-    pub(crate) fn column(&self, name: &str) -> eyre::Result<usize> {
+    pub fn column(&self, name: &str) -> eyre::Result<usize> {
         self.text
             .lines()
             .next()
@@ -43,7 +43,7 @@ impl Table {
     }
 
     /// The rows after the header, empty lines left out.
-    pub(crate) fn rows(&self) -> impl Iterator<Item = Row<'_>> {
+    pub fn rows(&self) -> impl Iterator<Item = Row<'_>> {
         self.text
             .lines()
             .enumerate()
@@ -59,7 +59,7 @@ impl Table {
 
 impl Row<'_> {
     /// The cell of column `col`, called `name` in errors.
-    pub(crate) fn field(&self, col: usize, name: &str) -> eyre::Result<&str> {
+    pub fn field(&self, col: usize, name: &str) -> eyre::Result<&str> {
         self.cells.get(col).copied().ok_or_else(|| {
             eyre!(
                 "{} line {}: no field `{name}`",
@@ -70,13 +70,13 @@ impl Row<'_> {
     }
 
     /// The cell parsed as a `T`; `what` says what it must be.
-    pub(crate) fn parse<T: FromStr>(&self, col: usize, name: &str, what: &str) -> eyre::Result<T> {
+    pub fn parse<T: FromStr>(&self, col: usize, name: &str, what: &str) -> eyre::Result<T> {
         let v = self.field(col, name)?;
         v.parse().map_err(|_| self.bad(name, v, what))
     }
 
     /// The cell as a finite number.
-    pub(crate) fn number(&self, col: usize, name: &str) -> eyre::Result<f64> {
+    pub fn number(&self, col: usize, name: &str) -> eyre::Result<f64> {
         let v = self.field(col, name)?;
         v.parse::<f64>()
             .ok()
@@ -85,7 +85,7 @@ impl Row<'_> {
     }
 
     /// The error of a cell `v` of `name` that is not `what`.
-    pub(crate) fn bad(&self, name: &str, v: &str, what: &str) -> eyre::Report {
+    pub fn bad(&self, name: &str, v: &str, what: &str) -> eyre::Report {
         eyre!(
             "{} line {}: `{name}` is {v:?}, not {what}",
             self.path.display(),
