@@ -571,13 +571,15 @@ impl<W: Write> Evt3Writer<W> {
             while high - last > STEP {
                 last += STEP;
                 self.put(word::TIME_HIGH, last as u32)?;
-                self.last_low = Some(0);
             }
         }
+        // A TIME_HIGH word sets the upper bits only: the format does not say it clears the lower
+        // ones (neuspike's reader clears them; Prophesee's and evlib's keep the last TIME_LOW), so
+        // a TIME_LOW word always follows it and every reader agrees.
         if self.last_high != Some(high) {
             self.put(word::TIME_HIGH, high as u32)?;
             self.last_high = Some(high);
-            self.last_low = Some(0);
+            self.last_low = None;
         }
         let low = (t_us as u32) & TIME_MASK;
         if self.last_low != Some(low) {
@@ -836,6 +838,51 @@ mod tests {
             let checked =
                 decode_all(&bytes, max, piece, &opts, |b, at, sink, out| d.decode_checked(b, at, sink, out));
             assert_same(&fast, &checked)?;
+        }
+    }
+
+    /// Readers that keep the last `TIME_LOW` across a `TIME_HIGH` (Prophesee's, evlib) read the
+    /// writer's times too: every `TIME_HIGH` is followed by a `TIME_LOW` before the next event.
+    #[test]
+    fn every_time_high_is_followed_by_a_time_low_before_an_event() {
+        let mut w = Evt3Writer::new(Vec::new(), "mem", Resolution::new(8, 8)).expect("writer");
+        // Times that cross TIME_HIGH boundaries (4,096 us), some landing on a low part of 0 after
+        // a non-zero one.
+        for (k, t_us) in [
+            5u64,
+            4_095,
+            4_096 + 7,
+            2 * 4_096,
+            3 * 4_096 + 1,
+            3 * 4_096 + 1,
+            40 * 4_096,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let e = Event {
+                t_ns: (t_us * 1000) as i64,
+                x: (k % 8) as u16,
+                y: 1,
+                polarity: 1,
+            };
+            w.write_event(&e).expect("write");
+        }
+        let (bytes, _) = w.finish().expect("finish");
+        let kinds: Vec<u8> = bytes
+            .chunks_exact(2)
+            .map(|c| (u16::from_le_bytes([c[0], c[1]]) >> 12) as u8)
+            .collect();
+        let mut pending_high = false;
+        for k in kinds {
+            match k {
+                word::TIME_HIGH => pending_high = true,
+                word::TIME_LOW => pending_high = false,
+                word::ADDR_X | word::VECT_BASE_X => {
+                    assert!(!pending_high, "an event right after TIME_HIGH")
+                }
+                _ => {}
+            }
         }
     }
 
