@@ -13,6 +13,8 @@ kernel run by neuspike's Rust crates with the GIL released:
 - representations: :func:`tfp`, :func:`tfi`, :func:`isi`, :func:`tfstp`,
   :func:`spike_representation`, :func:`event_count`, :func:`event_integration`,
   :func:`voxel_grid`, :func:`event_stack`, :func:`time_surface`;
+- reconstruction: :func:`reconstruct` (every method: classical, physics fusion, the networks,
+  ``auto``) and :func:`run_graph` (a graph's stages as one in-process chain);
 - metrics: :func:`psnr`, :func:`psnr_after_gain`, :func:`gain`, :func:`ssim`, :func:`entropy_2d`;
 - :func:`set_threads`; errors: :class:`Error` and its kinds :class:`FormatError`,
   :class:`ConfigError`, :class:`InputError`.
@@ -43,11 +45,14 @@ try:
         event_stack,
         gain,
         isi,
+        models,
         psnr,
         psnr_after_gain,
         read_aps_frames,
         read_events,
         read_spikes,
+        reconstruct,
+        run_graph,
         scenes,
         set_threads,
         simulate,
@@ -122,11 +127,14 @@ if NATIVE:
         "event_stack",
         "gain",
         "isi",
+        "models",
         "psnr",
         "psnr_after_gain",
         "read_aps_frames",
         "read_events",
         "read_spikes",
+        "reconstruct",
+        "run_graph",
         "scenes",
         "set_threads",
         "simulate",

@@ -286,3 +286,32 @@ class Samples:
         ``lum_per_rate``, ``event_count``, ``complex``."""
     def batch(self, indices: Sequence[int]) -> dict:
         """Samples made side by side and stacked: arrays ``[B, ...]``, scalars as arrays ``[B]``."""
+
+def models() -> Optional[str]:
+    """The shipped networks' folder (``$NEUSPIKE_MODELS``, else the building checkout's ``models/``)."""
+
+def reconstruct(
+    spikes: Spikes,
+    events: Optional[Events] = None,
+    *,
+    method: str = "tfp",
+    model: Optional[PathLike] = None,
+    policy: Optional[PathLike] = None,
+    window_planes: Optional[int] = None,
+    stride_planes: int = 20,
+    infer: str = "",
+    lum_per_rate: Optional[float] = None,
+) -> dict:
+    """Frames by ``method`` (tfp, tfi, tfstp, hf, cf, fusion, learned, auto) through the graph's
+    align, represent and infer stages in one process: ``frames [K, H, W]``, ``t_ref_ns``,
+    ``compute_ns``, ``method``, and ``chosen`` for auto."""
+
+def run_graph(
+    graph: Union[PathLike, Mapping],
+    *,
+    set: Optional[Mapping[str, str]] = None,
+    collect: Sequence[str] = (),
+    cwd: Optional[PathLike] = None,
+) -> dict:
+    """A graph's nodes as one in-process chain; the messages of each ``node/output`` collected,
+    and ``"stages"``, the run's table."""

@@ -16,6 +16,7 @@ mod dataset;
 mod errors;
 mod io;
 mod kernels;
+mod pipeline;
 mod settings;
 mod simulate;
 mod threads;
@@ -68,5 +69,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<simulate::Simulation>()?;
     m.add_function(wrap_pyfunction!(simulate::scenes, m)?)?;
     m.add_class::<dataset::Samples>()?;
+    m.add_function(wrap_pyfunction!(pipeline::reconstruct, m)?)?;
+    m.add_function(wrap_pyfunction!(pipeline::run_graph, m)?)?;
+    m.add_function(wrap_pyfunction!(pipeline::models, m)?)?;
     Ok(())
 }

@@ -448,6 +448,85 @@ class SamplesTest(unittest.TestCase):
             np.testing.assert_array_equal(b[k], disk, err_msg=k)
 
 
+TFP_GRAPH = {
+    "nodes": [
+        {"id": "spike-source", "path": "neuspike-spike-source", "outputs": ["spikes"],
+         "args": "--scene bright-slow --chunk-planes 20 --seed 1 --max-planes 100"},
+        {"id": "align", "path": "neuspike-align", "args": "--window-planes 33 --stride-planes 20",
+         "inputs": {"spikes": "spike-source/spikes"}, "outputs": ["windows"]},
+        {"id": "represent", "path": "neuspike-represent", "args": "--tfp-planes 33",
+         "inputs": {"windows": "align/windows"}, "outputs": ["tfp"]},
+        {"id": "infer", "path": "neuspike-infer", "args": "--method tfp",
+         "inputs": {"representation": "represent/tfp"}, "outputs": ["frames"]},
+    ]
+}
+
+
+@unittest.skipUnless(ns.NATIVE, "neuspike's native module is not built")
+class ReconstructTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.sim = ns.simulate("bright-slow", 100, seed=1, truth_every=20, event_camera={"width": 400, "height": 250})
+
+    def test_tfp_and_tfi_frames_are_the_kernels_calibrated(self):
+        s = self.sim.spikes
+        window = s.window(4, 37)  # the 33 planes around plane 20, the first frame's
+        for method, kernel in (("tfp", ns.tfp(window)), ("tfi", ns.tfi(window, 16))):
+            r = ns.reconstruct(s, method=method)
+            np.testing.assert_array_equal(r["t_ref_ns"], [1_000_000, 2_000_000, 3_000_000, 4_000_000])
+            np.testing.assert_array_equal(r["frames"][0], np.clip(kernel * s.lum_per_rate, 0, 1))
+            self.assertEqual(r["method"], method)
+
+    def test_every_method_makes_its_frames(self):
+        sim = self.sim
+        for method in ("tfstp", "hf", "cf", "fusion"):
+            r = ns.reconstruct(sim.spikes, sim.events, method=method)
+            self.assertEqual(r["frames"].shape, (4, 250, 400), method)
+            self.assertTrue(np.isfinite(r["frames"]).all(), method)
+        tfp = ns.reconstruct(sim.spikes, method="tfp")["frames"][1]
+        fusion = ns.reconstruct(sim.spikes, sim.events, method="fusion")["frames"][1]
+        self.assertGreater(ns.psnr(tfp, sim.truth[2]), 30.0)
+        self.assertGreater(ns.psnr(fusion, sim.truth[2]), 10.0)
+
+    @unittest.skipUnless(ns.NATIVE and ns.models(), "the shipped networks are not at hand")
+    def test_the_networks_and_auto(self):
+        sim = self.sim
+        spike = ns.reconstruct(sim.spikes, method="learned", model="neuspike-spike-8")
+        self.assertEqual(spike["frames"].shape, (4, 250, 400))
+        self.assertGreater(ns.psnr(spike["frames"][1], sim.truth[2]), 30.0)
+        fused = ns.reconstruct(sim.spikes, sim.events, method="learned", model="neuspike-fused-8")
+        self.assertEqual(fused["frames"].shape, (4, 250, 400))
+        auto = ns.reconstruct(sim.spikes, sim.events, method="auto", window_planes=33)
+        self.assertEqual(len(auto["chosen"]), len(auto["frames"]))
+        with self.assertRaisesRegex(ns.ConfigError, "model: reads events; pass events="):
+            ns.reconstruct(sim.spikes, method="learned", model="neuspike-fused-8")
+
+    def test_refusals_are_named(self):
+        s = self.sim.spikes
+        with self.assertRaisesRegex(ns.ConfigError, "method fusion: reads events"):
+            ns.reconstruct(s, method="fusion")
+        with self.assertRaisesRegex(ns.ConfigError, 'unknown reconstruction method "nope"'):
+            ns.reconstruct(s, method="nope")
+        with self.assertRaisesRegex(ns.ConfigError, "unexpected argument '--bogus'"):
+            ns.reconstruct(s, self.sim.events, method="cf", infer="--bogus 1")
+        with self.assertRaisesRegex(ns.ConfigError, "method learned: pass model="):
+            ns.reconstruct(s, method="learned")
+
+    def test_a_graph_runs_in_process_as_the_same_pipeline(self):
+        out = ns.run_graph(TFP_GRAPH, collect=["spike-source/spikes", "infer/frames"])
+        packed = np.concatenate([c.packed for c in out["spike-source/spikes"]])
+        np.testing.assert_array_equal(packed, self.sim.spikes.packed)
+        r = ns.reconstruct(self.sim.spikes, method="tfp")
+        frames = out["infer/frames"]
+        self.assertEqual([f["t_ref_ns"] for f in frames], list(r["t_ref_ns"]))
+        for i, f in enumerate(frames):
+            np.testing.assert_array_equal(f["data"], r["frames"][i])
+        self.assertIn("| align |", out["stages"])
+        bad = {"nodes": [dict(TFP_GRAPH["nodes"][0], args="--scene nowhere")]}
+        with self.assertRaisesRegex(ns.ConfigError, "nowhere"):
+            ns.run_graph(bad)
+
+
 @unittest.skipUnless(ns.NATIVE, "neuspike's native module is not built")
 class MetricsTest(unittest.TestCase):
     def test_psnr_gain_ssim_entropy(self):
