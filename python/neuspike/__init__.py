@@ -8,6 +8,7 @@ kernel run by neuspike's Rust crates with the GIL released:
   AEDAT 4); :func:`read_aps_frames` (AEDAT 4 frames);
 - values: :class:`Spikes` (bit-packed planes and their clock), :class:`Events` (four columns);
 - :func:`simulate`: both cameras on one scene, with ground truth, deterministic for a seed;
+  :func:`frames_to_events`: the DVS on the user's frames, as v2e;
 - :class:`Samples`: training samples made on demand, each deterministic in its index
   (:mod:`neuspike.data` makes them a PyTorch dataset);
 - representations: :func:`tfp`, :func:`tfi`, :func:`isi`, :func:`tfstp`,
@@ -43,6 +44,7 @@ try:
         event_count,
         event_integration,
         event_stack,
+        frames_to_events,
         gain,
         isi,
         models,
@@ -125,6 +127,7 @@ if NATIVE:
         "event_count",
         "event_integration",
         "event_stack",
+        "frames_to_events",
         "gain",
         "isi",
         "models",

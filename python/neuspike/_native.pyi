@@ -247,7 +247,7 @@ def entropy_2d(x: Frame) -> float:
 class Simulation:
     """What :func:`simulate` made."""
 
-    spikes: Spikes
+    spikes: Optional[Spikes]
     events: Optional[Events]
     truth: npt.NDArray[np.float32]
     truth_planes: npt.NDArray[np.uint64]
@@ -262,6 +262,7 @@ def simulate(
     *,
     seed: int = 0,
     truth_every: int = 20,
+    spikes: bool = True,
     events: bool = True,
     spike_camera: Optional[Mapping[str, Setting]] = None,
     event_camera: Optional[Mapping[str, Setting]] = None,
@@ -315,3 +316,12 @@ def run_graph(
 ) -> dict:
     """A graph's nodes as one in-process chain; the messages of each ``node/output`` collected,
     and ``"stages"``, the run's table."""
+
+def frames_to_events(
+    frames: npt.ArrayLike,
+    frame_dt_ns: int,
+    *,
+    light_scale: float = 1.0,
+    event_camera: Optional[Mapping[str, Setting]] = None,
+) -> Events:
+    """The DVS pixel array on frames ``[T, H, W]`` a frame every ``frame_dt_ns``, as v2e."""

@@ -68,6 +68,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
     m.add_class::<simulate::Simulation>()?;
     m.add_function(wrap_pyfunction!(simulate::scenes, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate::frames_to_events, m)?)?;
     m.add_class::<dataset::Samples>()?;
     m.add_function(wrap_pyfunction!(pipeline::reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(pipeline::run_graph, m)?)?;

@@ -13,9 +13,10 @@ use numpy::{PyArray1, PyReadonlyArray3};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use neuspike_event_camera::{DvsConfig, EventCamera};
+use neuspike_event_camera::{DvsConfig, DvsPixels, EventCamera, sort_by_time};
 use neuspike_scene::Clip;
 use neuspike_scene::Scene;
+use neuspike_schemas::EventBatch;
 use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 
 use crate::values::{Events, Spikes};
@@ -50,8 +51,8 @@ struct DvsArgs {
 /// (the scene's luminance, clipped to ``[0, 1]``) at every ``truth_every``-th plane.
 #[pyclass(module = "neuspike", frozen, get_all)]
 pub struct Simulation {
-    /// The spike camera's planes.
-    spikes: Py<Spikes>,
+    /// The spike camera's planes, or ``None``.
+    spikes: Option<Py<Spikes>>,
     /// The DVS's events of ``[0, planes * plane_period_ns)``, or ``None``.
     events: Option<Py<Events>>,
     /// Ground truth, ``float32 [K, H, W]``.
@@ -69,9 +70,12 @@ impl Simulation {
             Some(e) => e.bind(py).repr()?.to_string(),
             None => "None".into(),
         };
+        let spikes = match &self.spikes {
+            Some(s) => s.bind(py).repr()?.to_string(),
+            None => "None".into(),
+        };
         Ok(format!(
-            "Simulation(spikes={}, events={events}, truth={} frames)",
-            self.spikes.bind(py).repr()?,
+            "Simulation(spikes={spikes}, events={events}, truth={} frames)",
             self.truth_planes.bind(py).len()?
         ))
     }
@@ -83,8 +87,8 @@ pub fn scenes() -> Vec<&'static str> {
     Scene::builtin_names().to_vec()
 }
 
-/// Simulates the spike camera (and the DVS, unless ``events=False``) on one scene for ``planes``
-/// planes, deterministically for ``seed``.
+/// Simulates the spike camera (unless ``spikes=False``) and the DVS (unless ``events=False``) on
+/// one scene for ``planes`` planes of the spike camera's clock, deterministically for ``seed``.
 ///
 /// The scene is a built-in name (:func:`scenes`), a scene YAML file, or ``frames``: luminance
 /// ``[T, H, W]`` (``float32``, a frame every ``frame_dt_ns``, linear in time between frames and
@@ -93,13 +97,14 @@ pub fn scenes() -> Vec<&'static str> {
 /// the sensors default to the frames' size for ``frames``). Ground truth comes every
 /// ``truth_every`` planes (0: none).
 #[pyfunction]
-#[pyo3(signature = (scene = "bright-slow", planes = 400, *, seed = 0, truth_every = 20, events = true, spike_camera = None, event_camera = None, frames = None, frame_dt_ns = 1_000_000, light_scale = 1.0))]
+#[pyo3(signature = (scene = "bright-slow", planes = 400, *, seed = 0, truth_every = 20, spikes = true, events = true, spike_camera = None, event_camera = None, frames = None, frame_dt_ns = 1_000_000, light_scale = 1.0))]
 pub fn simulate(
     py: Python<'_>,
     scene: &str,
     planes: u64,
     seed: u64,
     truth_every: u64,
+    spikes: bool,
     events: bool,
     spike_camera: Option<&Bound<'_, PyDict>>,
     event_camera: Option<&Bound<'_, PyDict>>,
@@ -145,7 +150,8 @@ pub fn simulate(
         let mut camera =
             SpikeCamera::new(scene.clone(), spike_args.camera).map_err(|e| e.to_string())?;
         let period = camera.period_ns();
-        let chunk = camera.next_chunk(n, 0);
+        // Without the spike planes the camera still sets the clock and renders the truth.
+        let chunk = camera.next_chunk(if spikes { n } else { 0 }, 0);
         let truth_planes: Vec<u64> = if truth_every == 0 {
             Vec::new()
         } else {
@@ -175,7 +181,11 @@ pub fn simulate(
         .iter()
         .map(|&k| (k as i64).saturating_mul(chunk.plane_period_ns))
         .collect();
-    let spikes = Py::new(py, Spikes::from_chunk(py, chunk)?)?;
+    let spikes = if spikes {
+        Some(Py::new(py, Spikes::from_chunk(py, chunk)?)?)
+    } else {
+        None
+    };
     let events = match batch {
         Some(b) => Some(Py::new(py, Events::from_batch(py, b))?),
         None => None,
@@ -187,4 +197,103 @@ pub fn simulate(
         truth_planes: PyArray1::from_vec(py, truth_planes).unbind(),
         truth_t_ns: PyArray1::from_vec(py, truth_t_ns).unbind(),
     })
+}
+
+/// The DVS pixel array run on frames the user holds, as v2e runs its emulator on video frames
+/// (``neuspike frames-to-events``): ``frames`` ``float32 [T, H, W]`` luminance, frame ``k`` at
+/// ``k * frame_dt_ns``; the first sets every pixel's reference level, each later one adds the
+/// crossings of the log-intensity path from the frame before (and that interval's noise).
+/// ``event_camera`` holds the DVS settings by the event source's argument names (v2e's in
+/// ``docs/camera.md``); the frames give the size. Returns the events, sorted by time.
+#[pyfunction]
+#[pyo3(signature = (frames, frame_dt_ns, *, light_scale = 1.0, event_camera = None))]
+pub fn frames_to_events<'py>(
+    py: Python<'py>,
+    frames: &Bound<'py, PyAny>,
+    frame_dt_ns: i64,
+    light_scale: f32,
+    event_camera: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, Events>> {
+    if frame_dt_ns <= 0 {
+        return Err(errors::config(format!(
+            "frame_dt_ns = {frame_dt_ns}: must be > 0"
+        )));
+    }
+    if !(light_scale.is_finite() && light_scale > 0.0) {
+        return Err(errors::config(format!(
+            "light_scale = {light_scale}: must be finite and > 0"
+        )));
+    }
+    let frames = crate::values::contiguous(py, frames, "float32")?
+        .extract::<PyReadonlyArray3<'py, f32>>()
+        .map_err(|_| errors::input("frames: expected luminance [T, H, W]"))?;
+    let view = crate::values::view3(&frames)?;
+    let (t, h, w) = view.dim();
+    if t < 2 || h == 0 || w == 0 {
+        return Err(errors::input(format!(
+            "frames: {t} frames of {h}x{w}; at least 2 frames of at least one pixel are needed"
+        )));
+    }
+    if let Some(((k, y, x), v)) = view
+        .indexed_iter()
+        .find(|(_, v)| !v.is_finite() || **v < 0.0)
+    {
+        return Err(errors::input(format!(
+            "frames: frame {k} row {y} column {x} is {v}: luminance must be finite and >= 0"
+        )));
+    }
+    let base = vec![format!("--width={w}"), format!("--height={h}")];
+    let args: DvsArgs = parse(
+        "event_camera",
+        &[base, flags::<DvsArgs>("event_camera", event_camera)?].concat(),
+    )?;
+    let c = &args.camera;
+    for (name, set) in [
+        ("homography", c.homography.is_some()),
+        ("clock_offset_ns", c.clock_offset_ns != 0),
+        ("warp_step_ns", c.warp_step_ns != 0),
+    ] {
+        if set {
+            return Err(errors::config(format!(
+                "event_camera: {name} applies to a simulated scene, not to frames"
+            )));
+        }
+    }
+    let mut batch = threads::run(py, || -> Result<EventBatch, String> {
+        let frame = |k: usize| {
+            view.index_axis(ndarray::Axis(0), k)
+                .to_owned()
+                .into_raw_vec_and_offset()
+                .0
+        };
+        let mut prev = frame(0);
+        let mut pixels = DvsPixels::new(&args.camera, light_scale, &prev)
+            .map_err(|e| format!("event camera: {e}"))?;
+        let end = (t as i64 - 1).saturating_mul(frame_dt_ns);
+        let mut batch = EventBatch::empty(w, h, 0, end, 0);
+        let mut step = Vec::new();
+        for k in 1..t {
+            let cur = frame(k);
+            step.clear();
+            pixels.step(
+                &prev,
+                &cur,
+                (k as i64 - 1).saturating_mul(frame_dt_ns),
+                (k as i64).saturating_mul(frame_dt_ns),
+                &mut step,
+            );
+            sort_by_time(&mut step);
+            for e in &step {
+                batch.t_ns.push(e.t_ns);
+                batch.x.push(e.x);
+                batch.y.push(e.y);
+                batch.polarity.push(e.polarity);
+            }
+            prev = cur;
+        }
+        Ok(batch)
+    })?
+    .map_err(errors::config)?;
+    batch.seq = 0;
+    Bound::new(py, Events::from_batch(py, batch))
 }

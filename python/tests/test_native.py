@@ -355,6 +355,32 @@ class SimulateTest(unittest.TestCase):
         # The mean light of a ramp from 0.2 to 0.4, counted in whole spikes: within one of 30.
         self.assertLessEqual(abs(float(rate.mean()) - 0.3), 0.0101)
 
+    def test_the_dvs_on_frames_is_the_scene_dvs_without_the_spike_camera(self):
+        rng = np.random.default_rng(2)
+        base = (0.2 + 0.6 * rng.random((24, 60))).astype(np.float32)
+        frames = np.stack([base[:, k : k + 40] for k in range(12)])
+        camera = {"theta_sigma": 0.0}
+        ev = ns.frames_to_events(frames, 1_000_000, event_camera=camera)
+        self.assertEqual((ev.width, ev.height), (40, 24))
+        self.assertGreater(len(ev), 100)
+        t = np.asarray(ev.t_ns)
+        self.assertTrue((np.diff(t) >= 0).all() and t[0] >= 0 and t[-1] < 11_000_000)
+        again = ns.frames_to_events(frames, 1_000_000, event_camera=camera)
+        np.testing.assert_array_equal(again.t_ns, ev.t_ns)
+        # A brightening pixel fires ON events as many as its log change holds (theta 0.2).
+        ramp = np.stack([np.full((1, 1), v, np.float32) for v in (0.1, 0.1 * np.exp(0.9))])
+        up = ns.frames_to_events(ramp, 1_000, event_camera=camera | {"theta_on": 0.2})
+        self.assertEqual(list(np.asarray(up.polarity)), [1, 1, 1, 1])
+        with self.assertRaisesRegex(ns.InputError, "frame 1 row 0 column 0 is NaN"):
+            ns.frames_to_events(np.stack([base, np.full_like(base, np.nan)]), 1000)
+        with self.assertRaisesRegex(ns.ConfigError, "homography applies to a simulated scene"):
+            ns.frames_to_events(frames, 1000, event_camera={"homography": "1,0,0,0,1,0,0,0,1"})
+        sim = ns.simulate(frames=frames, frame_dt_ns=1_000_000, planes=200, spikes=False, truth_every=100,
+                          event_camera=camera)
+        self.assertIsNone(sim.spikes)
+        self.assertEqual(sim.truth.shape, (2, 24, 40))
+        self.assertGreater(len(sim.events), 100)
+
     def test_settings_are_the_nodes_arguments(self):
         phi1 = ns.simulate("bright-static", 50, events=False, truth_every=0)
         phi2 = ns.simulate("bright-static", 50, events=False, truth_every=0, spike_camera={"phi": 2.0})
