@@ -5,7 +5,7 @@ kernel run by neuspike's Rust crates with the GIL released:
 
 - files: :func:`read_spikes`, :class:`SpikeReader`, :func:`write_spikes` (PKU ``.dat``);
   :func:`read_events`, :class:`EventReader`, :func:`write_events` (text, Prophesee RAW and DAT,
-  AEDAT 4); :func:`read_aps_frames` (AEDAT 4 frames);
+  AEDAT 4); :func:`read_aps_frames`, :class:`ApsFrameReader` (AEDAT 4 frames);
 - values: :class:`Spikes` (bit-packed planes and their clock), :class:`Events` (four columns);
 - :func:`simulate`: both cameras on one scene, with ground truth, deterministic for a seed;
   :func:`frames_to_events`: the DVS on the user's frames, as v2e;
@@ -30,6 +30,8 @@ The messages and node protocol (pure Python: pyarrow, numpy; dora-rs to run a no
 
 try:
     from ._native import (
+        FEATURES,
+        ApsFrameReader,
         ConfigError,
         Error,
         EventReader,
@@ -113,6 +115,8 @@ __all__ = [
 ]
 if NATIVE:
     __all__ += [
+        "FEATURES",
+        "ApsFrameReader",
         "ConfigError",
         "Error",
         "EventReader",

@@ -7,6 +7,8 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+FEATURES: list[str]
+"""The optional parts this build has (``"hdf5"``)."""
 
 PathLike = Union[str, os.PathLike]
 Planes = npt.NDArray[Union[np.uint8, np.bool_]]
@@ -180,11 +182,25 @@ class EventReader(Iterator[Events]):
     def __iter__(self) -> "EventReader": ...
     def __next__(self) -> Events: ...
 
-def write_events(path: PathLike, events: Events, *, format: Optional[str] = None) -> int:
-    """Writes events (``.txt``, ``.raw`` EVT 3.0, ``"evt2"``, ``.dat``, ``.aedat4``); returns the count."""
+def write_events(
+    path: PathLike,
+    events: Events,
+    *,
+    format: Optional[str] = None,
+    aps: Optional[Tuple[Sequence[int], npt.ArrayLike]] = None,
+) -> int:
+    """Writes events (``.txt``, ``.raw`` EVT 3.0, ``"evt2"``, ``.dat``, ``.aedat4`` with optional
+    APS frames ``aps=(t_ns, frames [K, H, W])``, ``.h5`` with the hdf5 feature); returns the count."""
 
 def read_aps_frames(path: PathLike) -> Tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
     """An AEDAT 4 file's APS frames: times ``[K]`` ns and luminance ``[K, H, W]``."""
+
+class ApsFrameReader(Iterator[Tuple[int, npt.NDArray[np.float32]]]):
+    """An AEDAT 4 file's APS frames read as it is iterated: ``(t_ns, frame [H, W])``."""
+
+    def __init__(self, path: PathLike) -> None: ...
+    def __iter__(self) -> "ApsFrameReader": ...
+    def __next__(self) -> Tuple[int, npt.NDArray[np.float32]]: ...
 
 def tfp(spikes: SpikesLike) -> npt.NDArray[np.float32]:
     """TFP: each pixel's firing rate per tick over the planes, ``[H, W]``."""

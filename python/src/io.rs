@@ -314,6 +314,8 @@ impl EventReader {
 /// The event formats neuspike writes, by name or by a file's extension.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum EventFormat {
+    #[cfg(feature = "hdf5")]
+    Hdf5,
     Text,
     Evt2,
     Evt3,
@@ -322,10 +324,15 @@ enum EventFormat {
 }
 
 impl EventFormat {
-    const NAMES: &str = "text (.txt), evt3 (.raw), evt2, dat (.dat), aedat4 (.aedat4)";
+    #[cfg(not(feature = "hdf5"))]
+    const NAMES: &str = "text (.txt), evt3 (.raw), evt2, dat (.dat), aedat4 (.aedat4); hdf5 in a build with the hdf5 feature";
+    #[cfg(feature = "hdf5")]
+    const NAMES: &str = "text (.txt), evt3 (.raw), evt2, dat (.dat), aedat4 (.aedat4), hdf5 (.h5)";
 
     fn named(name: &str) -> Option<Self> {
         Some(match name {
+            #[cfg(feature = "hdf5")]
+            "hdf5" | "h5" => EventFormat::Hdf5,
             "text" | "txt" => EventFormat::Text,
             "evt2" => EventFormat::Evt2,
             "evt3" | "raw" => EventFormat::Evt3,
@@ -353,15 +360,18 @@ fn write_with<W: EventWriter>(
 
 /// Writes :class:`Events` to ``path`` in ``format`` (by default the one its extension names:
 /// ``.txt`` Event Camera Dataset text, ``.raw`` Prophesee EVT 3.0, ``.dat`` Prophesee DAT,
-/// ``.aedat4`` AEDAT 4 with LZ4; ``"evt2"`` for EVT 2.0); returns the events written. Formats
-/// that keep microseconds floor the nanoseconds.
+/// ``.aedat4`` AEDAT 4 with LZ4, ``.h5`` HDF5 in a build with the ``hdf5`` feature; ``"evt2"``
+/// for EVT 2.0); returns the events written. Formats that keep microseconds floor the
+/// nanoseconds. An AEDAT 4 file also takes APS frames: ``aps=(t_ns, frames)``, luminance
+/// ``[K, H, W]`` in ``[0, 1]`` of the sensor's size, stored as 16-bit grey.
 #[pyfunction]
-#[pyo3(signature = (path, events, *, format = None))]
+#[pyo3(signature = (path, events, *, format = None, aps = None))]
 pub fn write_events(
     py: Python<'_>,
     path: PathBuf,
     events: &Bound<'_, Events>,
     format: Option<&str>,
+    aps: Option<(Vec<i64>, Bound<'_, PyAny>)>,
 ) -> PyResult<u64> {
     let name = match format {
         Some(f) => f.to_owned(),
@@ -378,8 +388,18 @@ pub fn write_events(
             EventFormat::NAMES
         ))
     })?;
+    if aps.is_some() && fmt != EventFormat::Aedat4 {
+        return Err(errors::config(format!(
+            "{}: aps frames go in AEDAT 4 files only",
+            path.display()
+        )));
+    }
     let ev = events.get();
     let (height, width) = ev.sensor();
+    let frames = match aps {
+        Some((t, frames)) => Some(aps_frames(py, t, &frames, (height, width))?),
+        None => None,
+    };
     let side = |v: usize, what: &str| {
         u16::try_from(v).map_err(|_| errors::config(format!("events {what} = {v}: above 65535")))
     };
@@ -387,8 +407,20 @@ pub fn write_events(
     let columns = ev.columns(py);
     let slice = columns.slice()?;
     let summary = threads::run(py, || -> Result<WriteSummary, FormatError> {
+        #[cfg(feature = "hdf5")]
+        if fmt == EventFormat::Hdf5 {
+            let w = neuspike_formats::hdf5::Hdf5Writer::create(&path, res)?;
+            return write_with(w, slice)?.finish();
+        }
         let w = BufWriter::new(create(&path)?);
         let (w, summary) = match fmt {
+            #[cfg(feature = "hdf5")]
+            EventFormat::Hdf5 => {
+                return Err(FormatError::Unsupported {
+                    path: path.clone(),
+                    what: "HDF5 through a buffered file".into(),
+                });
+            }
             EventFormat::Text => {
                 write_with(TextWriter::new(w, &path, res, true)?, slice)?.finish()?
             }
@@ -396,7 +428,25 @@ pub fn write_events(
             EventFormat::Evt3 => write_with(Evt3Writer::new(w, &path, res)?, slice)?.finish()?,
             EventFormat::Dat => write_with(DatWriter::new(w, &path, res)?, slice)?.finish()?,
             EventFormat::Aedat4 => {
-                write_with(Aedat4Writer::new(w, &path, res, Compression::Lz4)?, slice)?.finish()?
+                let mut w = Aedat4Writer::new(w, &path, res, Compression::Lz4)?;
+                let frames = frames.unwrap_or_default();
+                // Frames and events interleaved by time: a frame before the events after it.
+                let mut next = frames.iter().peekable();
+                for i in 0..slice.len() {
+                    while let Some(f) = next.next_if(|f| f.t_ns <= slice.t_ns[i]) {
+                        w.write_frame(f)?;
+                    }
+                    w.write_event(&Event {
+                        t_ns: slice.t_ns[i],
+                        x: slice.x[i],
+                        y: slice.y[i],
+                        polarity: slice.polarity[i],
+                    })?;
+                }
+                for f in next {
+                    w.write_frame(f)?;
+                }
+                w.finish()?
             }
         };
         flush(w, &path)?;
@@ -404,6 +454,52 @@ pub fn write_events(
     })?
     .map_err(errors::format)?;
     Ok(summary.items)
+}
+
+/// APS frames from Python: times and luminance ``[K, H, W]`` in ``[0, 1]``, as 16-bit grey frames
+/// of the sensor's size.
+fn aps_frames(
+    py: Python<'_>,
+    t_ns: Vec<i64>,
+    frames: &Bound<'_, PyAny>,
+    sensor: (usize, usize),
+) -> PyResult<Vec<neuspike_formats::aedat4::ApsFrame>> {
+    let frames = crate::values::contiguous(py, frames, "float32")?
+        .extract::<numpy::PyReadonlyArray3<'_, f32>>()
+        .map_err(|_| errors::input("aps: expected (t_ns [K], frames [K, H, W])"))?;
+    let view = crate::values::view3(&frames)?;
+    let (k, h, w) = view.dim();
+    if (h, w) != sensor || k != t_ns.len() {
+        return Err(errors::input(format!(
+            "aps: {} times and frames [{k}, {h}, {w}] for a {}x{} sensor: one time a frame, the sensor's size",
+            t_ns.len(),
+            sensor.1,
+            sensor.0
+        )));
+    }
+    if t_ns.windows(2).any(|p| p[1] < p[0]) {
+        return Err(errors::input("aps: the frames' times must not decrease"));
+    }
+    let side = |v: usize| {
+        u16::try_from(v).map_err(|_| errors::input(format!("aps: a side of {v} pixels")))
+    };
+    let (wu, hu) = (side(w)?, side(h)?);
+    Ok(view
+        .outer_iter()
+        .zip(t_ns)
+        .map(|(f, t)| neuspike_formats::aedat4::ApsFrame {
+            t_ns: t,
+            exposure_begin_ns: t,
+            exposure_end_ns: t,
+            format: neuspike_formats::aedat4::FrameFormat::Gray16,
+            width: wu,
+            height: hu,
+            pixels: f
+                .iter()
+                .flat_map(|&v| ((v.clamp(0.0, 1.0) * 65_535.0).round() as u16).to_le_bytes())
+                .collect(),
+        })
+        .collect())
 }
 
 /// The APS frames of an AEDAT 4 file (its first frame stream): ``(t_ns, frames)``, ``int64 [K]``
@@ -451,4 +547,43 @@ pub fn read_aps_frames<'py>(
         PyArray1::from_vec(py, times),
         crate::values::to_numpy(py, frames)?,
     ))
+}
+
+/// The APS frames of an AEDAT 4 file read as it is iterated, one ``(t_ns, frame)`` at a time
+/// (``frame`` ``float32 [H, W]`` luminance in ``[0, 1]``), with bounded memory; a damaged packet
+/// raises :class:`FormatError` after every frame before it.
+#[pyclass(module = "neuspike", frozen)]
+pub struct ApsFrameReader {
+    frames: Mutex<Aedat4Frames<std::io::BufReader<File>>>,
+}
+
+#[pymethods]
+impl ApsFrameReader {
+    #[new]
+    fn new(path: PathBuf) -> PyResult<ApsFrameReader> {
+        let frames = Aedat4Frames::open(&path).map_err(errors::format)?;
+        Ok(ApsFrameReader {
+            frames: Mutex::new(frames),
+        })
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Option<(i64, Bound<'py, PyAny>)>> {
+        let mut frames = self.frames.lock().unwrap_or_else(|p| p.into_inner());
+        let frames = &mut *frames;
+        let next = threads::run(py, || frames.next())?;
+        match next {
+            None => Ok(None),
+            Some(Err(e)) => Err(errors::format(e)),
+            Some(Ok(f)) => {
+                let (h, w) = (usize::from(f.height), usize::from(f.width));
+                let pixels = ndarray::Array2::from_shape_vec((h, w), f.luminance())
+                    .map_err(errors::input)?;
+                Ok(Some((f.t_ns, crate::values::to_numpy(py, pixels)?)))
+            }
+        }
+    }
 }

@@ -34,6 +34,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ConfigError", py.get_type::<errors::ConfigError>())?;
     m.add("InputError", py.get_type::<errors::InputError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    // The optional parts this build has.
+    let features: Vec<&str> = [("hdf5", cfg!(feature = "hdf5"))]
+        .into_iter()
+        .filter_map(|(f, on)| on.then_some(f))
+        .collect();
+    m.add("FEATURES", features)?;
 
     m.add_function(wrap_pyfunction!(threads::set_threads, m)?)?;
     m.add_function(wrap_pyfunction!(threads::threads, m)?)?;
@@ -48,6 +54,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<io::EventReader>()?;
     m.add_function(wrap_pyfunction!(io::write_events, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_aps_frames, m)?)?;
+    m.add_class::<io::ApsFrameReader>()?;
 
     m.add_function(wrap_pyfunction!(kernels::tfp, m)?)?;
     m.add_function(wrap_pyfunction!(kernels::isi, m)?)?;

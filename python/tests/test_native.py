@@ -9,6 +9,7 @@ Skips with a notice where the package was not built (the sources alone have no n
 unless ``$NEUSPIKE_REQUIRE_NATIVE`` is set (tests/python.rs sets it).
 """
 
+import importlib.util
 import multiprocessing
 import os
 import tempfile
@@ -278,11 +279,39 @@ class FilesTest(unittest.TestCase):
         with self.assertRaisesRegex(ns.ConfigError, "head_columns = 3"):
             ns.read_spikes(junk, head_columns=3)
 
-    def test_an_aedat4_file_without_frames_has_none(self):
-        f = self.path / "e.aedat4"
-        ns.write_events(f, random_events(10, 4, 4))
-        t, frames = ns.read_aps_frames(f)
-        self.assertEqual((t.shape, frames.shape), ((0,), (0, 0, 0)))
+    @unittest.skipUnless(ns.NATIVE and "hdf5" in ns.FEATURES, "a build without the hdf5 feature")
+    def test_hdf5_event_files_round_trip(self):
+        ev = random_events(2000, 30, 40, seed=8)
+        t = (np.asarray(ev.t_ns) // 1000) * 1000
+        ev = ns.Events(t, ev.x, ev.y, ev.polarity, 40, 30)
+        f = self.path / "e.h5"
+        self.assertEqual(ns.write_events(f, ev), 2000)
+        back = ns.read_events(f)
+        np.testing.assert_array_equal(back.t_ns, ev.t_ns)
+        np.testing.assert_array_equal(back.x, ev.x)
+
+    def test_aedat4_files_carry_aps_frames(self):
+        ev = random_events(300, 6, 8, seed=9)
+        t0, t1 = int(ev.t_ns[0]), int(ev.t_ns[-1])
+        times = [t0 // 1000 * 1000, (t0 + t1) // 2000 * 1000, t1 // 1000 * 1000 + 5000]
+        frames = np.random.default_rng(3).random((3, 6, 8)).astype(np.float32)
+        f = self.path / "f.aedat4"
+        ns.write_events(f, ev, aps=(times, frames))
+        t, back = ns.read_aps_frames(f)
+        np.testing.assert_array_equal(t, times)
+        np.testing.assert_allclose(back, frames, atol=0.5 / 65535 + 1e-7)
+        streamed = list(ns.ApsFrameReader(f))
+        self.assertEqual([s[0] for s in streamed], times)
+        np.testing.assert_array_equal(np.stack([s[1] for s in streamed]), back)
+        self.assertEqual(len(ns.read_events(f)), 300)
+        with self.assertRaisesRegex(ns.InputError, "one time a frame"):
+            ns.write_events(f, ev, aps=(times[:2], frames))
+        with self.assertRaisesRegex(ns.ConfigError, "AEDAT 4 files only"):
+            ns.write_events(self.path / "e.txt", ev, aps=(times, frames))
+        plain = self.path / "e.aedat4"
+        ns.write_events(plain, ev)
+        t, none = ns.read_aps_frames(plain)
+        self.assertEqual((t.shape, none.shape), ((0,), (0, 0, 0)))
 
 
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
@@ -462,6 +491,27 @@ class SamplesTest(unittest.TestCase):
         got = next(iter(stream))
         np.testing.assert_array_equal(np.asarray(got["truth"][0]), self.samples[first[0]]["truth"])
         self.assertEqual(len(SampleDataset(self.samples)), 50)
+
+    @unittest.skipUnless(importlib.util.find_spec("torch"), "torch is not installed")
+    def test_a_torch_dataloader_with_forked_and_spawned_workers(self):
+        import torch
+        from torch.utils.data import DataLoader
+
+        from neuspike.data import SampleDataset, SampleStream
+
+        # The parent uses the pool first, as a training script does before its loader starts.
+        want = self.samples.batch(list(range(8)))["truth"]
+        for method in ("fork", "spawn"):
+            loader = DataLoader(SampleDataset(self.samples), batch_size=4, num_workers=2,
+                                multiprocessing_context=method, timeout=120)
+            got = torch.cat([b["truth"] for b, _ in zip(loader, range(2))])
+            np.testing.assert_array_equal(got.numpy(), want, err_msg=method)
+            stream = DataLoader(SampleStream(self.samples, batch_size=5, shuffle=False), batch_size=None,
+                                num_workers=2, multiprocessing_context=method, timeout=120)
+            # Every sample once, shared between the two workers.
+            seen = sorted(float(t.sum()) for b in stream for t in b["truth"].numpy())
+            every = sorted(float(t.sum()) for t in self.samples.batch(list(range(50)))["truth"])
+            self.assertEqual(seen, every, method)
 
     @unittest.skipUnless(os.environ.get("NEUSPIKE_DATASET_DIR"), "no set written by neuspike dataset")
     def test_the_samples_are_those_neuspike_dataset_writes(self):
