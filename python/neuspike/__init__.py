@@ -14,7 +14,7 @@ kernel run by neuspike's Rust crates with the GIL released:
 - representations: :func:`tfp`, :func:`tfi`, :func:`isi`, :func:`tfstp`,
   :func:`spike_representation`, :func:`event_count`, :func:`event_integration`,
   :func:`voxel_grid`, :func:`event_stack`, :func:`time_surface`;
-- reconstruction: :func:`reconstruct` (every method: classical, physics fusion, the networks,
+- a whole recording through the stages: :func:`represent`; reconstruction: :func:`reconstruct` (every method: classical, physics fusion, the networks,
   ``auto``) and :func:`run_graph` (a graph's stages as one in-process chain);
 - metrics: :func:`psnr`, :func:`psnr_after_gain`, :func:`gain`, :func:`ssim`, :func:`entropy_2d`;
 - :func:`set_threads`; errors: :class:`Error` and its kinds :class:`FormatError`,
@@ -56,6 +56,7 @@ try:
         read_events,
         read_spikes,
         reconstruct,
+        represent,
         run_graph,
         scenes,
         set_threads,
@@ -141,6 +142,7 @@ if NATIVE:
         "read_events",
         "read_spikes",
         "reconstruct",
+        "represent",
         "run_graph",
         "scenes",
         "set_threads",

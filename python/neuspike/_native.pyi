@@ -323,6 +323,18 @@ def reconstruct(
     align, represent and infer stages in one process: ``frames [K, H, W]``, ``t_ref_ns``,
     ``compute_ns``, ``method``, and ``chosen`` for auto."""
 
+def represent(
+    spikes: Spikes,
+    events: Optional[Events] = None,
+    *,
+    kinds: Sequence[str] = ("tfp",),
+    window_planes: int = 33,
+    stride_planes: int = 20,
+    represent: str = "",
+) -> dict:
+    """Every window's representations of ``kinds`` through align and represent:
+    ``{kind: [K, C, H, W], "t_ref_ns": [K]}``."""
+
 def run_graph(
     graph: Union[PathLike, Mapping],
     *,

@@ -79,6 +79,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<dataset::Samples>()?;
     m.add_function(wrap_pyfunction!(pipeline::reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(pipeline::run_graph, m)?)?;
+    m.add_function(wrap_pyfunction!(pipeline::represent, m)?)?;
     m.add_function(wrap_pyfunction!(pipeline::models, m)?)?;
     Ok(())
 }

@@ -390,6 +390,137 @@ pub fn reconstruct<'py>(
     frames_dict(py, frames)
 }
 
+/// Representations of a whole recording through the graph's align and represent stages in one
+/// process: for every window of ``window_planes`` planes, a window every ``stride_planes``, each
+/// kind of ``kinds`` (``tfp``, ``isi``, ``stp``, ``spike_repr``, ``event_integration``,
+/// ``voxel_grid``, ``event_stack``, ``time_surface``; the event kinds need ``events``), as the
+/// represent node makes them. ``represent`` adds the represent node's arguments
+/// (``"--voxel-bins 10 --tau-ns 250000"``). Returns a dict: each kind's ``float32 [K, C, H, W]``,
+/// and ``t_ref_ns``.
+#[pyfunction]
+#[pyo3(signature = (spikes, events = None, *, kinds = vec!["tfp".to_string()], window_planes = 33, stride_planes = 20, represent = ""))]
+pub fn represent<'py>(
+    py: Python<'py>,
+    spikes: &Bound<'py, Spikes>,
+    events: Option<&Bound<'py, Events>>,
+    kinds: Vec<String>,
+    window_planes: u32,
+    stride_planes: u32,
+    represent: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    use neuspike_schemas::{Representation, RepresentationKind};
+    let s = spikes.get();
+    let n = s.planes(py);
+    if n == 0 {
+        return Err(errors::input("spikes: no planes"));
+    }
+    let mut wanted: Vec<RepresentationKind> = Vec::new();
+    for k in &kinds {
+        let kind = RepresentationKind::ALL
+            .into_iter()
+            .find(|r| r.name() == k)
+            .ok_or_else(|| {
+                let names: Vec<&str> = RepresentationKind::ALL.iter().map(|r| r.name()).collect();
+                errors::config(format!("kinds: {k:?} is not one of {}", names.join(", ")))
+            })?;
+        if !wanted.contains(&kind) {
+            wanted.push(kind);
+        }
+    }
+    if wanted.is_empty() {
+        return Err(errors::config("kinds: none asked for"));
+    }
+    let align_args = strings(&[
+        "--window-planes",
+        &window_planes.to_string(),
+        "--stride-planes",
+        &stride_planes.to_string(),
+    ]);
+    let mut align_in = vec!["spikes"];
+    if events.is_some() {
+        align_in.push("events");
+    }
+    let mut represent_args = vec!["--tfp-planes".to_string(), window_planes.to_string()];
+    represent_args.extend(words(represent, "represent")?);
+    let names: Vec<String> = wanted.iter().map(|k| k.name().to_string()).collect();
+    let align = make_stage(
+        "align",
+        &align_args,
+        &strings(&align_in),
+        &strings(&["windows"]),
+    )
+    .map_err(|e| errors::config(format!("{e:#}")))?;
+    let stage = make_stage("represent", &represent_args, &strings(&["windows"]), &names)
+        .map_err(|e| errors::config(format!("{e:#}")))?;
+
+    let bits = s.bits(py);
+    let bits = bits.as_slice().map_err(errors::input)?;
+    let ev_cols = events.map(|e| (e.get().columns(py), e.get().sensor()));
+    let ev = match &ev_cols {
+        Some((cols, sensor)) => Some((cols.slice()?, *sensor)),
+        None => None,
+    };
+    let c = s.clock();
+    let span = (
+        c.t_first_ns - c.plane_period_ns,
+        c.t_first_ns + n as i64 * c.plane_period_ns,
+    );
+    let lum = c.lum_per_rate.unwrap_or(1.0);
+    let made: Vec<Mutex<Vec<Representation>>> =
+        names.iter().map(|_| Mutex::new(Vec::new())).collect();
+    let run = threads::run(py, || -> eyre::Result<()> {
+        let mut source = Replay::new("cameras").output(
+            "spikes",
+            MsgType::SpikeChunk,
+            chunks(bits, n, s, Some(lum)),
+        );
+        if let Some((slice, sensor)) = ev {
+            source = source.output(
+                "events",
+                MsgType::EventBatch,
+                batches(slice, sensor, span.0, span.1),
+            );
+        }
+        let mut chain = Chain::new();
+        chain
+            .add("cameras", source)?
+            .add("align", align)?
+            .add("represent", stage)?
+            .connect("cameras/spikes", "align/spikes")?
+            .connect("align/windows", "represent/windows")?;
+        if ev.is_some() {
+            chain.connect("cameras/events", "align/events")?;
+        }
+        for (name, slot) in names.iter().zip(&made) {
+            chain.tap(&format!("represent/{name}"), move |m| {
+                let r = Representation::try_from(m)?;
+                slot.lock().unwrap_or_else(|p| p.into_inner()).push(r);
+                Ok(())
+            })?;
+        }
+        chain.run().map(drop)
+    })?;
+    run.map_err(|e| errors::config(format!("{e:#}")))?;
+    let d = PyDict::new(py);
+    let mut times: Option<Vec<i64>> = None;
+    for (name, slot) in names.iter().zip(made) {
+        let reps = slot.into_inner().unwrap_or_else(|p| p.into_inner());
+        times.get_or_insert_with(|| reps.iter().map(|r| r.t_ref_ns).collect());
+        let views: Vec<_> = reps.iter().map(|r| r.data.view()).collect();
+        let stacked = if views.is_empty() {
+            ndarray::Array4::<f32>::zeros((0, 0, 0, 0))
+        } else {
+            ndarray::stack(Axis(0), &views).map_err(errors::input)?
+        };
+        d.set_item(name, to_numpy(py, stacked)?)?;
+    }
+    d.set_item(
+        "t_ref_ns",
+        to_numpy(py, Array1::from(times.unwrap_or_default()))?,
+    )?;
+    Ok(d)
+}
+
 /// The window auto's policy needs: the longest any of its methods reads.
 fn auto_window(policy: &Path) -> PyResult<u32> {
     use neuspike_reconstruction::policy::{MethodName, Policy};

@@ -553,6 +553,19 @@ class ReconstructTest(unittest.TestCase):
             np.testing.assert_array_equal(r["frames"][0], np.clip(kernel * s.lum_per_rate, 0, 1))
             self.assertEqual(r["method"], method)
 
+    def test_a_recordings_representations_are_the_kernels_per_window(self):
+        sim = self.sim
+        r = ns.represent(sim.spikes, sim.events, kinds=["tfp", "isi", "spike_repr", "voxel_grid", "stp"])
+        np.testing.assert_array_equal(r["t_ref_ns"], [1_000_000, 2_000_000, 3_000_000, 4_000_000])
+        self.assertEqual(r["voxel_grid"].shape, (4, 5, 250, 400))
+        window = sim.spikes.window(4, 37)
+        np.testing.assert_array_equal(r["tfp"][0, 0], ns.tfp(window))
+        np.testing.assert_array_equal(r["spike_repr"][0], ns.spike_representation(window, 16))
+        isi, valid = ns.isi(window, 16)
+        np.testing.assert_array_equal(r["isi"][0], np.stack([isi, valid.astype(np.float32)]))
+        with self.assertRaisesRegex(ns.ConfigError, 'kinds: "nope" is not one of tfp'):
+            ns.represent(sim.spikes, kinds=["nope"])
+
     def test_every_method_makes_its_frames(self):
         sim = self.sim
         for method in ("tfstp", "hf", "cf", "fusion"):
