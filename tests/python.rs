@@ -398,12 +398,34 @@ fn the_python_package_passes_its_tests_and_reads_and_writes_what_the_rust_schema
     let opts = neuspike_dataset::tiny_options(neuspike_dataset::Split::Train, set.clone());
     neuspike_dataset::generate(&opts, false).expect("a small set");
 
+    // A recording as `neuspike simulate` writes it: the package reads it back.
+    let recording = dir.path().join("recording");
+    let status = Command::new(env!("CARGO_BIN_EXE_neuspike"))
+        .args([
+            "simulate",
+            "bright-slow",
+            "--planes",
+            "100",
+            "--gt-every-planes",
+            "20",
+        ])
+        .args([
+            "--spike=--seed 1",
+            "--dvs=--width 400 --height 250 --seed 1",
+            "--out",
+        ])
+        .arg(&recording)
+        .status()
+        .expect("neuspike simulate runs");
+    assert!(status.success(), "neuspike simulate failed");
+
     python(
         &["-m", "unittest", "discover", "-v", "-s", "python/tests"],
         &[
             ("NEUSPIKE_RUST_MESSAGES", &rust),
             ("NEUSPIKE_PYTHON_OUT", &py),
             ("NEUSPIKE_DATASET_DIR", &set),
+            ("NEUSPIKE_RECORDING", &recording),
         ],
     );
 

@@ -5,7 +5,8 @@ kernel run by neuspike's Rust crates with the GIL released:
 
 - files: :func:`read_spikes`, :class:`SpikeReader`, :func:`write_spikes` (PKU ``.dat``);
   :func:`read_events`, :class:`EventReader`, :func:`write_events` (text, Prophesee RAW and DAT,
-  AEDAT 4); :func:`read_aps_frames`, :class:`ApsFrameReader` (AEDAT 4 frames);
+  AEDAT 4); :func:`read_aps_frames`, :class:`ApsFrameReader` (AEDAT 4 frames); :func:`read_truth`
+  (ground-truth folders); :func:`info` (any recording summarised);
 - values: :class:`Spikes` (bit-packed planes and their clock), :class:`Events` (four columns);
 - :func:`simulate`: both cameras on one scene, with ground truth, deterministic for a seed;
   :func:`frames_to_events`: the DVS on the user's frames, as v2e;
@@ -48,6 +49,7 @@ try:
         event_stack,
         frames_to_events,
         gain,
+        info,
         isi,
         models,
         psnr,
@@ -55,6 +57,7 @@ try:
         read_aps_frames,
         read_events,
         read_spikes,
+        read_truth,
         reconstruct,
         represent,
         run_graph,
@@ -134,6 +137,7 @@ if NATIVE:
         "event_stack",
         "frames_to_events",
         "gain",
+        "info",
         "isi",
         "models",
         "psnr",
@@ -141,6 +145,7 @@ if NATIVE:
         "read_aps_frames",
         "read_events",
         "read_spikes",
+        "read_truth",
         "reconstruct",
         "represent",
         "run_graph",

@@ -202,6 +202,19 @@ class ApsFrameReader(Iterator[Tuple[int, npt.NDArray[np.float32]]]):
     def __iter__(self) -> "ApsFrameReader": ...
     def __next__(self) -> Tuple[int, npt.NDArray[np.float32]]: ...
 
+def info(
+    path: PathLike,
+    *,
+    width: int = 400,
+    height: int = 250,
+    head_columns: int = 0,
+    plane_period_ns: int = 50_000,
+) -> dict:
+    """Any recording summarised: ``kind``, ``format``, counts, times, and ``text``."""
+
+def read_truth(path: PathLike) -> Tuple[npt.NDArray[np.uint64], npt.NDArray[np.float32]]:
+    """A ground-truth folder (``timestamps.txt`` and PNGs): planes ``[K]`` and frames ``[K, H, W]``."""
+
 def tfp(spikes: SpikesLike) -> npt.NDArray[np.float32]:
     """TFP: each pixel's firing rate per tick over the planes, ``[H, W]``."""
 

@@ -35,6 +35,11 @@ pub fn format(e: neuspike_formats::FormatError) -> PyErr {
     FormatError::new_err(e.to_string())
 }
 
+/// A file's fault given as text, as `neuspike.FormatError`.
+pub fn format_text(e: impl std::fmt::Display) -> PyErr {
+    FormatError::new_err(e.to_string())
+}
+
 /// A kernel's refusal as `neuspike.InputError`.
 pub fn input(e: impl std::fmt::Display) -> PyErr {
     InputError::new_err(e.to_string())

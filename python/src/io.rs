@@ -587,3 +587,101 @@ impl ApsFrameReader {
         }
     }
 }
+
+/// A summary of any recording neuspike reads, told apart by content: a dict with ``kind``
+/// (``"spikes"`` or ``"events"``), ``format``, the counts and times, and ``text`` (what
+/// ``neuspike info`` prints). Spike files are read as ``width`` x ``height`` planes; an event
+/// file that does not state its sensor is read without bounds.
+#[pyfunction]
+#[pyo3(signature = (path, *, width = 400, height = 250, head_columns = 0, plane_period_ns = 50_000))]
+pub fn info<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    width: usize,
+    height: usize,
+    head_columns: usize,
+    plane_period_ns: i64,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let spikes = pku_options(width, height, head_columns, plane_period_ns, 0)?;
+    let events = ReadOptions {
+        allow_unknown_size: true,
+        ..ReadOptions::default()
+    };
+    let i = threads::run(py, || neuspike_formats::info(&path, &spikes, &events))?
+        .map_err(errors::format)?;
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("text", i.to_string())?;
+    match i {
+        neuspike_formats::Info::Spikes(s) => {
+            d.set_item("kind", "spikes")?;
+            d.set_item("format", "PKU spike planes")?;
+            d.set_item("planes", s.planes)?;
+            d.set_item("spikes", s.spikes)?;
+            d.set_item("width", s.geometry.width)?;
+            d.set_item("height", s.geometry.height)?;
+            d.set_item("bytes", s.bytes)?;
+            d.set_item("plane_period_ns", s.plane_period_ns)?;
+            d.set_item("duration_ns", s.duration_ns())?;
+            d.set_item("firing_probability", s.firing_probability())?;
+            d.set_item("partial_tail_bytes", s.partial_tail.map(|(_, b)| b))?;
+        }
+        neuspike_formats::Info::Events(e) => {
+            d.set_item("kind", "events")?;
+            d.set_item("format", e.format.to_string())?;
+            d.set_item("events", e.stats.events)?;
+            d.set_item("on_events", e.stats.on_events)?;
+            d.set_item("width", e.resolution.map(|r| r.width))?;
+            d.set_item("height", e.resolution.map(|r| r.height))?;
+            d.set_item("first_t_ns", e.stats.first_t_ns)?;
+            d.set_item("last_t_ns", e.stats.last_t_ns)?;
+            d.set_item("duration_ns", e.stats.duration_ns())?;
+            d.set_item("aps_frames", e.aps.map(|a| a.frames))?;
+        }
+    }
+    Ok(d)
+}
+
+/// Ground truth recorded with a spike file, as ``neuspike simulate`` writes it: a folder whose
+/// ``timestamps.txt`` lists ``plane t_ns file`` and the PNGs it names. Returns ``(planes,
+/// frames)``: ``uint64 [K]`` and luminance ``float32 [K, H, W]`` in ``[0, 1]``.
+#[pyfunction]
+pub fn read_truth<'py>(
+    py: Python<'py>,
+    dir: PathBuf,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let list = neuspike_formats::truth::TruthList::open(&dir).map_err(errors::format_text)?;
+    let (planes, frames) = threads::run(py, || -> Result<_, String> {
+        let mut planes = Vec::with_capacity(list.frames.len());
+        let mut frames = Vec::with_capacity(list.frames.len());
+        for (plane, png) in &list.frames {
+            let f = neuspike_image::read_frame_png(png)
+                .map_err(|e| format!("{}: {e}", png.display()))?;
+            if let Some(first) = frames.first().map(|a: &ndarray::Array2<f32>| a.dim())
+                && first != f.dim()
+            {
+                return Err(format!(
+                    "{}: {}x{}, the first frame is {}x{}",
+                    png.display(),
+                    f.ncols(),
+                    f.nrows(),
+                    first.1,
+                    first.0
+                ));
+            }
+            planes.push(*plane);
+            frames.push(f);
+        }
+        Ok((planes, frames))
+    })?
+    .map_err(errors::format_text)?;
+    let views: Vec<_> = frames.iter().map(|f| f.view()).collect();
+    let stacked = if views.is_empty() {
+        ndarray::Array3::<f32>::zeros((0, 0, 0))
+    } else {
+        ndarray::stack(ndarray::Axis(0), &views).map_err(errors::input)?
+    };
+    Ok((
+        crate::values::to_numpy(py, ndarray::Array1::from(planes))?,
+        crate::values::to_numpy(py, stacked)?,
+    ))
+}

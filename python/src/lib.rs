@@ -55,6 +55,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(io::write_events, m)?)?;
     m.add_function(wrap_pyfunction!(io::read_aps_frames, m)?)?;
     m.add_class::<io::ApsFrameReader>()?;
+    m.add_function(wrap_pyfunction!(io::info, m)?)?;
+    m.add_function(wrap_pyfunction!(io::read_truth, m)?)?;
 
     m.add_function(wrap_pyfunction!(kernels::tfp, m)?)?;
     m.add_function(wrap_pyfunction!(kernels::isi, m)?)?;

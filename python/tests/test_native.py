@@ -314,6 +314,34 @@ class FilesTest(unittest.TestCase):
         self.assertEqual((t.shape, none.shape), ((0,), (0, 0, 0)))
 
 
+@unittest.skipUnless(ns.NATIVE, "neuspike's native module is not built")
+@unittest.skipUnless(os.environ.get("NEUSPIKE_RECORDING"), "no recording written by neuspike simulate")
+class SimulatedRecordingTest(unittest.TestCase):
+    """What `neuspike simulate bright-slow --planes 100` wrote (tests/python.rs), read back."""
+
+    def setUp(self):
+        self.dir = Path(os.environ["NEUSPIKE_RECORDING"])
+        self.sim = ns.simulate("bright-slow", 100, seed=1, truth_every=20, events=False)
+
+    def test_the_spikes_and_the_truth_are_simulates(self):
+        spikes = ns.read_spikes(self.dir / "spikes.dat")
+        np.testing.assert_array_equal(spikes.packed, self.sim.spikes.packed)
+        planes, frames = ns.read_truth(self.dir / "ground-truth")
+        np.testing.assert_array_equal(planes, self.sim.truth_planes)
+        np.testing.assert_allclose(frames, self.sim.truth, atol=0.5 / 255 + 1e-6)
+
+    def test_info_summarises_each_file(self):
+        s = ns.info(self.dir / "spikes.dat")
+        self.assertEqual((s["kind"], s["planes"], s["width"]), ("spikes", 100, 400))
+        self.assertEqual(s["spikes"], int(self.sim.spikes.unpack().sum(dtype=np.int64)))
+        e = ns.info(self.dir / "events.aedat4")
+        self.assertEqual((e["kind"], e["format"]), ("events", "AEDAT 4"))
+        self.assertEqual(e["events"], len(ns.read_events(self.dir / "events.aedat4")))
+        self.assertIn("AEDAT 4", e["text"])
+        with self.assertRaisesRegex(ns.FormatError, "nothing-here"):
+            ns.read_truth(self.dir / "nothing-here")
+
+
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 
 
