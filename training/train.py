@@ -16,6 +16,12 @@ With `--init-partial` the architecture may differ: every tensor of the same name
 taken, the others keep their initial values and are named (a `--features half` network started
 from a `full` one's deeper layers).
 
+`--fresh 'size=64 seed=5 per_cell=4000'` trains on samples made on demand instead of `--train`
+sets: `neuspike.Samples` with those `neuspike dataset` options (the camera drawn per sample), in
+`--workers` DataLoader workers, each step's batch new until the set's 25 x per_cell samples are
+used up. It pays where a GPU trains and the CPU cores would wait; on 2 CPU cores, which the
+network's steps need, reading a written set is faster (docs/python.md).
+
 `--val DIR` (a set made like the training set with another `--seed`, never the held-out set)
 scores the model every `--val-every` steps and keeps the weights of the best mean PSNR: the
 checkpoint is chosen without looking at the held-out set.
@@ -153,9 +159,62 @@ def initial_weights(path: pathlib.Path, model: NeuSpikeNet, partial: bool = Fals
     return state
 
 
+class FreshBatches:
+    """Batches of samples made on demand (`--fresh`): neuspike.Samples through a DataLoader's
+    workers, one epoch after another, each epoch in a new order."""
+
+    def __init__(self, samples, batch: int, seed: int, workers: int):
+        from torch.utils.data import DataLoader
+
+        from neuspike.data import SampleStream
+
+        self.samples = samples
+        self.channels = samples.channels
+        self.camera = "random" if "cameras drawn" in repr(samples) else "paper"
+        self.stream = SampleStream(samples, batch_size=batch, seed=seed, drop_last=True)
+        self.loader = DataLoader(self.stream, batch_size=None, num_workers=workers,
+                                 persistent_workers=workers > 0)
+        self.epoch, self.it = 0, iter(self.loader)
+
+    def next(self) -> dict:
+        try:
+            return next(self.it)
+        except StopIteration:
+            self.epoch += 1
+            self.stream.set_epoch(self.epoch)
+            self.it = iter(self.loader)
+            return next(self.it)
+
+
+def fresh_batches(args) -> FreshBatches:
+    import neuspike
+
+    if not getattr(neuspike, "NATIVE", False):
+        raise SystemExit("--fresh needs neuspike's Python package with its native module: pip install ./python")
+    options = {}
+    for word in args.fresh.split():
+        key, sep, value = word.partition("=")
+        if not sep:
+            raise SystemExit(f"--fresh: {word!r} is not key=value")
+        options[key] = int(value) if value.lstrip("-").isdigit() else value
+    try:
+        samples = neuspike.Samples(**options)
+    except neuspike.Error as e:
+        raise SystemExit(f"--fresh: {e}")
+    return FreshBatches(samples, args.batch, args.seed, args.workers)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--train", type=pathlib.Path, nargs="+", required=True, help="one or more sets, mixed")
+    source = ap.add_mutually_exclusive_group(required=True)
+    source.add_argument("--train", type=pathlib.Path, nargs="+", help="one or more sets, mixed")
+    source.add_argument(
+        "--fresh",
+        metavar="OPTIONS",
+        help="samples made on demand by neuspike.Samples: neuspike dataset's options as key=value "
+        "words, e.g. 'size=64 seed=5 per_cell=4000'",
+    )
+    ap.add_argument("--workers", type=int, default=2, help="DataLoader workers making --fresh samples")
     ap.add_argument("--base", type=int, default=16)
     ap.add_argument("--mode", default="fused", choices=["fused", "spike", "event"])
     ap.add_argument("--steps", type=int, default=4000)
@@ -203,18 +262,29 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    train = data.load_all(args.train).to(device)
+    if args.fresh:
+        train, batches = None, fresh_batches(args)
+        channels = batches.channels
+    else:
+        train, batches = data.load_all(args.train).to(device), None
+        channels = train.spike.shape[1]
     model = NeuSpikeNet(
-        base=args.base, channels=train.spike.shape[1], mode=args.mode, gated=args.gated, features=args.features
+        base=args.base, channels=channels, mode=args.mode, gated=args.gated, features=args.features
     ).to(device)
     if args.init:
         model.load_state_dict(initial_weights(args.init, model, args.init_partial))
     names = model.inputs()
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.steps, pct_start=0.05)
+    # The warm-up is 5% of the steps, and at least 2 (OneCycleLR divides by its phases' lengths).
+    if args.steps < 4:
+        ap.error(f"--steps {args.steps}: at least 4")
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=args.lr, total_steps=args.steps, pct_start=max(0.05, 2 / args.steps)
+    )
     blur = GaussianBlur(device)
+    n_train = len(batches.samples) if batches else len(train)
     print(
-        f"{args.mode} base {args.base}: {parameters(model):,} parameters, {len(train)} samples, "
+        f"{args.mode} base {args.base}: {parameters(model):,} parameters, {n_train} samples, "
         f"{args.steps} steps of {args.batch} on {device} ({torch.get_num_threads()} threads)"
     )
     val = data.load_all(args.val).to(device) if args.val else None
@@ -222,10 +292,16 @@ def main() -> None:
     start, log_every, running = time.monotonic(), max(args.steps // 40, 1), 0.0
     model.train()
     for step in range(args.steps):
-        idx = torch.from_numpy(rng.integers(0, len(train), args.batch)).to(device)
-        gain = model.gain(train.lum_per_rate[idx])
+        if batches:
+            b = batches.next()
+            gain = model.gain(b["lum_per_rate"].float().to(device))
+            got = [b[n].to(device) for n in names] + [b["truth"][:, None].to(device)]
+        else:
+            idx = torch.from_numpy(rng.integers(0, len(train), args.batch)).to(device)
+            gain = model.gain(train.lum_per_rate[idx])
+            got = [*(getattr(train, n)[idx] for n in names), train.truth[idx]]
         # Turned while still float16 (half the bytes to move), then converted once.
-        *xs, truth = augment([*(getattr(train, n)[idx] for n in names), train.truth[idx]], int(rng.integers(0, 8)))
+        *xs, truth = augment(got, int(rng.integers(0, 8)))
         xs = [x.float() for x in xs]
         lum = model(*xs) * gain
         loss = l2_loss(lum, truth, args.l2)
@@ -255,7 +331,7 @@ def main() -> None:
         "mode": args.mode,
         "gated": args.gated,
         "features": args.features,
-        "channels": int(train.spike.shape[1]),
+        "channels": int(channels),
         "steps": args.steps,
         "batch": args.batch,
         "lr": args.lr,
@@ -263,10 +339,10 @@ def main() -> None:
         "aux": args.aux,
         "aux_weight": args.aux_weight,
         "seed": args.seed,
-        "train": " ".join(map(str, args.train)),
-        "train_samples": len(train),
+        "train": f"fresh: {args.fresh}" if args.fresh else " ".join(map(str, args.train)),
+        "train_samples": n_train,
         **({"init": str(args.init)} if args.init else {}),
-        "camera": " ".join(sorted({data.camera_of(t) for t in args.train})),
+        "camera": batches.camera if batches else " ".join(sorted({data.camera_of(t) for t in args.train})),
         "parameters": parameters(model),
         "train_seconds": round(seconds, 1),
         # CPU time of every thread: on a machine shared with builds, the wall clock overstates.

@@ -386,6 +386,15 @@ class SimulateTest(unittest.TestCase):
         self.assertGreater(len(a.events), 0)
         self.assertEqual(a.events.t_end_ns, 60 * 50_000)
 
+    def test_a_scene_file_is_the_builtin_it_copies(self):
+        path = Path(__file__).resolve().parents[2] / "graphs" / "scenes" / "bright-fast.yml"
+        if not path.is_file():
+            self.skipTest(f"no {path}")
+        a = ns.simulate(str(path), 40, seed=2, truth_every=20)
+        b = ns.simulate("bright-fast", 40, seed=2, truth_every=20)
+        np.testing.assert_array_equal(a.spikes.packed, b.spikes.packed)
+        np.testing.assert_array_equal(a.truth, b.truth)
+
     def test_tfp_sees_the_truth(self):
         sim = ns.simulate("bright-static", 200, truth_every=100, events=False)
         self.assertIsNone(sim.events)
