@@ -65,21 +65,10 @@ impl AutoPlan {
     /// # Errors
     /// The policy does not load (the error names the file and field).
     pub fn new(policy: &Path, window_planes: Option<u32>) -> eyre::Result<AutoPlan> {
-        use neuspike_reconstruction::policy::{MethodName, Policy};
+        use neuspike_reconstruction::policy::Policy;
         let policy = std::fs::canonicalize(crate::models::or_shipped(policy))
             .wrap_err_with(|| format!("--policy {}: cannot open", policy.display()))?;
-        let p = Policy::read(&policy)?;
-        let stats = neuspike_reconstruction::auto::STATS_PLANES as u32;
-        let longest = p
-            .all_methods()
-            .into_iter()
-            .map(|m| match MethodName::parse(m) {
-                Ok(MethodName::Tfp(n)) => n,
-                _ => stats,
-            })
-            .max()
-            .unwrap_or(stats)
-            .max(stats);
+        let longest = Policy::read(&policy)?.longest_window();
         let models = policy
             .parent()
             .map_or_else(|| PathBuf::from("."), Path::to_path_buf);

@@ -170,7 +170,7 @@ class FreshBatches:
 
         self.samples = samples
         self.channels = samples.channels
-        self.camera = "random" if "cameras drawn" in repr(samples) else "paper"
+        self.camera = "random" if samples.randomise_camera else "paper"
         self.stream = SampleStream(samples, batch_size=batch, seed=seed, drop_last=True)
         self.loader = DataLoader(self.stream, batch_size=None, num_workers=workers,
                                  persistent_workers=workers > 0)

@@ -308,6 +308,7 @@ class Samples:
 
     size: int
     channels: int
+    randomise_camera: bool
     def __init__(self, split: str = "train", **options: Union[Setting, Sequence[str]]) -> None: ...
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> dict:

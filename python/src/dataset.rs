@@ -223,6 +223,12 @@ impl Samples {
         self.set.options().size
     }
 
+    /// Whether each sample's spike camera is drawn at random.
+    #[getter]
+    fn randomise_camera(&self) -> bool {
+        self.set.options().randomise_camera
+    }
+
     /// Channels of the spike and event representations.
     #[getter]
     fn channels(&self) -> usize {

@@ -112,6 +112,82 @@ fn batches(
     out
 }
 
+/// Stage `kind` made from its node's arguments and the ports the chain wires, as a graph makes it.
+fn stage(
+    kind: &str,
+    args: &[String],
+    inputs: &[&str],
+    outputs: &[&str],
+) -> PyResult<Box<dyn neuspike_stage::Stage>> {
+    make_stage(kind, args, &strings(inputs), &strings(outputs))
+        .map_err(|e| errors::config(format!("{e:#}")))
+}
+
+/// The align stage cutting windows of `window` planes every `stride` planes, reading events when
+/// `events`, sending `outputs`.
+fn align_stage(
+    window: u32,
+    stride: u32,
+    events: bool,
+    outputs: &[&str],
+) -> PyResult<Box<dyn neuspike_stage::Stage>> {
+    let args = strings(&[
+        "--window-planes",
+        &window.to_string(),
+        "--stride-planes",
+        &stride.to_string(),
+    ]);
+    let inputs: &[&str] = if events {
+        &["spikes", "events"]
+    } else {
+        &["spikes"]
+    };
+    stage("align", &args, inputs, outputs)
+}
+
+/// The recording as its cameras would send it: the spikes in chunks of [`CHUNK_PLANES`]
+/// calibrated by `lum_per_rate`, and with `with_events` the events in batches covering the
+/// planes' span. Made on the pool, the GIL released.
+fn feed(
+    py: Python<'_>,
+    spikes: &Spikes,
+    events: Option<&Bound<'_, Events>>,
+    lum_per_rate: f64,
+    with_events: bool,
+) -> PyResult<(Vec<Msg>, Option<Vec<Msg>>)> {
+    let n = spikes.planes(py);
+    let bits = spikes.bits(py);
+    let bits = bits.as_slice().map_err(errors::input)?;
+    let columns = match events {
+        Some(e) if with_events => Some((e.get().columns(py), e.get().sensor())),
+        _ => None,
+    };
+    let events = match &columns {
+        Some((cols, sensor)) => Some((cols.slice()?, *sensor)),
+        None => None,
+    };
+    let c = spikes.clock();
+    let span = (
+        c.t_first_ns - c.plane_period_ns,
+        c.t_first_ns + n as i64 * c.plane_period_ns,
+    );
+    threads::run(py, || {
+        (
+            chunks(bits, n, spikes, Some(lum_per_rate)),
+            events.map(|(slice, sensor)| batches(slice, sensor, span.0, span.1)),
+        )
+    })
+}
+
+/// The cameras of a [`feed`], as a source stage.
+fn cameras(spikes: Vec<Msg>, events: Option<Vec<Msg>>) -> Replay<'static> {
+    let source = Replay::new("cameras").output("spikes", MsgType::SpikeChunk, spikes);
+    match events {
+        Some(e) => source.output("events", MsgType::EventBatch, e),
+        None => source,
+    }
+}
+
 fn words(args: &str, what: &str) -> PyResult<Vec<String>> {
     shlex::split(args)
         .ok_or_else(|| errors::config(format!("{what}: `{args}` has an unclosed quote")))
@@ -228,16 +304,6 @@ pub fn reconstruct<'py>(
     let lum = lum_per_rate.or(s.clock().lum_per_rate).unwrap_or(1.0);
 
     // The stages, as a graph wires them.
-    let align_args = strings(&[
-        "--window-planes",
-        &window.to_string(),
-        "--stride-planes",
-        &stride_planes.to_string(),
-    ]);
-    let mut align_in = vec!["spikes"];
-    if reads_events {
-        align_in.push("events");
-    }
     let mut align_out = vec!["windows"];
     if needs.events {
         align_out.push("events");
@@ -305,55 +371,18 @@ pub fn reconstruct<'py>(
         edges.push(("align/windows".into(), "infer/windows".into()));
     }
 
-    let align = make_stage(
-        "align",
-        &align_args,
-        &strings(&align_in),
-        &strings(&align_out),
-    )
-    .map_err(|e| errors::config(format!("{e:#}")))?;
+    let align = align_stage(window, stride_planes, reads_events, &align_out)?;
     let represent = if reprs.is_empty() {
         None
     } else {
-        Some(
-            make_stage(
-                "represent",
-                &represent_args,
-                &strings(&["windows"]),
-                &strings(&reprs),
-            )
-            .map_err(|e| errors::config(format!("{e:#}")))?,
-        )
+        Some(stage("represent", &represent_args, &["windows"], &reprs)?)
     };
-    let infer_stage = make_stage("infer", &infer_args, &infer_in, &strings(&["frames"]))
-        .map_err(|e| errors::config(format!("{e:#}")))?;
-
-    let bits = s.bits(py);
-    let bits = bits.as_slice().map_err(errors::input)?;
-    let ev_cols = events.map(|e| (e.get().columns(py), e.get().sensor()));
-    let ev = match &ev_cols {
-        Some((cols, sensor)) => Some((cols.slice()?, *sensor)),
-        None => None,
-    };
-    let c = s.clock();
-    let span = (
-        c.t_first_ns - c.plane_period_ns,
-        c.t_first_ns + n as i64 * c.plane_period_ns,
-    );
+    let infer_ins: Vec<&str> = infer_in.iter().map(String::as_str).collect();
+    let infer_stage = stage("infer", &infer_args, &infer_ins, &["frames"])?;
+    let (spike_msgs, event_msgs) = feed(py, s, events, lum, reads_events)?;
     let collected = Mutex::new(Collected::default());
     let run = threads::run(py, || -> eyre::Result<()> {
-        let mut source = Replay::new("cameras").output(
-            "spikes",
-            MsgType::SpikeChunk,
-            chunks(bits, n, s, Some(lum)),
-        );
-        if let (Some((slice, sensor)), true) = (ev, reads_events) {
-            source = source.output(
-                "events",
-                MsgType::EventBatch,
-                batches(slice, sensor, span.0, span.1),
-            );
-        }
+        let source = cameras(spike_msgs, event_msgs);
         let mut chain = Chain::new();
         chain
             .add("cameras", source)?
@@ -430,65 +459,27 @@ pub fn represent<'py>(
     if wanted.is_empty() {
         return Err(errors::config("kinds: none asked for"));
     }
-    let align_args = strings(&[
-        "--window-planes",
-        &window_planes.to_string(),
-        "--stride-planes",
-        &stride_planes.to_string(),
-    ]);
-    let mut align_in = vec!["spikes"];
-    if events.is_some() {
-        align_in.push("events");
-    }
     let mut represent_args = vec!["--tfp-planes".to_string(), window_planes.to_string()];
     represent_args.extend(words(represent, "represent")?);
     let names: Vec<String> = wanted.iter().map(|k| k.name().to_string()).collect();
-    let align = make_stage(
-        "align",
-        &align_args,
-        &strings(&align_in),
-        &strings(&["windows"]),
-    )
-    .map_err(|e| errors::config(format!("{e:#}")))?;
-    let stage = make_stage("represent", &represent_args, &strings(&["windows"]), &names)
-        .map_err(|e| errors::config(format!("{e:#}")))?;
-
-    let bits = s.bits(py);
-    let bits = bits.as_slice().map_err(errors::input)?;
-    let ev_cols = events.map(|e| (e.get().columns(py), e.get().sensor()));
-    let ev = match &ev_cols {
-        Some((cols, sensor)) => Some((cols.slice()?, *sensor)),
-        None => None,
-    };
-    let c = s.clock();
-    let span = (
-        c.t_first_ns - c.plane_period_ns,
-        c.t_first_ns + n as i64 * c.plane_period_ns,
-    );
-    let lum = c.lum_per_rate.unwrap_or(1.0);
+    let name_refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    let align = align_stage(window_planes, stride_planes, events.is_some(), &["windows"])?;
+    let represent_stage = stage("represent", &represent_args, &["windows"], &name_refs)?;
+    let lum = s.clock().lum_per_rate.unwrap_or(1.0);
+    let (spike_msgs, event_msgs) = feed(py, s, events, lum, true)?;
+    let with_events = event_msgs.is_some();
     let made: Vec<Mutex<Vec<Representation>>> =
         names.iter().map(|_| Mutex::new(Vec::new())).collect();
     let run = threads::run(py, || -> eyre::Result<()> {
-        let mut source = Replay::new("cameras").output(
-            "spikes",
-            MsgType::SpikeChunk,
-            chunks(bits, n, s, Some(lum)),
-        );
-        if let Some((slice, sensor)) = ev {
-            source = source.output(
-                "events",
-                MsgType::EventBatch,
-                batches(slice, sensor, span.0, span.1),
-            );
-        }
+        let source = cameras(spike_msgs, event_msgs);
         let mut chain = Chain::new();
         chain
             .add("cameras", source)?
             .add("align", align)?
-            .add("represent", stage)?
+            .add("represent", represent_stage)?
             .connect("cameras/spikes", "align/spikes")?
             .connect("align/windows", "represent/windows")?;
-        if ev.is_some() {
+        if with_events {
             chain.connect("cameras/events", "align/events")?;
         }
         for (name, slot) in names.iter().zip(&made) {
@@ -523,18 +514,9 @@ pub fn represent<'py>(
 
 /// The window auto's policy needs: the longest any of its methods reads.
 fn auto_window(policy: &Path) -> PyResult<u32> {
-    use neuspike_reconstruction::policy::{MethodName, Policy};
-    let p = Policy::read(policy).map_err(|e| errors::config(format!("{e:#}")))?;
-    let stats = neuspike_reconstruction::auto::STATS_PLANES as u32;
-    Ok(p.all_methods()
-        .into_iter()
-        .map(|m| match MethodName::parse(m) {
-            Ok(MethodName::Tfp(n)) => n,
-            _ => stats,
-        })
-        .max()
-        .unwrap_or(stats)
-        .max(stats))
+    neuspike_reconstruction::policy::Policy::read(policy)
+        .map(|p| p.longest_window())
+        .map_err(|e| errors::config(format!("{e:#}")))
 }
 
 /// A message as a Python value: spikes as :class:`Spikes`, events as :class:`Events`, frames
