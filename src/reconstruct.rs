@@ -68,7 +68,7 @@ impl AutoPlan {
         use neuspike_reconstruction::policy::Policy;
         let policy = std::fs::canonicalize(crate::models::or_shipped(policy))
             .wrap_err_with(|| format!("--policy {}: cannot open", policy.display()))?;
-        let longest = Policy::read(&policy)?.longest_window();
+        let longest = neuspike_reconstruction::auto::longest_window(&Policy::read(&policy)?);
         let models = policy
             .parent()
             .map_or_else(|| PathBuf::from("."), Path::to_path_buf);

@@ -515,7 +515,7 @@ pub fn represent<'py>(
 /// The window auto's policy needs: the longest any of its methods reads.
 fn auto_window(policy: &Path) -> PyResult<u32> {
     neuspike_reconstruction::policy::Policy::read(policy)
-        .map(|p| p.longest_window())
+        .map(|p| neuspike_reconstruction::auto::longest_window(&p))
         .map_err(|e| errors::config(format!("{e:#}")))
 }
 

@@ -35,6 +35,23 @@ use crate::{InferError, luminance_from_isi_into, luminance_from_rate_into};
 /// The planes the statistics and the 33-plane methods (TFI, TFSTP, the networks) read.
 pub const STATS_PLANES: usize = 33;
 
+/// The planes of the longest window any method of `policy` reads: TFP over its planes,
+/// [`STATS_PLANES`] for the others (and at least that). Align's windows for `auto` must be this
+/// long for every method to be at hand.
+pub fn longest_window(policy: &Policy) -> u32 {
+    let stats = STATS_PLANES as u32;
+    policy
+        .all_methods()
+        .into_iter()
+        .map(|m| match MethodName::parse(m) {
+            Ok(MethodName::Tfp(n)) => n,
+            _ => stats,
+        })
+        .max()
+        .unwrap_or(stats)
+        .max(stats)
+}
+
 /// Weight of the newest run in a method's cost estimate.
 pub const COST_WEIGHT: f64 = 0.1;
 

@@ -282,22 +282,6 @@ impl Policy {
         v
     }
 
-    /// The planes of the longest window any of its methods reads: TFP over its planes, the
-    /// statistics' [`crate::auto::STATS_PLANES`] for the others (and at least that). Align's
-    /// windows for `auto` must be this long for every method to be at hand.
-    pub fn longest_window(&self) -> u32 {
-        let stats = crate::auto::STATS_PLANES as u32;
-        self.all_methods()
-            .into_iter()
-            .map(|m| match MethodName::parse(m) {
-                Ok(MethodName::Tfp(n)) => n,
-                _ => stats,
-            })
-            .max()
-            .unwrap_or(stats)
-            .max(stats)
-    }
-
     /// Checks the table, and with `installed` that every row's method is among them; the error
     /// names the field and value.
     pub fn check(&self, installed: Option<&[&str]>) -> Result<(), String> {
