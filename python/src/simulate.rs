@@ -22,8 +22,11 @@ use neuspike_spike_camera::{CameraConfig, SpikeCamera};
 use crate::values::{Events, Spikes};
 use crate::{errors, threads};
 
-/// The most planes one call simulates (2^20: 13 GB of 400x250 planes).
+/// The most planes one call simulates.
 const MAX_PLANES: u64 = 1 << 20;
+/// The most bytes of packed planes one call makes (4 GiB: 343,597 planes of 400x250); longer
+/// recordings are simulated in several calls or written by `neuspike simulate`.
+const MAX_SPIKE_BYTES: u64 = 1 << 32;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -145,6 +148,14 @@ pub fn simulate(
     } else {
         None
     };
+    let c = &spike_args.camera;
+    let bytes = planes.saturating_mul(neuspike_schemas::bytes_per_plane(c.width, c.height) as u64);
+    if spikes && bytes > MAX_SPIKE_BYTES {
+        return Err(errors::config(format!(
+            "planes = {planes}: {bytes} bytes of {}x{} planes, more than the {MAX_SPIKE_BYTES} one call makes",
+            c.width, c.height
+        )));
+    }
     let n = usize::try_from(planes).map_err(errors::config)?;
     let (chunk, truth, truth_planes, batch) = threads::run(py, || -> Result<_, String> {
         let mut camera =

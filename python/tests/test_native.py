@@ -460,6 +460,8 @@ class SimulateTest(unittest.TestCase):
             ns.simulate("nowhere")
         with self.assertRaisesRegex(ns.ConfigError, "planes = 0"):
             ns.simulate(planes=0)
+        with self.assertRaisesRegex(ns.ConfigError, "more than the 4294967296 one call makes"):
+            ns.simulate(planes=400_000)
 
 
 @unittest.skipUnless(ns.NATIVE, "neuspike's native module is not built")
