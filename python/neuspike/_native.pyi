@@ -1,6 +1,7 @@
 """Type stubs of neuspike's native module (re-exported by ``neuspike``)."""
 
 import os
+import pathlib
 from typing import Iterator, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -295,7 +296,7 @@ def simulate(
     events: bool = True,
     spike_camera: Optional[Mapping[str, Setting]] = None,
     event_camera: Optional[Mapping[str, Setting]] = None,
-    frames: Optional[npt.NDArray[np.float32]] = None,
+    frames: Optional[npt.ArrayLike] = None,
     frame_dt_ns: int = 1_000_000,
     light_scale: float = 1.0,
 ) -> Simulation:
@@ -315,10 +316,10 @@ class Samples:
         """``spike``, ``events`` ``[C, S, S]``; ``truth``, ``tfp``, ``tfi`` ``[S, S]``; ``also``;
         ``texture``, ``light``, ``speed_px_s``, ``angle_deg``, ``theta_on``, ``theta_off``,
         ``lum_per_rate``, ``event_count``, ``complex``."""
-    def batch(self, indices: Sequence[int]) -> dict:
+    def batch(self, indices: Sequence[int]) -> dict:  # negative indices count from the end
         """Samples made side by side and stacked: arrays ``[B, ...]``, scalars as arrays ``[B]``."""
 
-def models() -> Optional[str]:
+def models() -> Optional[pathlib.Path]:
     """The shipped networks' folder (``$NEUSPIKE_MODELS``, else the building checkout's ``models/``)."""
 
 def reconstruct(

@@ -64,14 +64,25 @@ fn sample_dict<'py>(py: Python<'py>, set: &Set, s: Sample) -> PyResult<Bound<'py
 }
 
 impl Samples {
+    /// Python indices (negative from the end) as sample numbers.
+    fn numbers(&self, indices: &[isize]) -> PyResult<Vec<usize>> {
+        let len = self.set.len();
+        indices
+            .iter()
+            .map(|&index| {
+                if index < 0 {
+                    len.checked_sub(index.unsigned_abs())
+                } else {
+                    Some(index as usize)
+                }
+                .filter(|&i| i < len)
+                .ok_or_else(|| PyIndexError::new_err(format!("sample {index} of a set of {len}")))
+            })
+            .collect()
+    }
+
     fn made(&self, py: Python<'_>, indices: &[usize]) -> PyResult<Vec<Sample>> {
         let set = &self.set;
-        let len = set.len();
-        if let Some(&bad) = indices.iter().find(|&&i| i >= len) {
-            return Err(PyIndexError::new_err(format!(
-                "sample {bad} of a set of {len}"
-            )));
-        }
         threads::run(py, || {
             use rayon::prelude::*;
             indices
@@ -136,15 +147,8 @@ impl Samples {
     }
 
     fn __getitem__<'py>(&self, py: Python<'py>, index: isize) -> PyResult<Bound<'py, PyDict>> {
-        let len = self.set.len();
-        let i = if index < 0 {
-            len.checked_sub(index.unsigned_abs())
-        } else {
-            Some(index as usize)
-        }
-        .filter(|&i| i < len)
-        .ok_or_else(|| PyIndexError::new_err(format!("sample {index} of a set of {len}")))?;
-        let mut made = self.made(py, &[i])?;
+        let i = self.numbers(&[index])?;
+        let mut made = self.made(py, &i)?;
         let s = made.pop().ok_or_else(|| errors::config("no sample made"))?;
         sample_dict(py, &self.set, s)
     }
@@ -152,7 +156,11 @@ impl Samples {
     /// Samples ``indices`` made side by side on the package's threads, stacked: ``spike`` and
     /// ``events`` ``[B, C, S, S]``, ``truth``, ``tfp``, ``tfi`` ``[B, S, S]``, the ``also``
     /// kinds, and each scalar as an array ``[B]`` (``texture`` a list).
-    fn batch<'py>(&self, py: Python<'py>, indices: Vec<usize>) -> PyResult<Bound<'py, PyDict>> {
+    fn batch<'py>(&self, py: Python<'py>, indices: Vec<isize>) -> PyResult<Bound<'py, PyDict>> {
+        if indices.is_empty() {
+            return Err(errors::input("indices: none given"));
+        }
+        let indices = self.numbers(&indices)?;
         let made = self.made(py, &indices)?;
         let d = PyDict::new(py);
         let kinds = self.set.options().also.clone();

@@ -34,6 +34,13 @@ fn pku_options(
     plane_period_ns: i64,
     t_first_ns: i64,
 ) -> PyResult<PkuOptions> {
+    let sides = 1..=crate::values::MAX_SIDE;
+    if !sides.contains(&width) || !sides.contains(&height) {
+        return Err(errors::config(format!(
+            "width x height = {width}x{height}: each side must be 1..={}",
+            crate::values::MAX_SIDE
+        )));
+    }
     if head_columns != 0 && head_columns != pku::HEAD_COLUMNS {
         return Err(errors::config(format!(
             "head_columns = {head_columns}: must be 0 or {}",
@@ -647,9 +654,9 @@ pub fn info<'py>(
 #[pyfunction]
 pub fn read_truth<'py>(
     py: Python<'py>,
-    dir: PathBuf,
+    path: PathBuf,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-    let list = neuspike_formats::truth::TruthList::open(&dir).map_err(errors::format_text)?;
+    let list = neuspike_formats::truth::TruthList::open(&path).map_err(errors::format_text)?;
     let (planes, frames) = threads::run(py, || -> Result<_, String> {
         let mut planes = Vec::with_capacity(list.frames.len());
         let mut frames = Vec::with_capacity(list.frames.len());

@@ -18,13 +18,30 @@ use neuspike_representations::{
 use crate::values::{Events, SpikesIn, frame_in, spikes_in, to_numpy, view2, view3};
 use crate::{errors, threads};
 
+/// The most values one kernel's output may hold (4 GiB of `float32`).
+const MAX_OUTPUT_ELEMENTS: usize = 1 << 30;
+
 /// Runs a kernel that fills a fresh array on the pool, GIL released; its refusal is an
 /// `InputError`.
-fn fill<D: ndarray::Dimension, S: ndarray::ShapeBuilder<Dim = D> + Send>(
+fn fill<
+    D: ndarray::Dimension,
+    S: ndarray::ShapeBuilder<Dim = D> + Send + Clone + std::fmt::Debug,
+>(
     py: Python<'_>,
     shape: S,
     kernel: impl FnOnce(ndarray::ArrayViewMut<'_, f32, D>) -> Result<(), RepresentError> + Send,
 ) -> PyResult<ndarray::Array<f32, D>> {
+    let dim = shape.clone().into_shape_with_order().raw_dim().clone();
+    let elements = dim
+        .slice()
+        .iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .filter(|&n| n <= MAX_OUTPUT_ELEMENTS);
+    if elements.is_none() {
+        return Err(errors::input(format!(
+            "an output of shape {shape:?}: more than the {MAX_OUTPUT_ELEMENTS} values one call makes"
+        )));
+    }
     threads::run(py, || {
         let mut out = ndarray::Array::<f32, D>::zeros(shape);
         kernel(out.view_mut()).map(|()| out)
@@ -197,7 +214,10 @@ pub fn tfstp<'py>(
 }
 
 /// Runs an event kernel on an [`Events`]' columns.
-fn on_events<D: ndarray::Dimension, S: ndarray::ShapeBuilder<Dim = D> + Send>(
+fn on_events<
+    D: ndarray::Dimension,
+    S: ndarray::ShapeBuilder<Dim = D> + Send + Clone + std::fmt::Debug,
+>(
     py: Python<'_>,
     events: &Bound<'_, Events>,
     shape: impl FnOnce(usize, usize) -> S,

@@ -54,6 +54,8 @@ fn model_path(m: &Path) -> PathBuf {
 const CHUNK_PLANES: usize = 20;
 /// The span of each event message fed to align, ns.
 const BATCH_NS: i64 = 1_000_000;
+/// The most event messages one call feeds align (2^22 ms: 70 minutes of recording).
+const MAX_EVENT_BATCHES: i128 = 1 << 22;
 
 /// The spikes as the camera's messages of [`CHUNK_PLANES`] planes.
 fn chunks(bits: &[u8], n: usize, s: &Spikes, lum_per_rate: Option<f64>) -> Vec<Msg> {
@@ -84,15 +86,9 @@ fn chunks(bits: &[u8], n: usize, s: &Spikes, lum_per_rate: Option<f64>) -> Vec<M
 fn batches(
     e: neuspike_representations::EventSlice<'_>,
     sensor: (usize, usize),
-    from_ns: i64,
-    to_ns: i64,
+    (start, end): (i64, i64),
 ) -> Vec<Msg> {
     let (h, w) = sensor;
-    let start = e.t_ns.first().map_or(from_ns, |&t| t.min(from_ns));
-    let end = e
-        .t_ns
-        .last()
-        .map_or(to_ns, |&t| t.saturating_add(1).max(to_ns));
     let mut out = Vec::new();
     let mut i = 0;
     let mut t = start;
@@ -167,14 +163,29 @@ fn feed(
         None => None,
     };
     let c = spikes.clock();
-    let span = (
-        c.t_first_ns - c.plane_period_ns,
-        c.t_first_ns + n as i64 * c.plane_period_ns,
+    // The events' messages cover the planes' light and every event, a batch a millisecond.
+    let mut span = (
+        c.t_first_ns.saturating_sub(c.plane_period_ns),
+        c.t_first_ns
+            .saturating_add((n as i64).saturating_mul(c.plane_period_ns)),
     );
+    if let Some((e, _)) = &events
+        && let (Some(&first), Some(&last)) = (e.t_ns.first(), e.t_ns.last())
+    {
+        span = (span.0.min(first), span.1.max(last.saturating_add(1)));
+    }
+    let count = (i128::from(span.1) - i128::from(span.0)) / i128::from(BATCH_NS);
+    if events.is_some() && count > MAX_EVENT_BATCHES {
+        return Err(errors::input(format!(
+            "events: the spikes and events span [{}, {}) ns together, more than {MAX_EVENT_BATCHES} ms: \
+             are both on one clock (t_first_ns of the spikes, t_ns of the events)?",
+            span.0, span.1
+        )));
+    }
     threads::run(py, || {
         (
             chunks(bits, n, spikes, Some(lum_per_rate)),
-            events.map(|(slice, sensor)| batches(slice, sensor, span.0, span.1)),
+            events.map(|(slice, sensor)| batches(slice, sensor, span)),
         )
     })
 }

@@ -24,8 +24,9 @@ use crate::{errors, threads};
 
 /// The most planes one call simulates.
 const MAX_PLANES: u64 = 1 << 20;
-/// The most bytes of packed planes one call makes (4 GiB: 343,597 planes of 400x250); longer
-/// recordings are simulated in several calls or written by `neuspike simulate`.
+/// The most bytes of packed planes, and of ground truth, one call makes (4 GiB: 343,597 planes
+/// of 400x250); longer recordings are simulated in several calls or written by
+/// `neuspike simulate`.
 const MAX_SPIKE_BYTES: u64 = 1 << 32;
 
 #[derive(Debug, Parser)]
@@ -111,7 +112,7 @@ pub fn simulate(
     events: bool,
     spike_camera: Option<&Bound<'_, PyDict>>,
     event_camera: Option<&Bound<'_, PyDict>>,
-    frames: Option<PyReadonlyArray3<'_, f32>>,
+    frames: Option<&Bound<'_, PyAny>>,
     frame_dt_ns: i64,
     light_scale: f64,
 ) -> PyResult<Simulation> {
@@ -123,6 +124,9 @@ pub fn simulate(
     let mut base = vec![format!("--seed={seed}")];
     let scene = match frames {
         Some(f) => {
+            let f = crate::values::contiguous(py, f, "float32")?
+                .extract::<PyReadonlyArray3<'_, f32>>()
+                .map_err(|_| errors::input("frames: expected luminance [T, H, W]"))?;
             let f = crate::values::view3(&f)?.to_owned();
             let (_, h, w) = f.dim();
             base.push(format!("--width={w}"));
@@ -149,10 +153,30 @@ pub fn simulate(
         None
     };
     let c = &spike_args.camera;
-    let bytes = planes.saturating_mul(neuspike_schemas::bytes_per_plane(c.width, c.height) as u64);
+    let side = crate::values::MAX_SIDE;
+    if !(1..=side).contains(&c.width) || !(1..=side).contains(&c.height) {
+        return Err(errors::config(format!(
+            "spike_camera: {}x{} planes: each side must be 1..={side}",
+            c.width, c.height
+        )));
+    }
+    let pixels = (c.width * c.height) as u64;
+    let bytes = planes.saturating_mul(pixels.div_ceil(8));
     if spikes && bytes > MAX_SPIKE_BYTES {
         return Err(errors::config(format!(
             "planes = {planes}: {bytes} bytes of {}x{} planes, more than the {MAX_SPIKE_BYTES} one call makes",
+            c.width, c.height
+        )));
+    }
+    let truths = if truth_every == 0 {
+        0
+    } else {
+        planes.div_ceil(truth_every)
+    };
+    let truth_bytes = truths.saturating_mul(pixels).saturating_mul(4);
+    if truth_bytes > MAX_SPIKE_BYTES {
+        return Err(errors::config(format!(
+            "truth_every = {truth_every}: {truths} frames of {}x{} ({truth_bytes} bytes), more than the {MAX_SPIKE_BYTES} one call makes",
             c.width, c.height
         )));
     }

@@ -80,6 +80,7 @@ impl Spikes {
         per: usize,
         clock: Clock,
     ) -> PyResult<Spikes> {
+        clock.check(n)?;
         if bits.len() != n * per {
             return Err(errors::input(format!(
                 "spikes: {} bytes are not {n} planes of {per}",
@@ -123,18 +124,37 @@ impl Spikes {
     }
 }
 
-fn check_clock(width: usize, height: usize, plane_period_ns: i64) -> PyResult<()> {
-    if width == 0 || height == 0 {
-        return Err(errors::input(format!(
-            "spikes: an empty plane {width}x{height}"
-        )));
+/// The most pixels a side of a plane or a sensor may have (the formats' 16-bit coordinates).
+pub const MAX_SIDE: usize = 65_535;
+
+impl Clock {
+    /// Checks the clock of `n` planes: sides in `1..=`[`MAX_SIDE`], a period `> 0`, and every
+    /// plane's number and time stamp within their integers.
+    pub fn check(&self, n: usize) -> PyResult<()> {
+        let (w, h) = (self.width, self.height);
+        if !(1..=MAX_SIDE).contains(&w) || !(1..=MAX_SIDE).contains(&h) {
+            return Err(errors::input(format!(
+                "spikes: planes of {w}x{h}: each side must be 1..={MAX_SIDE}"
+            )));
+        }
+        if self.plane_period_ns <= 0 {
+            return Err(errors::input(format!(
+                "plane_period_ns = {}: must be > 0",
+                self.plane_period_ns
+            )));
+        }
+        let last = (n as i64)
+            .checked_mul(self.plane_period_ns)
+            .and_then(|d| d.checked_add(self.t_first_ns))
+            .and_then(|t| t.checked_sub(self.plane_period_ns));
+        if last.is_none() || self.first_plane.checked_add(n as u64).is_none() {
+            return Err(errors::input(format!(
+                "t_first_ns = {}, plane_period_ns = {}, first_plane = {}: {n} planes run past a 64-bit clock",
+                self.t_first_ns, self.plane_period_ns, self.first_plane
+            )));
+        }
+        Ok(())
     }
-    if plane_period_ns <= 0 {
-        return Err(errors::input(format!(
-            "plane_period_ns = {plane_period_ns}: must be > 0"
-        )));
-    }
-    Ok(())
 }
 
 #[pymethods]
@@ -152,18 +172,10 @@ impl Spikes {
         first_plane: u64,
         lum_per_rate: Option<f64>,
     ) -> PyResult<Spikes> {
-        check_clock(width, height, plane_period_ns)?;
         let array = contiguous(py, packed, "uint8")?;
         let array = array.cast_into::<PyArray2<u8>>().map_err(|_| {
             errors::input("packed: expected a 2-D uint8 array [N, ceil(H * W / 8)]")
         })?;
-        let per = bytes_per_plane(width, height);
-        let shape = array.shape();
-        if shape[1] != per {
-            return Err(errors::input(format!(
-                "packed: expected shape [N, {per}] for {width}x{height} planes, got {shape:?}"
-            )));
-        }
         let clock = Clock {
             width,
             height,
@@ -172,6 +184,14 @@ impl Spikes {
             plane_period_ns,
             lum_per_rate,
         };
+        let shape = array.shape().to_vec();
+        clock.check(shape[0])?;
+        let per = bytes_per_plane(width, height);
+        if shape[1] != per {
+            return Err(errors::input(format!(
+                "packed: expected shape [N, {per}] for {width}x{height} planes, got {shape:?}"
+            )));
+        }
         Ok(Spikes::with_array(array.unbind(), clock))
     }
 
@@ -189,7 +209,15 @@ impl Spikes {
         let planes = planes_in(planes)?;
         let view = view3(&planes)?;
         let (n, height, width) = view.dim();
-        check_clock(width, height, plane_period_ns)?;
+        let probe = Clock {
+            width,
+            height,
+            first_plane,
+            t_first_ns,
+            plane_period_ns,
+            lum_per_rate,
+        };
+        probe.check(n)?;
         let bits = threads::run(py, || pack_planes(view))?;
         let clock = Clock {
             width,
@@ -492,13 +520,34 @@ impl Events {
     }
 }
 
+/// A column as `dtype`: the array itself where it is one, else converted, and refused where the
+/// conversion would change a value (a negative column, a fractional time), naming the first.
 fn column<'py, T: numpy::Element>(
     py: Python<'py>,
     obj: &Bound<'py, PyAny>,
     dtype: &str,
     name: &str,
 ) -> PyResult<Bound<'py, PyArray1<T>>> {
-    contiguous(py, obj, dtype)?
+    let np = py.import("numpy")?;
+    let original = np.call_method1("asarray", (obj,))?;
+    let kwargs = pyo3::types::PyDict::new(py);
+    kwargs.set_item("copy", false)?;
+    let cast = original.call_method("astype", (dtype,), Some(&kwargs))?;
+    let converted = contiguous(py, &cast, dtype)?;
+    if original.getattr("dtype")?.str()? != dtype {
+        let same = converted.call_method1("__eq__", (&original,))?;
+        if !np.call_method1("all", (&same,))?.is_truthy()? {
+            let i: usize = np
+                .call_method1("argmin", (&same,))?
+                .extract()
+                .unwrap_or_default();
+            let v = original.get_item(i)?;
+            return Err(errors::input(format!(
+                "{name}: value {v} at index {i} is not a {dtype}"
+            )));
+        }
+    }
+    converted
         .cast_into::<PyArray1<T>>()
         .map_err(|_| errors::input(format!("{name}: expected a 1-D array of {dtype}")))
 }
@@ -521,6 +570,11 @@ impl Events {
         t_start_ns: Option<i64>,
         t_end_ns: Option<i64>,
     ) -> PyResult<Events> {
+        if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+            return Err(errors::input(format!(
+                "events: a sensor of {width}x{height}: each side must be 1..={MAX_SIDE}"
+            )));
+        }
         let t_ns = column::<i64>(py, t_ns, "int64", "t_ns")?;
         let x = column::<u16>(py, x, "uint16", "x")?;
         let y = column::<u16>(py, y, "uint16", "y")?;

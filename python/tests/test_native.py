@@ -99,6 +99,22 @@ class SpikesTest(unittest.TestCase):
         np.testing.assert_array_equal(w.unpack(), s.unpack()[3:7])
         self.assertEqual(len(s.window(-2, 100)), 2)
 
+    def test_sizes_and_clocks_past_their_integers_are_refused(self):
+        with self.assertRaisesRegex(ns.InputError, "each side must be 1..=65535"):
+            ns.Spikes(np.zeros((1, 0), np.uint8), 2**32, 2**32)
+        with self.assertRaisesRegex(ns.InputError, "run past a 64-bit clock"):
+            ns.Spikes(np.zeros((3, 2), np.uint8), 4, 4, t_first_ns=2**63 - 10)
+        with self.assertRaisesRegex(ns.InputError, "run past a 64-bit clock"):
+            ns.Spikes.from_planes(random_planes(3, 2, 2), plane_period_ns=2**62)
+        with self.assertRaisesRegex(ns.InputError, "a sensor of 1000000x1000000"):
+            ns.Events([0], [0], [0], [1], 10**6, 10**6)
+        with self.assertRaisesRegex(ns.InputError, "more than the 1073741824 values"):
+            ns.voxel_grid(random_events(10, 4, 4), 10**9)
+        with self.assertRaisesRegex(ns.InputError, "x: value -1 at index 1 is not a uint16"):
+            ns.Events([0, 1], [0, -1], [0, 0], [1, 1], 4, 4)
+        with self.assertRaisesRegex(ns.InputError, "t_ns: value 0.5 at index 0 is not a int64"):
+            ns.Events([0.5], [0], [0], [1], 4, 4)
+
     def test_bad_packed_shapes_are_named(self):
         with self.assertRaisesRegex(ns.InputError, r"expected shape \[N, 4\] for 5x6 planes"):
             ns.Spikes(np.zeros((2, 3), np.uint8), 5, 6)
@@ -460,6 +476,10 @@ class SimulateTest(unittest.TestCase):
             ns.simulate("nowhere")
         with self.assertRaisesRegex(ns.ConfigError, "planes = 0"):
             ns.simulate(planes=0)
+        with self.assertRaisesRegex(ns.ConfigError, "truth_every = 1: 100000 frames"):
+            ns.simulate(planes=100_000, truth_every=1, spikes=False, events=False)
+        frames = np.zeros((2, 3, 4))  # float64, converted
+        self.assertEqual(ns.simulate(frames=frames, planes=4, events=False).spikes.width, 4)
         with self.assertRaisesRegex(ns.ConfigError, "more than the 4294967296 one call makes"):
             ns.simulate(planes=400_000)
 
@@ -496,6 +516,9 @@ class SamplesTest(unittest.TestCase):
             self.assertEqual(b["texture"][j], one["texture"])
         with self.assertRaises(IndexError):
             self.samples.batch([0, 99])
+        with self.assertRaisesRegex(ns.InputError, "indices: none given"):
+            self.samples.batch([])
+        np.testing.assert_array_equal(self.samples.batch([-1])["truth"][0], self.samples[49]["truth"])
 
     def test_options_are_the_dataset_commands(self):
         with self.assertRaisesRegex(ns.ConfigError, "--size = 4 is invalid"):
@@ -631,6 +654,9 @@ class ReconstructTest(unittest.TestCase):
 
     def test_refusals_are_named(self):
         s = self.sim.spikes
+        far = ns.Events([10**18], [0], [0], [1], 400, 250)
+        with self.assertRaisesRegex(ns.InputError, "are both on one clock"):
+            ns.reconstruct(s, far, method="hf")
         with self.assertRaisesRegex(ns.ConfigError, "method fusion: reads events"):
             ns.reconstruct(s, method="fusion")
         with self.assertRaisesRegex(ns.ConfigError, 'unknown reconstruction method "nope"'):
