@@ -1,7 +1,7 @@
 //! Training samples made on demand: `neuspike dataset`'s samples, each deterministic in its
 //! index and the seed, for a PyTorch `Dataset` or any loop.
 
-use ndarray::{Array1, Axis};
+use ndarray::Array1;
 use pyo3::exceptions::PyIndexError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
@@ -100,8 +100,7 @@ fn stack<D: ndarray::Dimension>(
     items: Vec<ndarray::Array<f32, D>>,
 ) -> PyResult<Bound<'_, PyAny>> {
     let views: Vec<_> = items.iter().map(|a| a.view()).collect();
-    let stacked = ndarray::stack(Axis(0), &views).map_err(errors::input)?;
-    to_numpy(py, stacked)
+    to_numpy(py, crate::values::stack_on_pool(py, &views)?)
 }
 
 #[pymethods]

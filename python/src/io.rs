@@ -581,15 +581,23 @@ impl ApsFrameReader {
     fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Option<(i64, Bound<'py, PyAny>)>> {
         let mut frames = self.frames.lock().unwrap_or_else(|p| p.into_inner());
         let frames = &mut *frames;
-        let next = threads::run(py, || frames.next())?;
+        let next = threads::run(py, || {
+            frames.next().map(|f| {
+                f.map(|f| {
+                    let (h, w) = (usize::from(f.height), usize::from(f.width));
+                    (
+                        f.t_ns,
+                        ndarray::Array2::from_shape_vec((h, w), f.luminance()),
+                    )
+                })
+            })
+        })?;
         match next {
             None => Ok(None),
             Some(Err(e)) => Err(errors::format(e)),
-            Some(Ok(f)) => {
-                let (h, w) = (usize::from(f.height), usize::from(f.width));
-                let pixels = ndarray::Array2::from_shape_vec((h, w), f.luminance())
-                    .map_err(errors::input)?;
-                Ok(Some((f.t_ns, crate::values::to_numpy(py, pixels)?)))
+            Some(Ok((t_ns, pixels))) => {
+                let pixels = pixels.map_err(errors::input)?;
+                Ok(Some((t_ns, crate::values::to_numpy(py, pixels)?)))
             }
         }
     }
@@ -682,11 +690,7 @@ pub fn read_truth<'py>(
     })?
     .map_err(errors::format_text)?;
     let views: Vec<_> = frames.iter().map(|f| f.view()).collect();
-    let stacked = if views.is_empty() {
-        ndarray::Array3::<f32>::zeros((0, 0, 0))
-    } else {
-        ndarray::stack(ndarray::Axis(0), &views).map_err(errors::input)?
-    };
+    let stacked = crate::values::stack_on_pool(py, &views)?;
     Ok((
         crate::values::to_numpy(py, ndarray::Array1::from(planes))?,
         crate::values::to_numpy(py, stacked)?,

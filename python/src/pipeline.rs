@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::Mutex;
 
-use ndarray::{Array1, Array3, Axis};
+use ndarray::Array1;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
@@ -18,7 +18,7 @@ use neuspike_reconstruction::learned::{LearnedInput, LearnedModel};
 use neuspike_schemas::{EventBatch, Frame, SpikeChunk, bytes_per_plane};
 use neuspike_stage::{Chain, Msg, MsgType, Replay};
 
-use crate::values::{Events, Spikes, to_numpy};
+use crate::values::{Events, Spikes, stack_on_pool, to_numpy};
 use crate::{errors, threads};
 
 /// The folder of the shipped networks and `auto`'s policy: `$NEUSPIKE_MODELS`, else the
@@ -223,12 +223,7 @@ fn frames_dict(py: Python<'_>, frames: Vec<Frame>) -> PyResult<Bound<'_, PyDict>
     let chosen: Vec<Option<String>> = frames.iter().map(|f| f.chosen.clone()).collect();
     let method = frames.first().map(|f| f.method.clone());
     let views: Vec<_> = frames.iter().map(|f| f.data.view()).collect();
-    let stacked = if views.is_empty() {
-        Array3::<f32>::zeros((0, 0, 0))
-    } else {
-        ndarray::stack(Axis(0), &views).map_err(errors::input)?
-    };
-    d.set_item("frames", to_numpy(py, stacked)?)?;
+    d.set_item("frames", to_numpy(py, stack_on_pool(py, &views)?)?)?;
     d.set_item("t_ref_ns", to_numpy(py, Array1::from(t))?)?;
     d.set_item("compute_ns", to_numpy(py, Array1::from(c))?)?;
     d.set_item("method", method)?;
@@ -509,12 +504,7 @@ pub fn represent<'py>(
         let reps = slot.into_inner().unwrap_or_else(|p| p.into_inner());
         times.get_or_insert_with(|| reps.iter().map(|r| r.t_ref_ns).collect());
         let views: Vec<_> = reps.iter().map(|r| r.data.view()).collect();
-        let stacked = if views.is_empty() {
-            ndarray::Array4::<f32>::zeros((0, 0, 0, 0))
-        } else {
-            ndarray::stack(Axis(0), &views).map_err(errors::input)?
-        };
-        d.set_item(name, to_numpy(py, stacked)?)?;
+        d.set_item(name, to_numpy(py, stack_on_pool(py, &views)?)?)?;
     }
     d.set_item(
         "t_ref_ns",

@@ -127,7 +127,8 @@ pub fn simulate(
             let f = crate::values::contiguous(py, f, "float32")?
                 .extract::<PyReadonlyArray3<'_, f32>>()
                 .map_err(|_| errors::input("frames: expected luminance [T, H, W]"))?;
-            let f = crate::values::view3(&f)?.to_owned();
+            let view = crate::values::view3(&f)?;
+            let f = threads::run(py, || view.to_owned())?;
             let (_, h, w) = f.dim();
             base.push(format!("--width={w}"));
             base.push(format!("--height={h}"));
@@ -269,10 +270,12 @@ pub fn frames_to_events<'py>(
             "frames: {t} frames of {h}x{w}; at least 2 frames of at least one pixel are needed"
         )));
     }
-    if let Some(((k, y, x), v)) = view
-        .indexed_iter()
-        .find(|(_, v)| !v.is_finite() || **v < 0.0)
-    {
+    let bad = threads::run(py, || {
+        view.indexed_iter()
+            .find(|(_, v)| !v.is_finite() || **v < 0.0)
+            .map(|(i, v)| (i, *v))
+    })?;
+    if let Some(((k, y, x), v)) = bad {
         return Err(errors::input(format!(
             "frames: frame {k} row {y} column {x} is {v}: luminance must be finite and >= 0"
         )));

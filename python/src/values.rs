@@ -371,6 +371,21 @@ pub fn frame_in<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonly
         })
 }
 
+/// Arrays of one shape stacked along a new first axis, on the pool with the GIL released; none
+/// give an empty array.
+pub fn stack_on_pool<D: ndarray::Dimension>(
+    py: Python<'_>,
+    items: &[ndarray::ArrayView<'_, f32, D>],
+) -> PyResult<ndarray::Array<f32, D::Larger>> {
+    if items.is_empty() {
+        let ndim = D::NDIM.map_or(1, |n| n + 1);
+        return Ok(ndarray::Array::zeros(
+            <D::Larger as ndarray::Dimension>::zeros(ndim),
+        ));
+    }
+    threads::run(py, || ndarray::stack(ndarray::Axis(0), items))?.map_err(errors::input)
+}
+
 /// An array made here handed to numpy without a copy: its vector, reshaped.
 pub fn to_numpy<T: Element + Clone, D: ndarray::Dimension>(
     py: Python<'_>,
