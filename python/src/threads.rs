@@ -37,21 +37,20 @@ fn wanted() -> usize {
 
 /// This process's pool with the wanted thread count, made on first use (or after a fork, or
 /// after the count changed).
+///
+/// The lock is held only to read or swap the slot, never while a pool starts its threads, so a
+/// fork from another thread almost never finds it held.
 fn pool() -> PyResult<Arc<ThreadPool>> {
     let pid = std::process::id();
     let threads = wanted();
-    let mut slot = POOL.lock().unwrap_or_else(|p| p.into_inner());
-    if let Some(p) = slot.as_ref()
-        && p.pid == pid
-        && p.threads == threads
     {
-        return Ok(p.pool.clone());
-    }
-    if let Some(old) = slot.take()
-        && old.pid != pid
-    {
-        // Made before a fork: its threads live only in the parent.
-        std::mem::forget(old);
+        let slot = POOL.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(p) = slot.as_ref()
+            && p.pid == pid
+            && p.threads == threads
+        {
+            return Ok(p.pool.clone());
+        }
     }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -59,11 +58,20 @@ fn pool() -> PyResult<Arc<ThreadPool>> {
         .build()
         .map_err(|e| errors::config(format!("threads = {threads}: cannot start the pool: {e}")))?;
     let pool = Arc::new(pool);
-    *slot = Some(Pool {
-        pid,
-        threads,
-        pool: pool.clone(),
-    });
+    let old = POOL
+        .lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .replace(Pool {
+            pid,
+            threads,
+            pool: pool.clone(),
+        });
+    if let Some(old) = old
+        && old.pid != pid
+    {
+        // Made before a fork: its threads live only in the parent.
+        std::mem::forget(old);
+    }
     Ok(pool)
 }
 
