@@ -5,7 +5,7 @@
 //! `k` at `k * dt_ns`, read a frame at a time (two frames of memory, whatever the video's
 //! length; a Fortran-order file is read whole). The first frame sets every pixel's reference level; each later frame adds
 //! the crossings of the log-intensity path from the frame before, and the noise of that
-//! interval, exactly as [`DvsPixels::step`] does inside the event camera. Output: the events as
+//! interval, exactly as [`neuspike_event_camera::DvsPixels::step`] does inside the event camera. Output: the events as
 //! Event Camera Dataset text (`seconds x y polarity`, 1 ON / 0 OFF, a `width height` first
 //! line), and a one-line JSON summary on stdout whose `wall_s` counts only the emulation (the
 //! steps and the sorting of each step's events by time), not reading or writing.
@@ -17,11 +17,10 @@ use std::time::Instant;
 
 use eyre::{WrapErr, bail, eyre};
 use ndarray::{Array3, Axis};
-use neuspike_event_camera::{DvsConfig, DvsPixels, sort_by_time};
+use neuspike_event_camera::{DvsConfig, FrameSteps};
 use neuspike_formats::Resolution;
 use neuspike_formats::npy::NpyFrames;
 use neuspike_formats::text::TextWriter;
-use neuspike_schemas::Event;
 
 /// The `neuspike frames-to-events` arguments.
 #[derive(Clone, Debug, clap::Args)]
@@ -95,13 +94,8 @@ pub fn frames_config(
     height: usize,
     command: &str,
 ) -> eyre::Result<DvsConfig> {
-    let scene_only = [
-        ("--homography", d.homography.is_some()),
-        ("--clock-offset-ns", d.clock_offset_ns != 0),
-        ("--warp-step-ns", d.warp_step_ns != 0),
-    ];
-    if let Some((name, _)) = scene_only.iter().find(|(_, set)| *set) {
-        bail!("{command}: {name} applies to a simulated scene, not to frames");
+    if let Some(name) = d.scene_only_setting() {
+        bail!("{command}: --{name} applies to a simulated scene, not to frames");
     }
     Ok(DvsConfig {
         width,
@@ -182,8 +176,8 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
     let (mut prev, mut cur) = (Vec::with_capacity(h * w), Vec::with_capacity(h * w));
     frames.next_into(&mut prev, &name)?;
     check_frame(&prev, 0, w, &name)?;
-    let mut pixels =
-        DvsPixels::new(&cfg, o.light_scale, &prev).map_err(|e| eyre!("frames-to-events: {e}"))?;
+    let mut steps = FrameSteps::new(&cfg, o.light_scale, &prev, o.dt_ns)
+        .map_err(|e| eyre!("frames-to-events: {e}"))?;
     // The events go to `<out>.partial`, renamed to `out` once every frame is done: a run that
     // fails (a bad frame, a full disk, a kill) leaves its events there, never a shorter file
     // under the name that reads as whole.
@@ -203,7 +197,6 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
         off: 0,
         wall_s: 0.0,
     };
-    let mut events: Vec<Event> = Vec::new();
     for k in 1..t {
         // A bad frame ends the run after the events of the frames before it are written.
         if let Err(e) = frames
@@ -216,14 +209,10 @@ pub fn run(o: &FramesToEventsOptions) -> eyre::Result<FramesToEventsSummary> {
                 partial.display()
             ));
         }
-        let t_a = (k as i64 - 1).saturating_mul(o.dt_ns);
-        let t_b = (k as i64).saturating_mul(o.dt_ns);
-        events.clear();
         let start = Instant::now();
-        pixels.step(&prev, &cur, t_a, t_b, &mut events);
-        sort_by_time(&mut events);
+        let events = steps.next(&prev, &cur);
         summary.wall_s += start.elapsed().as_secs_f64();
-        for e in &events {
+        for e in events {
             if e.polarity > 0 {
                 summary.on += 1;
             } else {

@@ -13,7 +13,7 @@ use numpy::{PyArray1, PyReadonlyArray3};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use neuspike_event_camera::{DvsConfig, DvsPixels, EventCamera, sort_by_time};
+use neuspike_event_camera::{DvsConfig, EventCamera, FrameSteps};
 use neuspike_scene::Clip;
 use neuspike_scene::Scene;
 use neuspike_schemas::EventBatch;
@@ -285,43 +285,23 @@ pub fn frames_to_events<'py>(
         "event_camera",
         &[base, flags::<DvsArgs>("event_camera", event_camera)?].concat(),
     )?;
-    let c = &args.camera;
-    for (name, set) in [
-        ("homography", c.homography.is_some()),
-        ("clock_offset_ns", c.clock_offset_ns != 0),
-        ("warp_step_ns", c.warp_step_ns != 0),
-    ] {
-        if set {
-            return Err(errors::config(format!(
-                "event_camera: {name} applies to a simulated scene, not to frames"
-            )));
-        }
+    if let Some(name) = args.camera.scene_only_setting() {
+        return Err(errors::config(format!(
+            "event_camera: {} applies to a simulated scene, not to frames",
+            name.replace('-', "_")
+        )));
     }
+    // The frames as they lie in the array (C-contiguous): one slice a frame, no copy.
+    let flat = frames.as_slice().map_err(errors::input)?;
     let mut batch = threads::run(py, || -> Result<EventBatch, String> {
-        let frame = |k: usize| {
-            view.index_axis(ndarray::Axis(0), k)
-                .to_owned()
-                .into_raw_vec_and_offset()
-                .0
-        };
-        let mut prev = frame(0);
-        let mut pixels = DvsPixels::new(&args.camera, light_scale, &prev)
-            .map_err(|e| format!("event camera: {e}"))?;
+        let mut frames = flat.chunks_exact(h * w);
+        let mut prev = frames.next().unwrap_or_default();
+        let mut steps = FrameSteps::new(&args.camera, light_scale, prev, frame_dt_ns)
+            .map_err(|e| e.to_string())?;
         let end = (t as i64 - 1).saturating_mul(frame_dt_ns);
         let mut batch = EventBatch::empty(w, h, 0, end, 0);
-        let mut step = Vec::new();
-        for k in 1..t {
-            let cur = frame(k);
-            step.clear();
-            pixels.step(
-                &prev,
-                &cur,
-                (k as i64 - 1).saturating_mul(frame_dt_ns),
-                (k as i64).saturating_mul(frame_dt_ns),
-                &mut step,
-            );
-            sort_by_time(&mut step);
-            for e in &step {
+        for cur in frames {
+            for e in steps.next(prev, cur) {
                 batch.t_ns.push(e.t_ns);
                 batch.x.push(e.x);
                 batch.y.push(e.y);

@@ -190,6 +190,19 @@ pub struct ConfigError {
 }
 
 impl DvsConfig {
+    /// The first setting given that applies to a simulated scene and not to frames the user
+    /// holds (the rig's homography, the clock offset, motion-compensated warping), by its
+    /// argument's name.
+    pub fn scene_only_setting(&self) -> Option<&'static str> {
+        [
+            ("homography", self.homography.is_some()),
+            ("clock-offset-ns", self.clock_offset_ns != 0),
+            ("warp-step-ns", self.warp_step_ns != 0),
+        ]
+        .into_iter()
+        .find_map(|(name, set)| set.then_some(name))
+    }
+
     /// Checks every setting.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let bad = |key, value: String, why| Err(ConfigError { key, value, why });
@@ -1285,6 +1298,52 @@ fn render_view(scene: &Scene, cfg: &DvsConfig, t_ns: i64, frame: &mut Array2<f32
             let map = |x: f64, y: f64| h.apply(x, y).map(|(u, v)| (u * sx, v * sy));
             scene.render_mapped_into(t_ns, &map, frame.view_mut());
         }
+    }
+}
+
+/// The pixel array run on a sequence of frames, a frame every `dt_ns`, as v2e runs its emulator
+/// on video (`neuspike frames-to-events`, and the Python package's `frames_to_events`): the first
+/// frame sets every pixel's reference level, each later one adds the crossings of the
+/// log-intensity path from the frame before, and that interval's noise, exactly as
+/// [`DvsPixels::step`] does inside the event camera.
+pub struct FrameSteps {
+    pixels: DvsPixels,
+    frames: u64,
+    dt_ns: i64,
+    events: Vec<Event>,
+}
+
+impl FrameSteps {
+    /// Starts at frame 0, `first` (intensities, row-major, `cfg.width` columns), seen at
+    /// `light_scale`.
+    ///
+    /// # Errors
+    /// A setting out of range, or a frame of another size than `cfg`'s.
+    pub fn new(
+        cfg: &DvsConfig,
+        light_scale: f32,
+        first: &[f32],
+        dt_ns: i64,
+    ) -> Result<Self, ConfigError> {
+        Ok(FrameSteps {
+            pixels: DvsPixels::new(cfg, light_scale, first)?,
+            frames: 1,
+            dt_ns,
+            events: Vec::new(),
+        })
+    }
+
+    /// The events from `prev` (the frame before, which the caller keeps) to `frame`, the next
+    /// frame, `dt_ns` later, sorted by time.
+    pub fn next(&mut self, prev: &[f32], frame: &[f32]) -> &[Event] {
+        let k = self.frames as i64;
+        let t_a = (k - 1).saturating_mul(self.dt_ns);
+        let t_b = k.saturating_mul(self.dt_ns);
+        self.events.clear();
+        self.pixels.step(prev, frame, t_a, t_b, &mut self.events);
+        sort_by_time(&mut self.events);
+        self.frames += 1;
+        &self.events
     }
 }
 
