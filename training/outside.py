@@ -12,6 +12,9 @@ project was not tuned to):
     python training/outside.py windows --frames outside/frames --spikes outside/<sim> \
         --lum-per-rate 1 --out outside/<sim>-set
     python training/evaluate.py --test outside/<sim>-set models/neuspike-spike-8.onnx
+    # With an event-camera simulator's events from the same frames (outside/<dvs>/<clip>.npz:
+    # t_ns, x, y, p, one frame a tick from t = 0), the set gains the fused networks' input:
+    python training/outside.py windows ... --events outside/<dvs> --out outside/<sim>-<dvs>-set
 
 A window is 33 ticks around a reference tick; its spike representation is the represent node's
 (`stages/representations/src/spike.rs`): channel 0 is `1 / ISI` at the reference (the last spike at or
@@ -106,9 +109,44 @@ def frames_cmd(args: argparse.Namespace) -> None:
     print(f"{args.out}: {len(clips)} clips of {args.ticks} ticks, {args.size}x{args.size}")
 
 
+def event_windows(spikes: np.ndarray, path: pathlib.Path, refs: list[int], reps: list[np.ndarray]) -> list[np.ndarray]:
+    """The event integration of each window around `refs`, made by the neuspike package's align
+    and represent stages from `spikes` ([T, H, W]) and the events in `path`, exactly as `neuspike
+    dataset` makes a sample's. Align cuts windows at plane numbers that are multiples of its
+    stride, so the clip is renumbered to put the first reference at one; the spike
+    representation it makes alongside must equal `reps` (this module's), or the windows differ."""
+    import neuspike
+
+    ev = np.load(path)
+    t, h, w = spikes.shape
+    if (int(ev["height"]), int(ev["width"])) != (h, w):
+        raise SystemExit(f"{path}: events of {int(ev['width'])}x{int(ev['height'])}, spikes of {w}x{h}")
+    every = refs[1] - refs[0] if len(refs) > 1 else 1
+    shift = refs[0] % every
+    tick_ns = round(1e9 / RATE_HZ)
+    keep = ev["t_ns"] >= shift * tick_ns
+    events = neuspike.Events(
+        ev["t_ns"][keep] - shift * tick_ns, ev["x"][keep], ev["y"][keep], ev["p"][keep], w, h,
+        t_start_ns=0, t_end_ns=(t - shift) * tick_ns,
+    )
+    made = neuspike.represent(
+        neuspike.Spikes.from_planes(spikes[shift:], plane_period_ns=tick_ns), events,
+        kinds=["spike_repr", "event_integration"], window_planes=WINDOW, stride_planes=every,
+    )
+    at = {int(r) // tick_ns + shift: i for i, r in enumerate(made["t_ref_ns"])}
+    out = []
+    for c, rep in zip(refs, reps):
+        if c not in at:
+            raise SystemExit(f"{path}: align made no window around tick {c}")
+        if not np.array_equal(made["spike_repr"][at[c]], rep):
+            raise SystemExit(f"{path}: the window around tick {c} is not the one cut here")
+        out.append(made["event_integration"][at[c]])
+    return out
+
+
 def windows_cmd(args: argparse.Namespace) -> None:
     clips = json.loads((args.frames / "clips.json").read_text())
-    reps, truths, tfps, tfis, rows = [], [], [], [], []
+    reps, truths, tfps, tfis, rows, events = [], [], [], [], [], []
     for clip in clips:
         frames = np.load(args.frames / f"{clip['clip']}.npy")
         spikes = np.load(args.spikes / f"{clip['clip']}.npy")
@@ -128,14 +166,17 @@ def windows_cmd(args: argparse.Namespace) -> None:
             rows.append({"index": len(rows), "shard": 0, "texture": clip["photo"], "light": clip["light"],
                          "speed_px_s": clip["speed_px_s"], "lum_per_rate": lum_per_rate,
                          "complex": int(complex_), "clip": clip["clip"], "tick": c})
+        if args.events:
+            ticks = [r["tick"] for r in rows if r["clip"] == clip["clip"]]
+            events += event_windows(spikes, args.events / f"{clip['clip']}.npz", ticks, reps[-len(ticks):])
     if not rows:
         raise SystemExit(f"{args.frames}: no window fits after a warm-up of {args.warmup} ticks")
     shard = args.out / "000"
     shard.mkdir(parents=True, exist_ok=False)
     spike = np.stack(reps)
     np.save(shard / "spike.npy", spike)
-    # No DVS here: the event channels are zero, so only networks that read spikes alone are fair.
-    np.save(shard / "events.npy", np.zeros_like(spike))
+    # Without a DVS the event channels are zero: only networks that read spikes alone are fair.
+    np.save(shard / "events.npy", np.stack(events) if args.events else np.zeros_like(spike))
     np.save(shard / "truth.npy", np.stack(truths).astype(np.float32))
     np.save(shard / "tfp.npy", np.stack(tfps).astype(np.float32))
     np.save(shard / "tfi.npy", np.stack(tfis).astype(np.float32))
@@ -168,6 +209,9 @@ def main() -> None:
                    help="the simulator's luminance per spike a tick at light 1")
     w.add_argument("--warmup", type=int, default=400, help="ticks left out at a clip's start")
     w.add_argument("--every", type=int, default=50, help="ticks between reference planes")
+    w.add_argument("--events", type=pathlib.Path,
+                   help="a folder of <clip>.npz events (t_ns, x, y, p, width, height) an event-camera "
+                   "simulator made from the same frames: the fused networks' input")
     args = ap.parse_args()
     frames_cmd(args) if args.cmd == "frames" else windows_cmd(args)
 

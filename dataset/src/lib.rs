@@ -135,6 +135,12 @@ pub struct DatasetOptions {
     /// light scale within its cell. Not with `--profile` or a per-term override.
     #[arg(long)]
     pub randomise_camera: bool,
+    /// With `--randomise-camera`, also draw the random-spike term (spikes read at random,
+    /// `--random-spike-hz`): outside the clean share it is on with probability [`TERM_ON`], then
+    /// log-uniform over the two decades up to this many Hz. 0 (the default) never draws it, so a
+    /// set is the same as one made before the term existed.
+    #[arg(long, default_value_t = 0.0)]
+    pub random_spikes_max_hz: f64,
     /// Video instead of textures: a folder of clips as `training/video.py clips` writes them
     /// (`clips.csv` and one float32 `[T, size, size]` `.npy` of frames a sample). Each clip is
     /// one sample, its speed and direction as the clip measured them; the lights cycle through
@@ -265,7 +271,7 @@ pub const TERM_ON: f64 = 0.7;
 
 impl CameraDraw {
     /// Draws a camera for a sample of the cell of light `light`.
-    pub fn draw(rng: &mut ChaCha8Rng, light: f64) -> CameraDraw {
+    pub fn draw(rng: &mut ChaCha8Rng, light: f64, random_spikes_max_hz: f64) -> CameraDraw {
         let log_uniform =
             |rng: &mut ChaCha8Rng, lo: f64, hi: f64| (rng.random_range(lo.ln()..hi.ln())).exp();
         if rng.random_bool(CLEAN_SHARE) {
@@ -308,6 +314,12 @@ impl CameraDraw {
         let fpn_mu = rng.random_range(120.0..260.0);
         let fpn_sigma = rng.random_range(20.0..80.0);
         let light = light * log_uniform(rng, 1.0 / 1.4, 1.4);
+        // Drawn last, and only when asked: every draw above stays as it was without it.
+        let random_spike_hz = if random_spikes_max_hz > 0.0 && on(rng) {
+            log_uniform(rng, random_spikes_max_hz / 100.0, random_spikes_max_hz)
+        } else {
+            0.0
+        };
         CameraDraw {
             noise: Noise {
                 electrons_per_phi,
@@ -317,6 +329,7 @@ impl CameraDraw {
                 dark_current_hz,
                 dark_current_spread,
                 reset_delay_ticks,
+                random_spike_hz,
             },
             random_init,
             fpn_cap,
@@ -436,6 +449,21 @@ fn check(opts: &DatasetOptions) -> eyre::Result<()> {
         return bad("shard", "0".into(), "must be at least 1");
     }
     opts.noise.resolve().map_err(|e| eyre!("dataset: {e}"))?;
+    let max = opts.random_spikes_max_hz;
+    if !(max.is_finite() && max >= 0.0 && max < opts.rate_hz) {
+        return bad(
+            "random-spikes-max-hz",
+            max.to_string(),
+            "must be finite, >= 0 and below --rate-hz",
+        );
+    }
+    if max > 0.0 && !opts.randomise_camera {
+        return bad(
+            "random-spikes-max-hz",
+            max.to_string(),
+            "draws the term of each sample's camera: only with --randomise-camera (a fixed camera takes --random-spike-hz)",
+        );
+    }
     if opts.randomise_camera {
         let n = &opts.noise;
         let overrides = [
@@ -462,6 +490,7 @@ fn check(opts: &DatasetOptions) -> eyre::Result<()> {
                 "reset-delay-ticks",
                 n.reset_delay_ticks.map(|v| v.to_string()),
             ),
+            ("random-spike-hz", n.random_spike_hz.map(|v| v.to_string())),
         ];
         if let Some((name, Some(value))) = overrides.into_iter().find(|(_, v)| v.is_some()) {
             return bad(
@@ -631,7 +660,7 @@ fn sample_seen(
     let cam = if opts.randomise_camera {
         let mut cam_rng = ChaCha8Rng::seed_from_u64(opts.seed);
         cam_rng.set_stream((1 << 48) + stream * (1 << 32) + index as u64);
-        CameraDraw::draw(&mut cam_rng, light)
+        CameraDraw::draw(&mut cam_rng, light, opts.random_spikes_max_hz)
     } else {
         let noise = opts.noise.resolve().map_err(|e| eyre!("dataset: {e}"))?;
         CameraDraw::fixed(noise, light)
@@ -955,7 +984,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
         csv,
         "index,shard,texture,light,speed_px_s,angle_deg,theta_on,theta_off,lum_per_rate,events,complex,\
          camera_light,electrons_per_phi,threshold_jitter,threshold_offset,prnu,dark_current_hz,\
-         dark_current_spread,reset_delay_ticks,random_init,fpn_cap,fpn_mu,fpn_sigma"
+         dark_current_spread,reset_delay_ticks,random_spike_hz,random_init,fpn_cap,fpn_mu,fpn_sigma"
     )?;
     let mut summary = DatasetSummary {
         samples: 0,
@@ -1003,7 +1032,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
             let (c, n) = (&f.camera, &f.camera.noise);
             writeln!(
                 csv,
-                "{i},{shard},{},{},{},{:.3},{:.5},{:.5},{},{},{},{:.5},{:.1},{:.5},{:.5},{:.5},{:.3},{:.4},{:.5},{},{},{:.2},{:.2}",
+                "{i},{shard},{},{},{},{:.3},{:.5},{:.5},{},{},{},{:.5},{:.1},{:.5},{:.5},{:.5},{:.3},{:.4},{:.5},{:.2},{},{},{:.2},{:.2}",
                 f.texture,
                 f.light,
                 f.speed_px_s,
@@ -1021,6 +1050,7 @@ pub fn generate(opts: &DatasetOptions, progress: bool) -> eyre::Result<DatasetSu
                 n.dark_current_hz,
                 n.dark_current_spread,
                 n.reset_delay_ticks,
+                n.random_spike_hz,
                 u8::from(c.random_init),
                 u8::from(c.fpn_cap),
                 c.fpn_mu,
@@ -1107,6 +1137,7 @@ pub fn tiny_options(split: Split, out: PathBuf) -> DatasetOptions {
         also: Vec::new(),
         noise: NoiseArgs::default(),
         randomise_camera: false,
+        random_spikes_max_hz: 0.0,
         clips: None,
     }
 }
@@ -1386,7 +1417,7 @@ mod tests {
         let draws: Vec<CameraDraw> = (0..200)
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(i);
-                CameraDraw::draw(&mut rng, 0.5)
+                CameraDraw::draw(&mut rng, 0.5, 0.0)
             })
             .collect();
         for (name, f) in [
@@ -1408,6 +1439,53 @@ mod tests {
         assert!((30..=75).contains(&clean), "{clean} of 200 clean");
         assert!(draws.iter().all(|d| d.noise.check().is_ok()));
         assert!(draws.iter().any(|d| !d.random_init) && draws.iter().any(|d| !d.fpn_cap));
+        assert!(draws.iter().all(|d| d.noise.random_spike_hz == 0.0));
+    }
+
+    #[test]
+    fn the_random_spike_term_is_drawn_last_and_only_when_asked() {
+        let mut with_term = 0;
+        for i in 0..200 {
+            let draw = |max| CameraDraw::draw(&mut ChaCha8Rng::seed_from_u64(i), 0.5, max);
+            let (plain, more) = (draw(0.0), draw(400.0));
+            let hz = more.noise.random_spike_hz;
+            // Every other draw is the one made without the term.
+            let back = CameraDraw {
+                noise: Noise {
+                    random_spike_hz: 0.0,
+                    ..more.noise
+                },
+                ..more.clone()
+            };
+            assert_eq!(back, plain, "draw {i}");
+            assert!(hz == 0.0 || (4.0..=400.0).contains(&hz), "{hz}");
+            with_term += usize::from(hz > 0.0);
+        }
+        // 0.75 x 0.7 of them on average: 105.
+        assert!((75..=140).contains(&with_term), "{with_term} of 200 on");
+        // The option is checked and needs the randomised camera.
+        let plain = opts(Split::Train, PathBuf::from("unused"));
+        for (randomise, max, ok) in [
+            (true, 400.0, true),
+            (false, 400.0, false),
+            (true, -1.0, false),
+            (true, 20_000.0, false),
+            (true, f64::NAN, false),
+        ] {
+            let o = DatasetOptions {
+                randomise_camera: randomise,
+                random_spikes_max_hz: max,
+                noise: profile_only("paper"),
+                ..plain.clone()
+            };
+            match check(&o) {
+                Ok(()) => assert!(ok, "{max} accepted"),
+                Err(e) => {
+                    assert!(!ok, "{max}: {e}");
+                    assert!(e.to_string().contains("--random-spikes-max-hz"), "{e}");
+                }
+            }
+        }
     }
 
     /// A profile without overrides, as the command line gives it.
@@ -1421,6 +1499,7 @@ mod tests {
             dark_current_hz: None,
             dark_current_spread: None,
             reset_delay_ticks: None,
+            random_spike_hz: None,
         }
     }
 

@@ -468,6 +468,13 @@ class SimulateTest(unittest.TestCase):
         phi2 = ns.simulate("bright-static", 50, events=False, truth_every=0, spike_camera={"phi": 2.0})
         self.assertLess(ns.tfp(phi2.spikes).mean(), 0.6 * ns.tfp(phi1.spikes).mean())
         self.assertAlmostEqual(phi2.spikes.lum_per_rate, 2 * phi1.spikes.lum_per_rate)
+        # Random spikes add spikes and take none away: 1,000 Hz at 20 kHz is 5 % of pixel-ticks.
+        noisy = ns.simulate("bright-static", 50, events=False, truth_every=0, spike_camera={"random_spike_hz": 1000})
+        clean, more = phi1.spikes.unpack(), noisy.spikes.unpack()
+        self.assertTrue(np.all(more >= clean))
+        self.assertAlmostEqual(float(more.mean() - clean.mean()), 0.05 * (1 - clean.mean()), delta=0.01)
+        with self.assertRaisesRegex(ns.ConfigError, "random-spike-hz"):
+            ns.simulate(spike_camera={"random_spike_hz": 20_000})
         with self.assertRaisesRegex(ns.ConfigError, "spike_camera: unexpected argument '--bogus'"):
             ns.simulate(spike_camera={"bogus": 1})
         with self.assertRaisesRegex(ns.ConfigError, "phi` = -1 is invalid"):

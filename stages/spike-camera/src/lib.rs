@@ -32,7 +32,7 @@ use neuspike_schemas::{SpikeChunk, bytes_per_plane};
 pub use noise::{Noise, NoiseArgs};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
+use rand_distr::{Distribution, Geometric, Normal};
 
 /// How the accumulator resets after a spike.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -220,6 +220,66 @@ pub struct SpikeCamera {
     /// Per-interval thresholds and their generators, when the per-fire noise is on.
     thr: Vec<f32>,
     rng: Vec<u32>,
+    /// The random spikes, when on.
+    random: Option<RandomSpikes>,
+}
+
+/// Spikes read at random ([`Noise::random_spike_hz`]): a Bernoulli draw for every pixel and tick,
+/// made as the gaps between successes (geometric), over the pixel-ticks numbered `tick * n +
+/// pixel` from the camera's start. The draws do not depend on how the planes are split into
+/// chunks, and cost one draw per random spike.
+struct RandomSpikes {
+    gap: Geometric,
+    rng: ChaCha8Rng,
+    /// The pixel-tick of the next random spike.
+    next: u64,
+}
+
+impl RandomSpikes {
+    /// The seed's stream for the random spikes: the camera's other draws stay as they were.
+    const STREAM: u64 = 0x7261_6e64;
+
+    fn new(noise: &Noise, cfg: &CameraConfig) -> Result<Option<Self>, ConfigError> {
+        if noise.random_spike_hz == 0.0 {
+            return Ok(None);
+        }
+        let p = noise.random_spike_hz / cfg.rate_hz;
+        let gap = Geometric::new(p)
+            .ok()
+            .filter(|_| p < 1.0)
+            .ok_or(ConfigError {
+                key: "random-spike-hz",
+                value: noise.random_spike_hz.to_string(),
+                why: "must be below the plane rate (--rate-hz)",
+            })?;
+        let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+        rng.set_stream(Self::STREAM);
+        let next = gap.sample(&mut rng);
+        Ok(Some(RandomSpikes { gap, rng, next }))
+    }
+
+    /// Sets the random spikes of planes `first..first + planes` (pixel-ticks from `first * n`)
+    /// in `bits`, `per` bytes a plane; skips those before `first` (a camera moved on).
+    fn apply(&mut self, first: u64, planes: usize, n: usize, per: usize, bits: &mut [u8]) {
+        let n64 = n as u64;
+        let start = first.saturating_mul(n64);
+        let end = start.saturating_add(planes as u64 * n64);
+        while self.next < start {
+            self.next = self
+                .next
+                .saturating_add(self.gap.sample(&mut self.rng))
+                .saturating_add(1);
+        }
+        while self.next < end {
+            let at = self.next - start;
+            let (plane, pixel) = ((at / n64) as usize, (at % n64) as usize);
+            bits[plane * per + pixel / 8] |= 1 << (pixel % 8);
+            self.next = self
+                .next
+                .saturating_add(self.gap.sample(&mut self.rng))
+                .saturating_add(1);
+        }
+    }
 }
 
 impl SpikeCamera {
@@ -307,6 +367,7 @@ impl SpikeCamera {
             let origin = mid_tick_ns(period_ns, 0);
             Interpolator::new(&scene, cfg.height, cfg.width, origin, step_ns)
         });
+        let random = RandomSpikes::new(&noise, &cfg)?;
         let light_scale = scene.light_scale() as f32;
         let shape = (cfg.height, cfg.width);
         let mut cam = SpikeCamera {
@@ -328,6 +389,7 @@ impl SpikeCamera {
             dark,
             thr,
             rng: rng_state,
+            random,
             cfg,
         };
         cam.render_key(0);
@@ -489,6 +551,10 @@ impl SpikeCamera {
             }
             self.tick += run as u64;
             done += run;
+        }
+        if let Some(random) = &mut self.random {
+            let n_px = self.cfg.width * self.cfg.height;
+            random.apply(first, n, n_px, per, &mut bits);
         }
         SpikeChunk {
             width: self.cfg.width,
@@ -1630,6 +1696,49 @@ mod tests {
         let r = rate(&t[0], ticks);
         let want = 0.4 / (1.0 + 0.5 * 0.4);
         assert!((r - want).abs() < 0.01, "rate {r}, want {want}");
+    }
+
+    #[test]
+    fn random_spikes_come_at_their_rate_anywhere_and_leave_the_rest_as_it_was() {
+        let cfg = |hz: f64| CameraConfig {
+            noise: NoiseArgs {
+                random_spike_hz: Some(hz),
+                ..NoiseArgs::default()
+            },
+            ..quiet(32, 16)
+        };
+        // In the dark, every spike is a random one: 200 Hz at 20 kHz is 1 % of pixel-ticks.
+        let mut cam = SpikeCamera::new(flat_scene(0.5, 1e-9), cfg(200.0)).unwrap();
+        let p = planes(&cam.next_chunk(4_000, 0));
+        let rate = p.iter().map(|&v| f64::from(v)).sum::<f64>() / p.len() as f64;
+        assert!((rate - 0.01).abs() < 0.001, "rate {rate}");
+        // Spread over the pixels: every one has some.
+        let per_pixel = p.sum_axis(ndarray::Axis(0));
+        assert!(per_pixel.iter().all(|&n| n > 0), "{per_pixel:?}");
+        // The same spikes whichever way the planes are cut into chunks.
+        let mut again = SpikeCamera::new(flat_scene(0.5, 1e-9), cfg(200.0)).unwrap();
+        let mut cut = Vec::new();
+        for n in [1, 999, 3_000] {
+            cut.extend(planes(&again.next_chunk(n, 0)));
+        }
+        assert_eq!(cut, p.iter().copied().collect::<Vec<_>>());
+        // Under light, the pixel's own spikes are those of the camera without the term, plus
+        // spikes read at random (an OR: the charge is left as it was).
+        let lit = |hz| {
+            let mut cam = SpikeCamera::new(flat_scene(0.5, 0.3), cfg(hz)).unwrap();
+            planes(&cam.next_chunk(2_000, 0))
+        };
+        let (clean, noisy) = (lit(0.0), lit(400.0));
+        assert!(clean.iter().zip(&noisy).all(|(&c, &n)| n >= c));
+        let count = |p: &Array3<u8>| p.iter().map(|&v| u64::from(v)).sum::<u64>();
+        let extra = (count(&noisy) - count(&clean)) as f64 / clean.len() as f64;
+        // 2 % of pixel-ticks, less those that fired anyway (15 % of them).
+        assert!((extra - 0.02 * 0.85).abs() < 0.003, "extra {extra}");
+        // At or above the plane rate the term is refused by name.
+        let e = SpikeCamera::new(flat_scene(0.5, 0.3), cfg(20_000.0))
+            .err()
+            .expect("refused");
+        assert!(e.to_string().contains("random-spike-hz"), "{e}");
     }
 
     #[test]

@@ -14,6 +14,7 @@
 //! | photo-response non-uniformity | `--prnu s` | each pixel's light is multiplied by `1 + s z_i`, drawn once |
 //! | dark current | `--dark-current-hz d`, `--dark-current-spread s` | a pixel in the dark fires at `d_i` Hz, `d_i` log-normal with mean `d` and log standard deviation `s` (fixed pattern) |
 //! | reset delay | `--reset-delay-ticks r` | after a fire the pixel does not integrate for `r` of a tick: the light of that time is lost |
+//! | random spikes | `--random-spike-hz f` | each pixel reads a spike it did not fire, at random, `f` times a second on average (a Bernoulli draw each tick, probability `f / rate_hz`): readout glitches that leave the pixel's charge as it was |
 //!
 //! Shot noise and jitter act per interval, not per tick: the time to collect `N` electrons under
 //! Poisson arrivals is Gamma-distributed, and an integrator whose threshold is drawn afresh for
@@ -61,6 +62,8 @@ pub struct Noise {
     pub dark_current_spread: f64,
     /// Light lost after each fire, in ticks of integration.
     pub reset_delay_ticks: f64,
+    /// Spikes read at random, independent of the light and of the pixel's charge, per pixel, Hz.
+    pub random_spike_hz: f64,
 }
 
 impl Default for Noise {
@@ -79,6 +82,7 @@ impl Noise {
         dark_current_hz: 0.0,
         dark_current_spread: 0.0,
         reset_delay_ticks: 0.0,
+        random_spike_hz: 0.0,
     };
 
     /// SCSim's values on these terms (`docs/camera.md` gives the mapping): shot noise of 50,000
@@ -93,6 +97,7 @@ impl Noise {
         dark_current_hz: 93.5,
         dark_current_spread: 0.38,
         reset_delay_ticks: 0.002,
+        random_spike_hz: 0.0,
     };
 
     /// The combined relative standard deviation of an interval's threshold:
@@ -123,6 +128,7 @@ impl Noise {
             ("dark-current-hz", self.dark_current_hz),
             ("dark-current-spread", self.dark_current_spread),
             ("reset-delay-ticks", self.reset_delay_ticks),
+            ("random-spike-hz", self.random_spike_hz),
         ];
         for (key, v) in fields {
             if !(v.is_finite() && v >= 0.0) {
@@ -275,6 +281,9 @@ pub struct NoiseArgs {
     /// Light lost after each fire, ticks. Overrides the profile.
     #[arg(long)]
     pub reset_delay_ticks: Option<f64>,
+    /// Spikes read at random per pixel, Hz (below the plane rate); overrides the profile.
+    #[arg(long)]
+    pub random_spike_hz: Option<f64>,
 }
 
 impl Default for NoiseArgs {
@@ -295,6 +304,7 @@ impl From<Noise> for NoiseArgs {
             dark_current_hz: Some(n.dark_current_hz),
             dark_current_spread: Some(n.dark_current_spread),
             reset_delay_ticks: Some(n.reset_delay_ticks),
+            random_spike_hz: Some(n.random_spike_hz),
         }
     }
 }
@@ -318,6 +328,7 @@ impl NoiseArgs {
         set(&mut n.dark_current_hz, self.dark_current_hz);
         set(&mut n.dark_current_spread, self.dark_current_spread);
         set(&mut n.reset_delay_ticks, self.reset_delay_ticks);
+        set(&mut n.random_spike_hz, self.random_spike_hz);
         n.check().map_err(|e| e.to_string())?;
         Ok(n)
     }
@@ -350,6 +361,7 @@ mod tests {
             dark_current_hz: None,
             dark_current_spread: None,
             reset_delay_ticks: None,
+            random_spike_hz: None,
         };
         let n = only_profile.resolve().unwrap();
         assert_eq!(n.prnu, 0.2);
