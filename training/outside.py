@@ -109,19 +109,21 @@ def frames_cmd(args: argparse.Namespace) -> None:
     print(f"{args.out}: {len(clips)} clips of {args.ticks} ticks, {args.size}x{args.size}")
 
 
-def event_windows(spikes: np.ndarray, path: pathlib.Path, refs: list[int], reps: list[np.ndarray]) -> list[np.ndarray]:
+def event_windows(
+    spikes: np.ndarray, path: pathlib.Path, refs: list[int], every: int, reps: list[np.ndarray]
+) -> list[np.ndarray]:
     """The event integration of each window around `refs`, made by the neuspike package's align
     and represent stages from `spikes` ([T, H, W]) and the events in `path`, exactly as `neuspike
     dataset` makes a sample's. Align cuts windows at plane numbers that are multiples of its
     stride, so the clip is renumbered to put the first reference at one; the spike
-    representation it makes alongside must equal `reps` (this module's), or the windows differ."""
+    representation it makes alongside must equal `reps` (this module's), or the windows differ.
+    `refs` are `every` ticks apart."""
     import neuspike
 
     ev = np.load(path)
     t, h, w = spikes.shape
     if (int(ev["height"]), int(ev["width"])) != (h, w):
         raise SystemExit(f"{path}: events of {int(ev['width'])}x{int(ev['height'])}, spikes of {w}x{h}")
-    every = refs[1] - refs[0] if len(refs) > 1 else 1
     shift = refs[0] % every
     tick_ns = round(1e9 / RATE_HZ)
     keep = ev["t_ns"] >= shift * tick_ns
@@ -168,7 +170,7 @@ def windows_cmd(args: argparse.Namespace) -> None:
                          "complex": int(complex_), "clip": clip["clip"], "tick": c})
         if args.events:
             ticks = [r["tick"] for r in rows if r["clip"] == clip["clip"]]
-            events += event_windows(spikes, args.events / f"{clip['clip']}.npz", ticks, reps[-len(ticks):])
+            events += event_windows(spikes, args.events / f"{clip['clip']}.npz", ticks, args.every, reps[-len(ticks):])
     if not rows:
         raise SystemExit(f"{args.frames}: no window fits after a warm-up of {args.warmup} ticks")
     shard = args.out / "000"

@@ -209,16 +209,6 @@ impl Spikes {
         let planes = planes_in(planes)?;
         let view = view3(&planes)?;
         let (n, height, width) = view.dim();
-        let probe = Clock {
-            width,
-            height,
-            first_plane,
-            t_first_ns,
-            plane_period_ns,
-            lum_per_rate,
-        };
-        probe.check(n)?;
-        let bits = threads::run(py, || pack_planes(view))?;
         let clock = Clock {
             width,
             height,
@@ -227,6 +217,9 @@ impl Spikes {
             plane_period_ns,
             lum_per_rate,
         };
+        // Refused before the planes are packed.
+        clock.check(n)?;
+        let bits = threads::run(py, || pack_planes(view))?;
         Spikes::from_bits(py, bits, n, bytes_per_plane(width, height), clock)
     }
 
