@@ -259,16 +259,14 @@ impl RandomSpikes {
     }
 
     /// Sets the random spikes of planes `first..first + planes` (pixel-ticks from `first * n`)
-    /// in `bits`, `per` bytes a plane; skips those before `first` (a camera moved on).
+    /// in `bits`, `per` bytes a plane. After a jump past the next one (a camera moved on), the
+    /// gap is drawn afresh from `first`: a geometric gap has no memory.
     fn apply(&mut self, first: u64, planes: usize, n: usize, per: usize, bits: &mut [u8]) {
         let n64 = n as u64;
         let start = first.saturating_mul(n64);
         let end = start.saturating_add(planes as u64 * n64);
-        while self.next < start {
-            self.next = self
-                .next
-                .saturating_add(self.gap.sample(&mut self.rng))
-                .saturating_add(1);
+        if self.next < start {
+            self.next = start.saturating_add(self.gap.sample(&mut self.rng));
         }
         while self.next < end {
             let at = self.next - start;
