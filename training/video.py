@@ -6,9 +6,15 @@
         --randomise-camera --out data/video-train
 
 The videos are those of `training/video.csv` (the manifest: each clip's scene, source, licence
-and split), read from `--videos` (`../shared/data/video` by default, where it exists; any folder
-holding the manifest's files). Train, validation and test are split by source video: no frame of
-a test video, nor of a near-duplicate, is in training or validation.
+and split), read from `--videos` (`../shared/data/video` by default, where it exists; any folders
+holding the manifest's files, searched in order). `--manifest` names other manifests instead:
+`training/video-more.csv` lists 11 more clips for training, each with the repository and commit
+to fetch it from. Train, validation and test are split by source video: no frame of a test
+video, nor of a near-duplicate, is in training or validation.
+
+    python training/video.py clips --split train --manifest training/video.csv \
+        training/video-more.csv --videos ../shared/data/video more-video --weight-cap 300 \
+        --size 128 --samples 1500 --seed 7 --out data/clips-train-128-more
 
 One sample is a window of 33 ticks around a real frame `c` (the reference plane 16 is `c`
 itself, so the ground truth is a real frame, not an interpolated one). The ticks between real
@@ -33,6 +39,7 @@ and `<out>/clips.csv` (`file,source,frame,speed_px_s,angle_deg,dt_ns` and how it
 """
 
 import argparse
+import collections
 import csv
 import math
 import pathlib
@@ -52,11 +59,26 @@ MIN_TICKS_PER_FRAME = 2.0
 FLOOR = 0.01
 TICKS_PER_FRAME_CHOICES = [2, 5, 10, 25, 50]  # the divisors of `frames --every 50`
 CUT = 0.12  # mean absolute grey change between frames above which a shot ends
+FLOWS_KEPT = 64  # flows a video keeps (about 1.2 MB each at the working scale)
 
 
-def manifest(split: str | None = None) -> list[dict]:
-    rows = list(csv.DictReader(open(MANIFEST, newline="")))
+def manifest(split: str | None = None, paths: list[pathlib.Path] | None = None) -> list[dict]:
+    """The rows of each manifest in `paths` (`training/video.csv` alone by default) in `split`,
+    each with the manifest it came from as `"manifest"`."""
+    rows = []
+    for path in paths or [MANIFEST]:
+        with open(path, newline="") as f:
+            rows += [dict(r, manifest=str(path)) for r in csv.DictReader(f)]
     return [r for r in rows if split is None or r["split"] == split]
+
+
+def find_video(row: dict, folders: list[pathlib.Path]) -> pathlib.Path:
+    """The first of `folders` that holds `row`'s file; exits naming the file and its manifest."""
+    for folder in folders:
+        if (folder / row["file"]).exists():
+            return folder / row["file"]
+    where = ", ".join(str(f) for f in folders)
+    raise SystemExit(f"{row['file']}: not found in {where} (see {row['manifest']} for where to get each clip)")
 
 
 def light_of(grey: np.ndarray, gamma: float) -> np.ndarray:
@@ -89,7 +111,10 @@ class Video:
         self.name = path.name
         self.frames = grey
         self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-        self.flows: dict[tuple[int, int], np.ndarray] = {}
+        # The flows of the last FLOWS_KEPT pairs asked for: a sample reads a few neighbouring
+        # frames' flows several times; samples far apart share none (a long video's every flow
+        # kept would take gigabytes). DIS gives the same flow when asked again.
+        self.flows: collections.OrderedDict[tuple[int, int], np.ndarray] = collections.OrderedDict()
         # Shots: a frame whose mean absolute change from the one before exceeds CUT starts one.
         self.shot = np.zeros(len(grey), dtype=np.int64)
         for k in range(1, len(grey)):
@@ -102,9 +127,13 @@ class Video:
     def flow(self, a: int, b: int) -> np.ndarray:
         """DIS flow from frame `a` to frame `b` ([H, W, 2], pixels), cached."""
         key = (a, b)
-        if key not in self.flows:
+        if key in self.flows:
+            self.flows.move_to_end(key)
+        else:
             u8 = lambda k: (self.frames[k] * 255.0 + 0.5).astype(np.uint8)  # noqa: E731
             self.flows[key] = self.dis.calc(u8(a), u8(b), None)
+            if len(self.flows) > FLOWS_KEPT:
+                self.flows.popitem(last=False)
         return self.flows[key]
 
     def fastest(self, a: int, x0: int, y0: int, size: int) -> float:
@@ -214,14 +243,14 @@ def frames_cmd(args) -> None:
     16`, then every `--every`) is a real frame; the light is the clip's."""
     import json
 
-    rows = manifest(args.split)
+    rows = manifest(args.split, args.manifest)
     out = args.out
     out.mkdir(parents=True, exist_ok=False)
     rng = np.random.default_rng(args.seed)
     clips_made = []
     ref0 = args.warmup + REF
     for r in rows:
-        video = Video(args.videos / r["file"])
+        video = Video(find_video(r, args.videos))
         h, w = video.frames[0].shape
         for k in range(args.per_video):
             speed = args.speeds[k % len(args.speeds)]
@@ -261,20 +290,22 @@ def frames_cmd(args) -> None:
 
 
 def clips(args) -> None:
-    rows = manifest(args.split)
+    rows = manifest(args.split, args.manifest)
     if not rows:
-        raise SystemExit(f"{MANIFEST}: no video in split {args.split!r}")
+        names = ", ".join(str(m) for m in args.manifest or [MANIFEST])
+        raise SystemExit(f"{names}: no video in split {args.split!r}")
     out = args.out
-    out.mkdir(parents=True, exist_ok=False)
+    if out.exists():
+        raise SystemExit(f"{out}: already exists (a new folder is made for the clips)")
+    paths = [find_video(r, args.videos) for r in rows]  # every file found before any is read
+    out.mkdir(parents=True)
     videos = []
-    for r in rows:
-        path = args.videos / r["file"]
-        if not path.exists():
-            raise SystemExit(f"{path}: not found (see {MANIFEST} for where to get each clip)")
+    for r, path in zip(rows, paths):
         videos.append(Video(path))
         print(f"{r['file']}: {len(videos[-1])} frames, {videos[-1].shot[-1] + 1} shots", flush=True)
-    # Samples in proportion to each video's frames, at least a few each.
-    frames = np.array([len(v) for v in videos], dtype=np.float64)
+    # Samples in proportion to each video's frames (at most `--weight-cap` counted: a long clip
+    # of little motion does not crowd out the others), at least a few each.
+    frames = np.array([min(len(v), args.weight_cap or len(v)) for v in videos], dtype=np.float64)
     rng = np.random.default_rng(args.seed)
     with open(out / "clips.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -299,19 +330,28 @@ def clips(args) -> None:
     print(f"{out}: {args.samples} clips of {FRAMES} ticks at {args.size}x{args.size}")
 
 
+def add_sources(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--manifest", type=pathlib.Path, nargs="+", default=None,
+                   help="manifests of videos (default: training/video.csv); training/video-more.csv lists more")
+    p.add_argument("--videos", type=pathlib.Path, nargs="+", default=[DEFAULT_VIDEOS],
+                   help="folders holding the manifests' files, searched in order")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("clips", help="clips of ticks around real frames, for `neuspike dataset --clips`")
     c.add_argument("--split", required=True, choices=["train", "val", "test"])
-    c.add_argument("--videos", type=pathlib.Path, default=DEFAULT_VIDEOS)
+    add_sources(c)
     c.add_argument("--size", type=int, default=64)
     c.add_argument("--samples", type=int, default=1000)
+    c.add_argument("--weight-cap", type=int, default=None,
+                   help="count at most this many frames of a video when sharing the samples out (default: all)")
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--out", type=pathlib.Path, required=True)
     f = sub.add_parser("frames", help="long clips, one frame a tick, for other simulators (training/outside.py)")
     f.add_argument("--split", default="test", choices=["train", "val", "test"])
-    f.add_argument("--videos", type=pathlib.Path, default=DEFAULT_VIDEOS)
+    add_sources(f)
     f.add_argument("--size", type=int, default=96)
     f.add_argument("--ticks", type=int, default=600)
     f.add_argument("--warmup", type=int, default=400, help="as outside.py windows --warmup")
@@ -320,14 +360,15 @@ def main() -> None:
     f.add_argument("--lights", type=float, nargs="+", default=[1.0, 0.25])
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--out", type=pathlib.Path, required=True)
-    sub.add_parser("list", help="the manifest: each video's split, scene and licence")
+    ls = sub.add_parser("list", help="the manifest: each video's split, scene and licence")
+    ls.add_argument("--manifest", type=pathlib.Path, nargs="+", default=None)
     args = ap.parse_args()
     if args.cmd == "clips":
         clips(args)
     elif args.cmd == "frames":
         frames_cmd(args)
     else:
-        for r in manifest():
+        for r in manifest(None, args.manifest):
             print(f"{r['split']:5} {r['file']:45} {r['place']:10} {r['content']} [{r['licence']}]")
 
 
