@@ -294,6 +294,8 @@ def clips(args) -> None:
     if not rows:
         names = ", ".join(str(m) for m in args.manifest or [MANIFEST])
         raise SystemExit(f"{names}: no video in split {args.split!r}")
+    if args.weight_cap is not None and args.weight_cap < 1:
+        raise SystemExit(f"--weight-cap {args.weight_cap}: at least 1 frame")
     out = args.out
     if out.exists():
         raise SystemExit(f"{out}: already exists (a new folder is made for the clips)")
