@@ -81,6 +81,16 @@ def find_video(row: dict, folders: list[pathlib.Path]) -> pathlib.Path:
     raise SystemExit(f"{row['file']}: not found in {where} (see {row['manifest']} for where to get each clip)")
 
 
+def sources(args) -> list[tuple[dict, pathlib.Path]]:
+    """The manifests' rows in `args.split`, each with its file, every file found before any is
+    read; exits when the split is empty or a file is missing."""
+    rows = manifest(args.split, args.manifest)
+    if not rows:
+        names = ", ".join(str(m) for m in args.manifest or [MANIFEST])
+        raise SystemExit(f"{names}: no video in split {args.split!r}")
+    return [(r, find_video(r, args.videos)) for r in rows]
+
+
 def light_of(grey: np.ndarray, gamma: float) -> np.ndarray:
     """The video's 8-bit grey in [0, 1] as light: `max(g^gamma, FLOOR)`, float32."""
     return np.maximum(np.clip(grey, 0.0, 1.0) ** gamma, FLOOR).astype(np.float32)
@@ -243,14 +253,14 @@ def frames_cmd(args) -> None:
     16`, then every `--every`) is a real frame; the light is the clip's."""
     import json
 
-    rows = manifest(args.split, args.manifest)
+    found = sources(args)
     out = args.out
     out.mkdir(parents=True, exist_ok=False)
     rng = np.random.default_rng(args.seed)
     clips_made = []
     ref0 = args.warmup + REF
-    for r in rows:
-        video = Video(find_video(r, args.videos))
+    for r, path in found:
+        video = Video(path)
         h, w = video.frames[0].shape
         for k in range(args.per_video):
             speed = args.speeds[k % len(args.speeds)]
@@ -290,19 +300,15 @@ def frames_cmd(args) -> None:
 
 
 def clips(args) -> None:
-    rows = manifest(args.split, args.manifest)
-    if not rows:
-        names = ", ".join(str(m) for m in args.manifest or [MANIFEST])
-        raise SystemExit(f"{names}: no video in split {args.split!r}")
     if args.weight_cap is not None and args.weight_cap < 1:
         raise SystemExit(f"--weight-cap {args.weight_cap}: at least 1 frame")
     out = args.out
     if out.exists():
         raise SystemExit(f"{out}: already exists (a new folder is made for the clips)")
-    paths = [find_video(r, args.videos) for r in rows]  # every file found before any is read
+    found = sources(args)
     out.mkdir(parents=True)
     videos = []
-    for r, path in zip(rows, paths):
+    for r, path in found:
         videos.append(Video(path))
         print(f"{r['file']}: {len(videos[-1])} frames, {videos[-1].shot[-1] + 1} shots", flush=True)
     # Samples in proportion to each video's frames (at most `--weight-cap` counted: a long clip
