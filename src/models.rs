@@ -38,6 +38,10 @@ const SHIPPED: &[(&str, &[u8])] = &[
         include_bytes!("../models/neuspike-fused-24.onnx"),
     ),
     (
+        "neuspike-spike-4-lite.onnx",
+        include_bytes!("../models/neuspike-spike-4-lite.onnx"),
+    ),
+    (
         "neuspike-spike-8.onnx",
         include_bytes!("../models/neuspike-spike-8.onnx"),
     ),

@@ -1041,13 +1041,12 @@ mod tests {
             w.events.truncate(0);
             auto.frame(&w).expect("frame")
         };
-        // A spike network (the paper's decoder or the `-lite` one) in `f32` or in 8 bits: the
-        // policy has all four.
+        // A spike network (the paper's decoder or a `-lite` one, of either width) in `f32` or in
+        // 8 bits: the policy ranks them all.
         let spike_net = |m: &str| {
-            matches!(
-                crate::learned::network_variant(m).0,
-                "neuspike-spike-8" | "neuspike-spike-8-lite"
-            )
+            crate::learned::network_variant(m)
+                .0
+                .starts_with("neuspike-spike-")
         };
         for (w, truth) in windows(1.0, 0.0, 0.2, 2) {
             let f = frame(&mut auto, &w);
