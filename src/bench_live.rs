@@ -39,6 +39,16 @@ pub struct LiveBenchOptions {
     /// The folder of the networks `--method` names.
     #[arg(long, default_value = "models")]
     pub models: PathBuf,
+    /// Where a network's spike representation is made: `windows`, in the infer stage of
+    /// align's windows, its raw planes read as the window holds them (bit-packed; in 8 bits the
+    /// network's first convolution reads the bits), one stage fewer; `represent`, by the
+    /// represent stage, sent to infer as `f32` (32 bits a pixel and plane).
+    #[arg(long, value_enum, default_value_t = NetworkInput::Windows)]
+    pub network_input: NetworkInput,
+    /// Threads a network's convolutions split each frame across (the infer stage's
+    /// `--threads`), sharing the machine's cores with the other stages.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub infer_threads: u16,
     /// Built-in scene the simulated camera sees.
     #[arg(long, default_value = "bright-static")]
     pub scene: String,
@@ -68,6 +78,15 @@ pub struct LiveBenchOptions {
     pub soak: bool,
 }
 
+/// Where a network's spike representation is made (`--network-input`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum NetworkInput {
+    /// In the infer stage, of align's windows.
+    Windows,
+    /// By the represent stage.
+    Represent,
+}
+
 /// How the stages of the live graph share processes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Layout {
@@ -90,12 +109,15 @@ impl Layout {
     }
 
     /// The graph's `processes:` for it (none for `nodes`), its infer node named `infer`.
-    fn processes(self, infer: &str) -> Option<String> {
+    /// The graph's `processes:` for it (none for `nodes`), its infer node named `infer`, with or
+    /// without a represent node.
+    fn processes(self, infer: &str, represent: bool) -> Option<String> {
+        let represent = if represent { "represent, " } else { "" };
         match self {
             Layout::Nodes => None,
-            Layout::Core => Some(format!("{{core: [align, represent, {infer}]}}")),
+            Layout::Core => Some(format!("{{core: [align, {represent}{infer}]}}")),
             Layout::One => Some(format!(
-                "{{pipeline: [spike-source, align, represent, {infer}, sink]}}"
+                "{{pipeline: [spike-source, align, {represent}{infer}, sink]}}"
             )),
         }
     }
@@ -255,14 +277,29 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
             node[key] = serde_yaml::from_str(value)?;
             Ok(())
         };
-        edit("represent", "outputs", "[spike_repr]")?;
-        edit("infer-tfp", "inputs", "{spike_repr: represent/spike_repr}")?;
+        match opts.network_input {
+            NetworkInput::Represent => {
+                edit("represent", "outputs", "[spike_repr]")?;
+                edit("infer-tfp", "inputs", "{spike_repr: represent/spike_repr}")?;
+            }
+            NetworkInput::Windows => {
+                edit("infer-tfp", "inputs", "{windows: align/windows}")?;
+                edit("represent", "id", "(unused)")?;
+            }
+        }
         edit("infer-tfp", "id", "infer")?;
         edit("sink", "inputs", &format!("{{{name}: infer/frames}}"))?;
+        if let Some(nodes) = g["nodes"].as_sequence_mut() {
+            nodes.retain(|n| n["id"].as_str() != Some("(unused)"));
+        }
     }
+    let represent = !matches!(
+        (&method, opts.network_input),
+        (LiveMethod::Network { .. }, NetworkInput::Windows)
+    );
     if let Some(m) = g.as_mapping_mut() {
         m.remove("processes");
-        if let Some(p) = layout.processes(method.infer_id()) {
+        if let Some(p) = layout.processes(method.infer_id(), represent) {
             m.insert("processes".into(), serde_yaml::from_str(&p)?);
         }
     }
@@ -290,8 +327,9 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
             LiveMethod::Network {
                 model, precision, ..
             } => Some(format!(
-                "--method learned --model {} --precision {precision}",
-                model.display()
+                "--method learned --model {} --precision {precision} --threads {}",
+                model.display(),
+                opts.infer_threads
             )),
             LiveMethod::Tfp => None,
         },
@@ -428,6 +466,8 @@ mod tests {
             soak: false,
             method: "tfp".into(),
             models: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/models")),
+            network_input: NetworkInput::Windows,
+            infer_threads: 1,
         }
     }
 
@@ -530,10 +570,24 @@ mod tests {
             "{e}"
         );
         // Without node binaries beside the test program the graph cannot be resolved.
-        for layout in [Layout::Nodes, Layout::One] {
+        let inputs = [NetworkInput::Windows, NetworkInput::Represent];
+        for (layout, input) in [Layout::Nodes, Layout::One]
+            .into_iter()
+            .flat_map(|l| inputs.map(|i| (l, i)))
+        {
+            let o = LiveBenchOptions {
+                network_input: input,
+                ..o.clone()
+            };
             if let Ok(path) = prepare(&o, layout) {
                 let text = std::fs::read_to_string(path).expect("graph");
-                assert!(text.contains("--repr-channels 32"), "{text}");
+                // Of the windows: no represent stage, infer reads align's windows.
+                let represent = input == NetworkInput::Represent;
+                assert_eq!(text.contains("--repr-channels 32"), represent, "{text}");
+                assert_eq!(text.contains("represent"), represent, "{text}");
+                if layout == Layout::Nodes {
+                    assert!(text.contains("align/windows"), "{text}");
+                }
                 assert!(
                     text.contains("--method learned --model") && text.contains("--precision int8")
                 );

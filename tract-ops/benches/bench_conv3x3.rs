@@ -4,7 +4,9 @@
 //!
 //! - `head_32to16_256x400`: an encoder's head (32 representation channels in), and the last merge;
 //! - `down_16to32_256x400_stride2`: an encoder's first, stride-2 layer;
-//! - `residual_128to128_32x50`: a residual block at an eighth of the resolution.
+//! - `residual_128to128_32x50`: a residual block at an eighth of the resolution;
+//! - `spike_head_1+31to4_250x400_int8`: the base-4 networks' head in 8 bits on the spike
+//!   representation, its raw planes as `f32` against the same planes bit-packed.
 //!
 //! Throughput in multiply-adds. `tract-direct` is tract's direct convolution, `tract-im2col`
 //! im2col and a matrix product (`TRACT_DISABLE_DIRECT_SPATIAL`), both planned as the infer node
@@ -108,7 +110,55 @@ fn bench_shape(
     group.finish();
 }
 
+/// The spike representation's head in 8 bits, 1 dense channel and 31 binary planes to 4 (the
+/// base-4 networks') at 250x400 padded to 256x400: the planes as `f32` 0.0/1.0
+/// (`unpacked-f32`) against the same planes bit-packed as the window holds them (`packed`).
+fn bench_packed(c: &mut Criterion) {
+    let (d, planes, c_out, (h, w), (hp, wp)) = (1, 31, 4, (250, 400), (256, 400));
+    let c_in = d + planes;
+    let weights =
+        Array4::from_shape_vec((c_out, c_in, 3, 3), pattern(c_out * c_in * 9, 1)).expect("weights");
+    let bias = Array1::from(pattern(c_out, 2));
+    let conv = Conv3x3::new(weights.view(), bias.as_slice().expect("contiguous"), 1)
+        .expect("a 3x3 convolution")
+        .with_relu()
+        .with_precision(Precision::int8());
+    let per = neuspike_tract_ops::conv3x3::packed_plane_bytes(h, w);
+    let values = pattern(planes * h * w, 3);
+    let mut all = ndarray::Array3::<f32>::zeros((c_in, h, w));
+    let mut bits = vec![0u8; planes * per];
+    for (i, v) in pattern(h * w, 4).into_iter().enumerate() {
+        all[[0, i / w, i % w]] = v.abs();
+    }
+    for k in 0..planes {
+        for i in 0..h * w {
+            if values[k * h * w + i] > 0.6 {
+                bits[k * per + i / 8] |= 1 << (i % 8);
+                all[[d + k, i / w, i % w]] = 1.0;
+            }
+        }
+    }
+    let dense = all.slice(ndarray::s![..d, .., ..]);
+    let mut output = vec![0f32; c_out * hp * wp];
+    let mut group = c.benchmark_group("spike_head_1+31to4_250x400_int8");
+    group.throughput(Throughput::Elements((c_out * hp * wp * c_in * 9) as u64));
+    group.bench_function("unpacked-f32", |b| {
+        b.iter(|| {
+            conv.run_edge_padded(black_box(all.view()), (hp, wp), &mut output, None)
+                .expect("runs")
+        })
+    });
+    group.bench_function("packed", |b| {
+        b.iter(|| {
+            conv.run_edge_padded_bits(dense, black_box(&bits), planes, (hp, wp), &mut output, None)
+                .expect("runs")
+        })
+    });
+    group.finish();
+}
+
 fn convolutions(c: &mut Criterion) {
+    bench_packed(c);
     bench_shape(c, "head_32to16_256x400", (32, 16, 1), (256, 400));
     bench_shape(c, "down_16to32_256x400_stride2", (16, 32, 2), (256, 400));
     bench_shape(c, "residual_128to128_32x50", (128, 128, 1), (32, 50));

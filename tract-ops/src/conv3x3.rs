@@ -500,6 +500,67 @@ impl Conv3x3 {
         Ok(())
     }
 
+    /// [`run_edge_padded`](Self::run_edge_padded) of the channel concatenation of `dense`
+    /// (`[D, h, w]`, each row contiguous) and `planes` binary channels of `h x w` pixels given
+    /// bit-packed in `bits` ([`packed_plane_bytes`]; bytes past the planes are not read): the
+    /// spike representation's raw planes as the window holds them, without their `f32` copy
+    /// (32 bits a pixel for one).
+    ///
+    /// In 8 bits ([`Precision::Int8`]) the planes are read as bits: a binary channel's range is
+    /// 0 to 1 when it has a set bit, so its levels are 0 and 255, its mean level a count of set
+    /// bits, and the words of four such channels come from a table of 16; the result is the
+    /// one [`run_edge_padded`](Self::run_edge_padded) gives on the planes unpacked to 0.0/1.0,
+    /// bit for bit (tested). Other precisions unpack the planes and run that.
+    ///
+    /// # Errors
+    /// As [`run_edge_padded`](Self::run_edge_padded) for the concatenation, and
+    /// [`Conv3x3Error::Shape`] when `bits` holds fewer than `planes` planes.
+    pub fn run_edge_padded_bits(
+        &self,
+        dense: ArrayView3<f32>,
+        bits: &[u8],
+        planes: usize,
+        (hp, wp): (usize, usize),
+        output: &mut [f32],
+        pool: Option<&rayon::ThreadPool>,
+    ) -> Result<(), Conv3x3Error> {
+        let (d, h, w) = dense.dim();
+        let per = packed_plane_bytes(h, w);
+        let shape_error = || Conv3x3Error::Shape {
+            input: vec![d, planes, h, w, bits.len()],
+            output: output.len(),
+            c_in: self.c_in,
+            c_out: self.c_out,
+        };
+        // (An empty view's strides are 0.)
+        let rows_contiguous = d == 0 || w <= 1 || dense.strides()[2] == 1;
+        let bits_held = planes.checked_mul(per).is_some_and(|n| n <= bits.len());
+        if d + planes != self.c_in
+            || h == 0
+            || w == 0
+            || h > hp
+            || w > wp
+            || !rows_contiguous
+            || !bits_held
+        {
+            return Err(shape_error());
+        }
+        if !matches!(self.precision, Precision::Int8(_)) {
+            let all = unpacked(dense, bits, planes).ok_or_else(shape_error)?;
+            return self.run_edge_padded(all.view(), (hp, wp), output, pool);
+        }
+        self.check(&[self.c_in, hp, wp], output.len())?;
+        self.drive(
+            neuspike_simd::detect(),
+            // A view of this call's lifetime, as `bits`' (views are invariant in theirs).
+            Input::Bits(dense.view(), &bits[..planes * per]),
+            (hp, wp),
+            output,
+            pool,
+        );
+        Ok(())
+    }
+
     /// Splits the output rows of `input` (of size `(h, w)`, checked) in bands across `pool`.
     fn drive(
         &self,
@@ -766,6 +827,40 @@ enum Input<'a> {
     /// `[C, h, w]` with contiguous rows, read as if padded to a larger size by repeating its
     /// last row (here) and column ([`Conv3x3::padded`]).
     Edge(ArrayView3<'a, f32>),
+    /// As `Edge`, of the channel concatenation of a dense `[D, h, w]` part (contiguous rows)
+    /// and binary channels given as bit-packed planes of `h x w` pixels ([`packed_plane_bytes`]): only
+    /// the 8-bit path reads it ([`Conv3x3::run_edge_padded_bits`]).
+    Bits(ArrayView3<'a, f32>, &'a [u8]),
+}
+
+/// The channel concatenation of `dense` (`[D, h, w]`) and `planes` binary planes bit-packed in
+/// `bits` ([`packed_plane_bytes`]) unpacked to 0.0/1.0, `[D + planes, h, w]`; `None` when
+/// `bits` holds fewer planes.
+pub fn unpacked(dense: ArrayView3<f32>, bits: &[u8], planes: usize) -> Option<Array3<f32>> {
+    let (d, h, w) = dense.dim();
+    let per = packed_plane_bytes(h, w);
+    if planes.checked_mul(per)? > bits.len() {
+        return None;
+    }
+    let mut all = Array3::<f32>::zeros((d + planes, h, w));
+    all.slice_mut(ndarray::s![..d, .., ..]).assign(&dense);
+    for (k, plane) in bits.chunks_exact(per.max(1)).take(planes).enumerate() {
+        for (i, v) in all
+            .slice_mut(ndarray::s![d + k, .., ..])
+            .iter_mut()
+            .enumerate()
+        {
+            *v = f32::from((plane[i / 8] >> (i % 8)) & 1);
+        }
+    }
+    Some(all)
+}
+
+/// Bytes of one bit-packed plane of `h x w` pixels, as a spike window holds its planes and
+/// [`Conv3x3::run_edge_padded_bits`] reads them: plane `k` is `bits[k * per..(k + 1) * per]`
+/// with `per = ceil(h w / 8)`, pixel `i` (row-major) at bit `i % 8` of its byte `i / 8`.
+pub fn packed_plane_bytes(h: usize, w: usize) -> usize {
+    (h * w).div_ceil(8)
 }
 
 impl<'a> Input<'a> {
@@ -786,6 +881,34 @@ impl<'a> Input<'a> {
                 None
             }
             Input::Edge(x) => x.slice_move(ndarray::s![c, .., ..]).to_slice(),
+            Input::Bits(x, _) => (c < x.dim().0)
+                .then(|| x.slice_move(ndarray::s![c, .., ..]).to_slice())
+                .flatten(),
+        }
+    }
+
+    /// Channel `c`'s packed plane and the view's `(rows, w)` when `c` is a binary channel of a
+    /// `Bits` input.
+    #[inline]
+    fn bit_plane(self, c: usize) -> Option<(&'a [u8], (usize, usize))> {
+        match self {
+            Input::Bits(x, bits) => {
+                let (d, rows, w) = x.dim();
+                let k = c.checked_sub(d)?;
+                let per = packed_plane_bytes(rows, w);
+                Some((bits.get(k * per..(k + 1) * per)?, (rows, w)))
+            }
+            _ => None,
+        }
+    }
+
+    /// The values in a row of channel `c` before any padding: `w` for `Dense` and `Parts`, the
+    /// view's width for `Edge` and `Bits`.
+    #[inline]
+    fn row_len(self, c: usize, h: usize) -> usize {
+        match self {
+            Input::Bits(x, _) => x.dim().2,
+            _ => self.row(c, 0, h).len(),
         }
     }
 
@@ -805,6 +928,9 @@ impl<'a> Input<'a> {
                 let row = row.to_slice().unwrap_or(&[]);
                 &row[..w.min(row.len())]
             }
+            // A binary channel has no `f32` row (its readers take `bit_plane`).
+            Input::Bits(x, _) if c >= x.dim().0 => &[],
+            Input::Bits(x, _) => Input::Edge(x).row(c, iy, h),
         }
     }
 }

@@ -345,3 +345,79 @@ fn learned_is_checked_at_start_up() {
     let e = "nope".parse::<Method>().unwrap_err().to_string();
     assert!(e.contains("learned"), "{e}");
 }
+
+/// Window `seq` of `n` planes of 40 x 48 with a fixed pattern of spikes, no events.
+fn spike_window(seq: u64, n: usize) -> AlignedWindow {
+    let (h, w): (usize, usize) = (40, 48);
+    let per = (h * w).div_ceil(8);
+    let bits = (0..n * per)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 7) as u8 & (0x55 << (i % 2)))
+        .collect();
+    let spikes = neuspike_schemas::SpikeChunk {
+        width: w,
+        height: h,
+        first_plane: seq * n as u64,
+        n_planes: n,
+        t_first_ns: 1_000_000 * seq as i64,
+        plane_period_ns: 50_000,
+        seq,
+        bits,
+        lum_per_rate: Some(2.0),
+    };
+    AlignedWindow {
+        t_ref_ns: spikes.plane_time_ns(n / 2),
+        ref_plane: seq * n as u64 + (n / 2) as u64,
+        spikes,
+        events: EventBatch::empty(0, 0, 0, 1, seq),
+    }
+}
+
+/// A spike network fed align's windows makes, in 8 bits, the frames it makes of the represent
+/// stage's spike representation of the same windows: its raw planes read packed.
+#[test]
+fn a_spike_network_reads_the_windows_themselves() {
+    use neuspike_reconstruction::learned::Precision;
+    use neuspike_representations::{RepresentConfig, Representer};
+    let path = shipped_model(&[LearnedInput::Spike]);
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = CannedInputs::new(dir.path());
+    let windows: Vec<AlignedWindow> = (0..2).map(|seq| spike_window(seq, 33)).collect();
+    for w in &windows {
+        c.message("windows", w).unwrap();
+    }
+    c.end::<AlignedWindow>("windows", 2).unwrap();
+    let mut a = learned_args(path.clone());
+    a.precision = Precision::int8();
+    let stage = a.reconstructor(&["windows".to_string()]).unwrap();
+    assert_eq!(stage.input_ids(), vec!["windows"]);
+    let out = c.run(|node, events| run(node, events, stage)).unwrap();
+    assert_eq!(output_ids(&out), vec!["frames"; 3]);
+    let mut direct = LearnedModel::load(&path).unwrap();
+    direct.set_precision(Precision::int8());
+    let mut represent = Representer::new(RepresentConfig {
+        repr_channels: direct.channels()[0] as u32,
+        ..RepresentConfig::default()
+    })
+    .unwrap();
+    for (w, frame) in windows.iter().zip(&out) {
+        let rep = represent
+            .represent(neuspike_schemas::RepresentationKind::SpikeRepr, w)
+            .unwrap();
+        let rate = direct.run(&[rep.data.view()]).unwrap();
+        let v = values(frame);
+        assert_eq!(v.len(), 40 * 48);
+        for (got, r) in v.iter().zip(rate.iter()) {
+            let want = (f64::from(*r) * 2.0).clamp(0.0, 1.0);
+            assert!((got - want).abs() < 1e-6, "{got} vs {want}");
+        }
+    }
+    // Windows and the representation both connected: refused, by name.
+    let err = learned_args(path)
+        .reconstructor(&["windows".to_string(), "spike_repr".to_string()])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("either `windows`") && err.contains("spike_repr"),
+        "{err}"
+    );
+}

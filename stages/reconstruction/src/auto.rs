@@ -753,18 +753,7 @@ impl Auto {
                 )?;
             }
             Engine::Net(net) => {
-                let reps = net
-                    .inputs()
-                    .iter()
-                    .map(|i| {
-                        c.represent
-                            .represent(i.representation(), &win)
-                            .map(|r| r.data)
-                    })
-                    .collect::<Result<Vec<_>, _>>()
-                    .map_err(|e| window_error(w, e))?;
-                let views: Vec<_> = reps.iter().map(|r| r.view()).collect();
-                let out = net.run(&views)?;
+                let out = net.run_window(&win, &mut c.represent)?;
                 let g = match net.output() {
                     LearnedOutput::Rate => need_gain()?,
                     LearnedOutput::Luminance => 1.0,

@@ -23,8 +23,9 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ndarray::{Array2, ArrayView3};
-use neuspike_schemas::RepresentationKind;
+use ndarray::{Array2, Array3, ArrayView3, Axis};
+use neuspike_representations::{RepresentError, Representer, spike_representation_parts};
+use neuspike_schemas::{AlignedWindow, RepresentationKind};
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
 
@@ -66,6 +67,38 @@ impl LearnedInput {
     /// The infer node's input id for it: the representation's name.
     pub fn input_id(self) -> &'static str {
         self.representation().name()
+    }
+}
+
+/// One input of a network as the caller holds it ([`LearnedModel::run_inputs`]).
+#[derive(Clone, Copy, Debug)]
+pub enum ModelInput<'a> {
+    /// A representation `[C, H, W]`.
+    Dense(ArrayView3<'a, f32>),
+    /// A representation of dense channels `[D, H, W]` (each row contiguous) followed by
+    /// `planes` binary channels, bit-packed in `bits` as a spike window holds its planes
+    /// (`neuspike_tract_ops::conv3x3::packed_plane_bytes`): the spike representation as its
+    /// ISI channel and raw planes (`neuspike_representations::spike_representation_parts`).
+    Packed {
+        /// The dense channels.
+        dense: ArrayView3<'a, f32>,
+        /// The binary channels' planes, one after the other.
+        bits: &'a [u8],
+        /// How many binary channels.
+        planes: usize,
+    },
+}
+
+impl ModelInput<'_> {
+    /// `(channels, H, W)`.
+    pub fn dim(&self) -> (usize, usize, usize) {
+        match self {
+            ModelInput::Dense(x) => x.dim(),
+            ModelInput::Packed { dense, planes, .. } => {
+                let (d, h, w) = dense.dim();
+                (d.saturating_add(*planes), h, w)
+            }
+        }
     }
 }
 
@@ -578,7 +611,7 @@ impl LearnedModel {
     fn time_run(
         &mut self,
         plan: &Plan,
-        xs: &[ArrayView3<f32>],
+        xs: &[ModelInput],
         (hp, wp): (usize, usize),
     ) -> Result<f64, InferError> {
         let start = std::time::Instant::now();
@@ -591,7 +624,7 @@ impl LearnedModel {
     fn run_plan(
         &mut self,
         plan: &Plan,
-        xs: &[ArrayView3<f32>],
+        xs: &[ModelInput],
         hp: usize,
         wp: usize,
     ) -> Result<Arc<Tensor>, InferError> {
@@ -609,7 +642,7 @@ impl LearnedModel {
 
     /// The plan for padded size `(h, w)`: the kept one, or a new one (for [`ConvPath::Auto`],
     /// the fastest path on `values`).
-    fn plan_for(&mut self, h: usize, w: usize, xs: &[ArrayView3<f32>]) -> Result<Plan, InferError> {
+    fn plan_for(&mut self, h: usize, w: usize, xs: &[ModelInput]) -> Result<Plan, InferError> {
         if let Some((_, plan)) = self.plans.iter().find(|(size, _)| *size == (h, w)) {
             return Ok(plan.clone());
         }
@@ -647,7 +680,7 @@ impl LearnedModel {
     }
 
     /// Checks `xs` against the network's inputs; returns the frame's `(h, w)`.
-    fn check_inputs(&self, xs: &[ArrayView3<f32>]) -> Result<(usize, usize), InferError> {
+    fn check_inputs(&self, xs: &[ModelInput]) -> Result<(usize, usize), InferError> {
         if xs.len() != self.inputs.len() {
             return Err(model_error(
                 &self.path,
@@ -667,9 +700,37 @@ impl LearnedModel {
                         "input `{}` ({}) has shape {:?}; the network wants [{c}, {h}, {w}]",
                         input.onnx_name(),
                         input.representation(),
-                        x.shape()
+                        <[usize; 3]>::from(x.dim())
                     ),
                 ));
+            }
+            if let ModelInput::Packed {
+                dense,
+                bits,
+                planes,
+            } = x
+            {
+                let per = neuspike_tract_ops::conv3x3::packed_plane_bytes(h, w);
+                if planes.checked_mul(per).is_none_or(|n| n > bits.len()) {
+                    return Err(model_error(
+                        &self.path,
+                        format!(
+                            "input `{}`: {planes} packed planes of {h}x{w} take {} bytes, {} given",
+                            input.onnx_name(),
+                            planes.saturating_mul(per),
+                            bits.len()
+                        ),
+                    ));
+                }
+                if dense.dim().0 > 0 && w > 1 && dense.strides()[2] != 1 {
+                    return Err(model_error(
+                        &self.path,
+                        format!(
+                            "input `{}`: its dense channels' rows are not contiguous",
+                            input.onnx_name()
+                        ),
+                    ));
+                }
             }
         }
         if h == 0 || w == 0 {
@@ -687,6 +748,8 @@ impl LearnedModel {
     /// # Errors
     /// As [`run`](Self::run).
     pub fn profile(&mut self, xs: &[ArrayView3<f32>]) -> Result<Vec<NodeTime>, InferError> {
+        let xs: Vec<ModelInput> = xs.iter().map(|x| ModelInput::Dense(x.view())).collect();
+        let xs = &xs[..];
         let (h, w) = self.check_inputs(xs)?;
         let (hp, wp) = (h.next_multiple_of(STRIDE), w.next_multiple_of(STRIDE));
         let plan = self.plan_for(hp, wp, xs)?;
@@ -723,6 +786,62 @@ impl LearnedModel {
         })
     }
 
+    /// The network's frame of an aligned window: its spike input as the spike representation's
+    /// ISI channel and the window's packed planes ([`ModelInput::Packed`], read as bits where
+    /// the first convolution runs in 8 bits), any other input as `represent` makes it. The same
+    /// frame as [`run`](Self::run) on the represent stage's representations of the window.
+    ///
+    /// # Errors
+    /// [`InferError::Window`] when a representation cannot be made of the window (too few
+    /// planes), and as [`run_inputs`](Self::run_inputs).
+    pub fn run_window(
+        &mut self,
+        win: &AlignedWindow,
+        represent: &mut Representer,
+    ) -> Result<Array2<f32>, InferError> {
+        let window_error = |e: RepresentError| InferError::Window {
+            seq: win.seq(),
+            what: e.to_string(),
+        };
+        let spikes = &win.spikes;
+        let (n, h, w) = (spikes.n_planes, spikes.height, spikes.width);
+        let mut reps = Vec::with_capacity(self.inputs.len());
+        for (i, &channels) in self.inputs.iter().zip(&self.channels) {
+            reps.push(match i {
+                LearnedInput::Spike => {
+                    let mut isi = Array3::<f32>::zeros((1, h, w));
+                    let raw = spike_representation_parts(
+                        &spikes.bits,
+                        n,
+                        win.ref_index(),
+                        channels,
+                        isi.index_axis_mut(Axis(0), 0),
+                    )
+                    .map_err(window_error)?;
+                    (isi, Some((raw, channels - 1)))
+                }
+                LearnedInput::Events => {
+                    let r = represent
+                        .represent(i.representation(), win)
+                        .map_err(window_error)?;
+                    (r.data, None)
+                }
+            });
+        }
+        let inputs: Vec<ModelInput> = reps
+            .iter()
+            .map(|(data, raw)| match raw {
+                Some((raw, planes)) => ModelInput::Packed {
+                    dense: data.view(),
+                    bits: spikes.bits.get(raw.clone()).unwrap_or(&[]),
+                    planes: *planes,
+                },
+                None => ModelInput::Dense(data.view()),
+            })
+            .collect();
+        self.run_inputs(&inputs)
+    }
+
     /// Runs the network on one frame's representations, in [`inputs`](Self::inputs) order, each
     /// `[C, H, W]`; returns the [`output`](Self::output) image `[H, W]`.
     ///
@@ -730,6 +849,20 @@ impl LearnedModel {
     /// [`InferError::Model`] for a wrong number of inputs, a wrong channel count, inputs of
     /// different sizes, or a failure inside the network.
     pub fn run(&mut self, xs: &[ArrayView3<f32>]) -> Result<Array2<f32>, InferError> {
+        let xs: Vec<ModelInput> = xs.iter().map(|x| ModelInput::Dense(x.view())).collect();
+        self.run_inputs(&xs)
+    }
+
+    /// [`run`](Self::run) on inputs as the caller holds them ([`ModelInput`]): a spike
+    /// representation whose raw planes are still bit-packed (as a window holds them) is read so
+    /// where the network's first convolution runs in 8 bits, its planes never unpacked
+    /// (`Conv3x3::run_edge_padded_bits`); elsewhere they are unpacked first. The same frame as
+    /// `run` on the unpacked representation, bit for bit.
+    ///
+    /// # Errors
+    /// As [`run`](Self::run), and [`InferError::Model`] when `bits` holds fewer planes than
+    /// said or the dense channels' rows are not contiguous.
+    pub fn run_inputs(&mut self, xs: &[ModelInput]) -> Result<Array2<f32>, InferError> {
         let (h, w) = self.check_inputs(xs)?;
         let (hp, wp) = (h.next_multiple_of(STRIDE), w.next_multiple_of(STRIDE));
         let plan = self.plan_for(hp, wp, xs)?;
@@ -760,7 +893,7 @@ fn plan_inputs(
     path: &Path,
     buffers: &mut Vec<Arc<Tensor>>,
     first: &[Option<Arc<Conv3x3>>],
-    xs: &[ArrayView3<f32>],
+    xs: &[ModelInput],
     hp: usize,
     wp: usize,
 ) -> Result<TVec<TValue>, InferError> {
@@ -768,61 +901,125 @@ fn plan_inputs(
     let mut values = TVec::new();
     for (i, x) in xs.iter().enumerate() {
         let conv = first.get(i).and_then(Option::as_ref);
+        // Packed planes the first convolution does not read in 8 bits: unpacked here.
+        let owned;
+        let x = match (x, conv) {
+            (ModelInput::Dense(x), _) => x.view(),
+            (
+                &ModelInput::Packed {
+                    dense,
+                    bits,
+                    planes,
+                },
+                Some(conv),
+            ) if matches!(conv.precision(), Precision::Int8(_)) => {
+                let shape = [1, conv.c_out(), conv.out_len(hp), conv.out_len(wp)];
+                fill_input(path, buffers, i, shape, |dst| {
+                    conv.run_edge_padded_bits(dense, bits, planes, (hp, wp), dst, pool.as_deref())
+                        .map_err(|e| model_error(path, format!("first convolution: {e}")))
+                })?;
+                values.push(TValue::from_const(buffers[i].clone()));
+                continue;
+            }
+            (
+                &ModelInput::Packed {
+                    dense,
+                    bits,
+                    planes,
+                },
+                _,
+            ) => {
+                owned = neuspike_tract_ops::conv3x3::unpacked(dense, bits, planes)
+                    .ok_or_else(|| model_error(path, "packed planes: too few bytes"))?;
+                owned.view()
+            }
+        };
         let shape = match conv {
             Some(conv) => [1, conv.c_out(), conv.out_len(hp), conv.out_len(wp)],
             None => [1, x.dim().0, hp, wp],
         };
-        let reusable = buffers
-            .get_mut(i)
-            .and_then(Arc::get_mut)
-            .is_some_and(|t| t.shape() == shape);
-        if !reusable {
-            let t = Tensor::zero::<f32>(&shape).map_err(|e| model_error(path, chain(&e)))?;
-            match buffers.get_mut(i) {
-                Some(b) => *b = Arc::new(t),
-                None => buffers.push(Arc::new(t)),
-            }
-        }
-        let buffer = Arc::get_mut(&mut buffers[i])
-            .ok_or_else(|| model_error(path, "internal: an input tensor is still shared"))?;
-        let mut plain = buffer
-            .try_as_plain_ram_mut()
-            .map_err(|e| model_error(path, chain(&e)))?;
-        let dst = plain
-            .as_slice_mut::<f32>()
-            .map_err(|e| model_error(path, chain(&e)))?;
-        match conv {
-            Some(conv) => {
-                // Rows not contiguous in memory (a view taken across): a standard copy first.
-                let copy;
-                let x = if x.dim().2 <= 1 || x.strides()[2] == 1 {
-                    x.view()
-                } else {
-                    copy = x.as_standard_layout().into_owned();
-                    copy.view()
-                };
-                conv.run_edge_padded(x, (hp, wp), dst, pool.as_deref())
-                    .map_err(|e| model_error(path, format!("first convolution: {e}")))?;
-            }
-            None => {
-                // Channel by channel across the pool: a copy of megabytes, memory-bound, that
-                // one core alone does at half the speed of two.
-                let planes = dst.chunks_mut((hp * wp).max(1));
-                let copy = |(ch, dst): (usize, &mut [f32])| {
-                    pad_edge_into(x.slice(ndarray::s![ch..ch + 1, .., ..]), hp, wp, dst)
-                };
-                match &pool {
-                    Some(pool) => {
-                        use rayon::prelude::*;
-                        pool.install(|| planes.enumerate().par_bridge().for_each(copy))
-                    }
-                    None => planes.enumerate().for_each(copy),
-                }
-            }
-        }
+        fill_input(path, buffers, i, shape, |dst| {
+            write_input(path, conv, x, (hp, wp), dst, pool.as_deref())
+        })?;
         values.push(TValue::from_const(buffers[i].clone()));
     }
     Ok(values)
+}
+
+/// Input `x` as the plan reads it, into `dst`: through its first convolution `conv` when it has
+/// one, else padded to `(hp, wp)` by repeating its last row and column.
+fn write_input(
+    path: &Path,
+    conv: Option<&Arc<Conv3x3>>,
+    x: ArrayView3<f32>,
+    (hp, wp): (usize, usize),
+    dst: &mut [f32],
+    pool: Option<&rayon::ThreadPool>,
+) -> Result<(), InferError> {
+    match conv {
+        Some(conv) => {
+            // Rows not contiguous in memory (a view taken across): a standard copy first.
+            let copy;
+            let x = if x.dim().2 <= 1 || x.strides()[2] == 1 {
+                x.view()
+            } else {
+                copy = x.as_standard_layout().into_owned();
+                copy.view()
+            };
+            conv.run_edge_padded(x, (hp, wp), dst, pool)
+                .map_err(|e| model_error(path, format!("first convolution: {e}")))?;
+        }
+        None => {
+            // Channel by channel across the pool: a copy of megabytes, memory-bound, that
+            // one core alone does at half the speed of two.
+            let planes = dst.chunks_mut((hp * wp).max(1));
+            let copy = |(ch, dst): (usize, &mut [f32])| {
+                pad_edge_into(x.slice(ndarray::s![ch..ch + 1, .., ..]), hp, wp, dst)
+            };
+            match pool {
+                Some(pool) => {
+                    use rayon::prelude::*;
+                    pool.install(|| planes.enumerate().par_bridge().for_each(copy))
+                }
+                None => planes.enumerate().for_each(copy),
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Writes slot `i` of `buffers`, a tensor of `shape`, with `fill`: the tensor there when it has
+/// that shape and nothing else holds it, else a new one put there.
+fn fill_input(
+    path: &Path,
+    buffers: &mut Vec<Arc<Tensor>>,
+    i: usize,
+    shape: [usize; 4],
+    fill: impl FnOnce(&mut [f32]) -> Result<(), InferError>,
+) -> Result<(), InferError> {
+    let reusable = buffers
+        .get_mut(i)
+        .and_then(Arc::get_mut)
+        .is_some_and(|t| t.shape() == shape);
+    if !reusable {
+        let t = Tensor::zero::<f32>(&shape).map_err(|e| model_error(path, chain(&e)))?;
+        if i < buffers.len() {
+            buffers[i] = Arc::new(t);
+        } else if i == buffers.len() {
+            buffers.push(Arc::new(t));
+        } else {
+            return Err(model_error(path, "internal: input buffers out of order"));
+        }
+    }
+    let buffer = Arc::get_mut(&mut buffers[i])
+        .ok_or_else(|| model_error(path, "internal: an input tensor is still shared"))?;
+    let mut plain = buffer
+        .try_as_plain_ram_mut()
+        .map_err(|e| model_error(path, chain(&e)))?;
+    let dst = plain
+        .as_slice_mut::<f32>()
+        .map_err(|e| model_error(path, chain(&e)))?;
+    fill(dst)
 }
 
 /// How long a pool thread waits for work, spinning, before it goes to sleep (see [`in_pool`]).

@@ -12,6 +12,7 @@ use neuspike_schemas::{
 };
 
 use crate::auto::Auto;
+use neuspike_representations::{RepresentConfig, Representer};
 
 use crate::learned::{ConvPath, LearnedModel, LearnedOutput};
 use crate::{
@@ -40,6 +41,11 @@ pub struct InferConfig {
     /// blocked.
     #[arg(long, default_value = "f32")]
     pub precision: crate::learned::Precision,
+    /// learned and auto: the threads a network's convolutions split each frame across
+    /// (tract's pool, one for the whole process; at most 64). Unset, the process's setting
+    /// stands: one thread, the stage's own, unless a host set it.
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub threads: Option<u16>,
     /// Luminance per unit firing rate (overrides the calibration the spike source sends).
     #[arg(long)]
     pub lum_per_rate: Option<f64>,
@@ -107,6 +113,7 @@ impl Default for InferConfig {
             model: None,
             conv: ConvPath::default(),
             precision: crate::learned::Precision::F32,
+            threads: None,
             lum_per_rate: None,
             contrast: p.contrast,
             hf_cutoff_rad_s: p.hf_cutoff_rad_s,
@@ -159,6 +166,11 @@ impl InferConfig {
             });
         }
         let has = |id: &str| inputs.iter().any(|i| i == id);
+        if let Some(n) = self.threads
+            && matches!(self.method, Method::Auto | Method::Learned)
+        {
+            crate::learned::set_threads(usize::from(n));
+        }
         if self.method == Method::Auto {
             if !has(WINDOWS) {
                 return Err(InferError::Wiring(format!(
@@ -182,7 +194,27 @@ impl InferConfig {
             return Ok(r);
         }
         if self.method == Method::Learned {
-            let model = self.load_model(&has)?;
+            let from_windows = has(WINDOWS);
+            let model = self.load_model(&has, from_windows)?;
+            if from_windows {
+                // Its representations made here of align's windows: the spike one read from
+                // the window's packed planes (`LearnedModel::run_window`).
+                let mut cfg = RepresentConfig::default();
+                for (i, &c) in model.inputs().iter().zip(model.channels()) {
+                    let c = u32::try_from(c).unwrap_or(u32::MAX);
+                    match i.representation() {
+                        RepresentationKind::SpikeRepr => cfg.repr_channels = c,
+                        _ => cfg.ei_channels = c,
+                    }
+                }
+                let represent =
+                    Representer::new(cfg).map_err(|e| InferError::Wiring(e.to_string()))?;
+                let mut r =
+                    Reconstructor::new(Engine::Learned(Box::new(model)), self, vec![], false);
+                r.represent = Some(Box::new(represent));
+                r.wants_window = true;
+                return Ok(r);
+            }
             let rep_ids = model.inputs().iter().map(|i| i.input_id()).collect();
             return Ok(Reconstructor::new(
                 Engine::Learned(Box::new(model)),
@@ -224,7 +256,13 @@ impl InferConfig {
         ))
     }
 
-    fn load_model(&self, has: &dyn Fn(&str) -> bool) -> Result<LearnedModel, InferError> {
+    /// The network of `--model`, checked against what the graph connects: each of its
+    /// representations, or (`from_windows`) align's windows and none of them.
+    fn load_model(
+        &self,
+        has: &dyn Fn(&str) -> bool,
+        from_windows: bool,
+    ) -> Result<LearnedModel, InferError> {
         let Some(path) = &self.model else {
             return Err(InferError::NeedsModel);
         };
@@ -241,9 +279,18 @@ impl InferConfig {
         }
         model.set_precision(precision);
         for i in model.inputs() {
-            if !has(i.input_id()) {
+            if from_windows && has(i.input_id()) {
                 return Err(InferError::Wiring(format!(
-                    "model {} reads `{}`: connect an input `{}` (represent's `{}` output)",
+                    "model {}: connect either `{WINDOWS}` (its representations made of align's \
+                     windows) or `{}`, not both",
+                    path.display(),
+                    i.input_id()
+                )));
+            }
+            if !from_windows && !has(i.input_id()) {
+                return Err(InferError::Wiring(format!(
+                    "model {} reads `{}`: connect an input `{}` (represent's `{}` output), or \
+                     `{WINDOWS}` (align's) to make it here",
                     path.display(),
                     i.onnx_name(),
                     i.input_id(),
@@ -293,6 +340,8 @@ impl std::fmt::Debug for Reconstructor {
 /// arrives in order): it is dropped and counted.
 pub struct Reconstructor {
     engine: Engine,
+    /// The learned network's representations made of align's windows, when it reads those.
+    represent: Option<Box<Representer>>,
     method: Method,
     lum_per_rate: Option<f64>,
     /// The input ids that carry representations, one slot each.
@@ -313,6 +362,7 @@ impl Reconstructor {
     ) -> Self {
         Reconstructor {
             engine,
+            represent: None,
             method: cfg.method,
             lum_per_rate: cfg.lum_per_rate,
             rep_ids,
@@ -407,7 +457,12 @@ impl Reconstructor {
         let start = Instant::now();
         let (t_ref_ns, data) = match &mut self.engine {
             Engine::Online(online) => classical(online, self.method, self.lum_per_rate, seq, p)?,
-            Engine::Learned(model) => learned(model, self.lum_per_rate, seq, p)?,
+            Engine::Learned(model) => match (&mut self.represent, &p.window) {
+                (Some(represent), Some(w)) => {
+                    learned_window(model, represent, self.lum_per_rate, w)?
+                }
+                _ => learned(model, self.lum_per_rate, seq, p)?,
+            },
             Engine::Auto(auto) => {
                 let w = p
                     .window
@@ -643,6 +698,32 @@ fn learned(
     luminance_from_rate_into(image.view(), gain, 1.0, data.view_mut())
         .map_err(|e| window_error(seq, e))?;
     Ok((t_ref_ns, data))
+}
+
+/// One window of the learned method, its representations made of align's window.
+fn learned_window(
+    model: &mut LearnedModel,
+    represent: &mut Representer,
+    lum_per_rate: Option<f64>,
+    w: &AlignedWindow,
+) -> Result<(i64, Array2<f32>), InferError> {
+    let seq = w.seq();
+    let image = model
+        .run_window(w, represent)
+        .map_err(|e| window_error(seq, format!("at {} ns: {e}", w.t_ref_ns)))?;
+    let gain = match model.output() {
+        LearnedOutput::Luminance => 1.0,
+        LearnedOutput::Rate => lum_per_rate.or(w.spikes.lum_per_rate).ok_or_else(|| {
+            window_error(
+                seq,
+                "no calibration (the window carries no `lum_per_rate` and the graph sets no `--lum-per-rate`)",
+            )
+        })?,
+    };
+    let mut data = Array2::<f32>::zeros(image.dim());
+    luminance_from_rate_into(image.view(), gain, 1.0, data.view_mut())
+        .map_err(|e| window_error(seq, e))?;
+    Ok((w.t_ref_ns, data))
 }
 
 #[cfg(test)]

@@ -590,3 +590,60 @@ fn plain_loops_in_a_reduced_precision_run_f32() {
         assert_eq!(effective_precision(p), p);
     }
 }
+
+/// A spike network given its raw planes bit-packed, as a window holds them
+/// (`LearnedModel::run_inputs`), makes the frame it makes on the same planes unpacked to
+/// 0.0/1.0, bit for bit, in every precision (in 8 bits the first convolution reads the bits).
+#[test]
+fn packed_spike_planes_give_the_unpacked_frame() {
+    use neuspike_reconstruction::learned::ModelInput;
+    use neuspike_tract_ops::conv3x3::packed_plane_bytes;
+    let spike_only = shipped().into_iter().filter(|p| {
+        let model = LearnedModel::load(p).expect("load");
+        model.inputs() == [LearnedInput::Spike]
+    });
+    let mut tested = 0;
+    for path in spike_only {
+        let wide = wide_reference_inputs(&path).remove(0);
+        // Rows a size that is padded, planes of the reference's values thresholded.
+        let (c, h, w) = wide.dim();
+        let h = h - 3;
+        let mut dense = wide.slice(s![..1, ..h, ..]).to_owned();
+        dense.mapv_inplace(|v| v.abs());
+        let per = packed_plane_bytes(h, w);
+        let mut bits = vec![0u8; (c - 1) * per];
+        let mut all = Array3::<f32>::zeros((c, h, w));
+        all.slice_mut(s![..1, .., ..]).assign(&dense);
+        for k in 0..c - 1 {
+            for i in 0..h * w {
+                if wide[[k + 1, i / w, i % w]] > 0.5 {
+                    bits[k * per + i / 8] |= 1 << (i % 8);
+                    all[[k + 1, i / w, i % w]] = 1.0;
+                }
+            }
+        }
+        let mut model = LearnedModel::load(&path).expect("load");
+        for precision in [Precision::F32, Precision::int8(), Precision::bf16()] {
+            model.set_precision(precision);
+            let want = model.run(&[all.view()]).expect("unpacked");
+            let packed = ModelInput::Packed {
+                dense: dense.view(),
+                bits: &bits,
+                planes: c - 1,
+            };
+            let got = model.run_inputs(&[packed]).expect("packed");
+            assert_eq!(got, want, "{} in {precision}", path.display());
+            // Too few bytes: an error naming the file, nothing run.
+            let short = ModelInput::Packed {
+                dense: dense.view(),
+                bits: &bits[..bits.len() - 1],
+                planes: c - 1,
+            };
+            let (file, reason) = model_error(model.run_inputs(&[short]).expect_err("short"));
+            assert_eq!(file, path);
+            assert!(reason.contains("packed planes"), "{reason}");
+        }
+        tested += 1;
+    }
+    assert!(tested >= 2, "{tested} spike-only networks");
+}

@@ -47,8 +47,8 @@ pub use event::{
 pub use spike::{
     MAX_PLANES, MIN_ELEMENTS_FOR_RAYON, ROWS_PER_TASK, isi_into, isi_packed_into,
     isi_packed_into_with, isi_reference, raw_block_start, spike_representation_into,
-    spike_representation_packed_into, spike_representation_reference, tfi_into, tfi_reference,
-    tfp_into, tfp_packed_into, tfp_packed_into_with, tfp_reference,
+    spike_representation_packed_into, spike_representation_parts, spike_representation_reference,
+    tfi_into, tfi_reference, tfp_into, tfp_packed_into, tfp_packed_into_with, tfp_reference,
 };
 pub use stage::RepresentStage;
 pub use stats::{

@@ -868,6 +868,30 @@ pub fn spike_representation_packed_into(
     Ok(())
 }
 
+/// [`spike_representation_packed_into`] of `channels` channels as its two parts, for a reader
+/// that takes the raw planes bit-packed (a network whose first convolution runs in 8 bits reads
+/// them so): channel 0 written into `isi` (`[H, W]`, the same bits), and the range of `bits`
+/// that holds the `channels - 1` raw planes in channel order (`ceil(H W / 8)` bytes a plane).
+///
+/// # Errors
+/// As [`spike_representation_packed_into`].
+pub fn spike_representation_parts(
+    bits: &[u8],
+    n: usize,
+    c: usize,
+    channels: usize,
+    mut isi: ArrayViewMut2<f32>,
+) -> Result<std::ops::Range<usize>, RepresentError> {
+    let (h, w) = isi.dim();
+    let raw = check_channels(channels, n, (h, w))?;
+    let mut valid = ndarray::Array2::<bool>::from_elem((h, w), false);
+    isi_packed_into(bits, n, c, isi.view_mut(), valid.view_mut())?;
+    isi.mapv_inplace(|isi| tfi_value(isi as u32));
+    let per = (h * w).div_ceil(8);
+    let start = raw_block_start(c, raw, n);
+    Ok(start * per..(start + raw) * per)
+}
+
 /// One packed plane to 0.0/1.0 per pixel (`out.len()` pixels), eight at a time.
 fn unpack_plane(plane: &[u8], out: &mut [f32]) {
     neuspike_simd::dispatch(
@@ -1040,6 +1064,19 @@ mod tests {
             let mut strided = wide.slice_mut(s![.., .., ..;2]);
             spike_representation_packed_into(&bits, n, c, strided.view_mut()).expect("strided");
             prop_assert_eq!(&strided, &want);
+            // Its parts: the ISI channel, and the raw planes where they lie in `bits`.
+            let mut isi = Array2::<f32>::from_elem((h, w), f32::NAN);
+            let raw = spike_representation_parts(&bits, n, c, channels, isi.view_mut())
+                .expect("parts");
+            prop_assert_eq!(&isi, &want.index_axis(Axis(0), 0));
+            let per = (h * w).div_ceil(8);
+            prop_assert_eq!(raw.len(), (channels - 1) * per);
+            for (k, plane) in bits[raw].chunks_exact(per).enumerate() {
+                for i in 0..h * w {
+                    let bit = f32::from((plane[i / 8] >> (i % 8)) & 1);
+                    prop_assert_eq!(bit, want[[k + 1, i / w, i % w]]);
+                }
+            }
         }
     }
 

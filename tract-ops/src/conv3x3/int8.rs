@@ -190,6 +190,116 @@ fn to_i8(t: f32) -> i8 {
     (t + ROUND).to_bits() as u8 as i8
 }
 
+/// Pixel `i` of a packed plane (see [`packed_plane_bytes`]); a pixel past the plane is clear.
+#[inline(always)]
+fn bit(plane: &[u8], i: usize) -> bool {
+    plane.get(i / 8).is_some_and(|b| (b >> (i % 8)) & 1 == 1)
+}
+
+/// The 8 pixels `i..i + 8` of a packed plane as the bits of a byte, pixel `i` at bit 0 (pixels
+/// past the plane clear).
+#[inline(always)]
+fn byte_at(plane: &[u8], i: usize) -> u8 {
+    let (at, shift) = (i / 8, i % 8);
+    let lo = u16::from(plane.get(at).copied().unwrap_or(0));
+    let hi = u16::from(plane.get(at + 1).copied().unwrap_or(0));
+    ((lo | hi << 8) >> shift) as u8
+}
+
+/// Set pixels among `start..start + len` of a packed plane.
+fn ones(plane: &[u8], start: usize, len: usize) -> u64 {
+    let end = start + len;
+    let mut i = start;
+    let mut n = 0u64;
+    while i < end && !i.is_multiple_of(8) {
+        n += u64::from(bit(plane, i));
+        i += 1;
+    }
+    let bytes = (end - i) / 8;
+    let whole = plane.get(i / 8..i / 8 + bytes).unwrap_or(&[]);
+    let (words, rest) = whole.as_chunks::<8>();
+    n += words
+        .iter()
+        .map(|w| u64::from(u64::from_le_bytes(*w).count_ones()))
+        .sum::<u64>();
+    n += rest.iter().map(|b| u64::from(b.count_ones())).sum::<u64>();
+    i += bytes * 8;
+    while i < end {
+        n += u64::from(bit(plane, i));
+        i += 1;
+    }
+    n
+}
+
+/// A binary channel's quantisation and its mean level less its zero, from its packed plane of
+/// `(rows, wv)` pixels read as if padded to `(h, w)` by repeating its last row and column:
+/// what [`Conv3x3::quantization`] finds on the plane unpacked to 0.0/1.0 (its range is 0 to 1
+/// when a pixel is set, else 0 to 0; its level sum counts the set pixels, the padding's
+/// included).
+fn bit_quantization(
+    plane: &[u8],
+    (rows, wv): (usize, usize),
+    (h, w): (usize, usize),
+) -> (ChannelQuant, f64) {
+    let total = ones(plane, 0, rows * wv);
+    let q = ChannelQuant::from_range(0.0, if total > 0 { 1.0 } else { 0.0 });
+    let last_column: u64 = (0..rows)
+        .map(|iy| u64::from(bit(plane, iy * wv + wv - 1)))
+        .sum();
+    let last_row = ones(plane, (rows - 1) * wv, wv);
+    let corner = u64::from(bit(plane, rows * wv - 1));
+    let (more_w, more_h) = (w.saturating_sub(wv) as u64, h.saturating_sub(rows) as u64);
+    let set = total + last_column * more_w + more_h * (last_row + corner * more_w);
+    let n = (h * w) as u64;
+    let sum = set * u64::from(q.level(1.0)) + (n - set) * u64::from(q.level(0.0));
+    (q, mean_level(sum, h * w, q))
+}
+
+/// Byte `j` of `SPREAD[b]` is bit `j` of `b`.
+const SPREAD: [u64; 256] = {
+    let mut table = [0u64; 256];
+    let mut b = 0;
+    while b < 256 {
+        let mut j = 0;
+        while j < 8 {
+            if (b >> j) & 1 == 1 {
+                table[b] |= 1 << (8 * j);
+            }
+            j += 1;
+        }
+        b += 1;
+    }
+    table
+};
+
+/// The words of `out.len()` pixels of four binary channels from pixel `start` of their packed
+/// `planes` on: `table[m]` for the pixel whose set bits (channel `j` at bit `j`) make `m`.
+/// Eight pixels at a time: each plane's byte spread to a bit per byte, the four shifted into a
+/// nibble per byte.
+#[inline(always)]
+fn bit_words(planes: [&[u8]; 4], start: usize, table: &[u32; 16], out: &mut [u32]) {
+    for (chunk, x0) in out.chunks_mut(8).zip((start..).step_by(8)) {
+        let nibbles = planes.iter().enumerate().fold(0u64, |s, (j, p)| {
+            s | SPREAD[usize::from(byte_at(p, x0))] << j
+        });
+        for (k, o) in chunk.iter_mut().enumerate() {
+            *o = table[((nibbles >> (8 * k)) & 15) as usize];
+        }
+    }
+}
+
+/// ORs into each of `out`'s words `set[1]` where pixel `start + x` of the packed `plane` is
+/// set, `set[0]` where it is clear.
+#[inline(always)]
+fn or_bit_levels(plane: &[u8], start: usize, set: [u32; 2], out: &mut [u32]) {
+    for (chunk, x0) in out.chunks_mut(8).zip((start..).step_by(8)) {
+        let byte = byte_at(plane, x0);
+        for (k, o) in chunk.iter_mut().enumerate() {
+            *o |= set[usize::from((byte >> k) & 1)];
+        }
+    }
+}
+
 /// The quantised weights of one call, from the input channels' quantisation.
 #[derive(Clone, Debug, PartialEq)]
 pub(super) struct Plan8 {
@@ -435,6 +545,10 @@ impl Conv3x3 {
         let mut found = vec![(ChannelQuant::from_range(0.0, 0.0), 0.0); self.c_in];
         let tasks: Vec<_> = found.iter_mut().enumerate().collect();
         crate::bands::for_each(tasks, pool, |(c, slot)| {
+            if let Some((plane, view)) = input.bit_plane(c) {
+                *slot = bit_quantization(plane, view, (h, w));
+                return;
+            }
             *slot = neuspike_simd::dispatch(
                 #[inline(always)]
                 || {
@@ -556,9 +670,36 @@ impl Conv3x3 {
                     // for the baseline instruction set.
                     let src = match inside {
                         Some(iy) => {
-                            let n = input.row(quad * dot::CHANNELS, iy, h).len();
                             let c0 = quad * dot::CHANNELS;
-                            if let Some(&[q0, q1, q2, q3]) = plan.quant.get(c0..c0 + 4) {
+                            let n = input.row_len(c0, h);
+                            let bits: [_; dot::CHANNELS] =
+                                std::array::from_fn(|j| input.bit_plane(c0 + j));
+                            let whole = plan.quant.get(c0..c0 + 4);
+                            if let (Some(quant), [Some(b0), Some(b1), Some(b2), Some(b3)]) =
+                                (whole, bits)
+                            {
+                                // Four binary channels: each word from the table of the 16
+                                // ways four bits can be set.
+                                let table: [u32; 16] = std::array::from_fn(|m| {
+                                    (0..dot::CHANNELS)
+                                        .map(|j| {
+                                            let level = if (m >> j) & 1 == 1 { 1.0 } else { 0.0 };
+                                            quant[j].level(level) << (8 * j)
+                                        })
+                                        .fold(0, |a, b| a | b)
+                                });
+                                let (rows, wv) = b0.1;
+                                levels.resize(n, 0);
+                                bit_words(
+                                    [b0.0, b1.0, b2.0, b3.0],
+                                    iy.min(rows - 1) * wv,
+                                    &table,
+                                    &mut levels[..n],
+                                );
+                                Some(&levels[..])
+                            } else if let (Some(&[q0, q1, q2, q3]), [None, None, None, None]) =
+                                (whole, bits)
+                            {
                                 // Every word written below: no zeros first.
                                 levels.resize(n, 0);
                                 // A whole quad: one pass making each word.
@@ -576,10 +717,15 @@ impl Conv3x3 {
                             } else {
                                 levels.clear();
                                 levels.resize(n, 0);
-                                for j in 0..dot::CHANNELS {
+                                for (j, bit_plane) in bits.into_iter().enumerate() {
                                     let c = quad * dot::CHANNELS + j;
                                     let Some(&q) = plan.quant.get(c) else { break };
                                     let shift = 8 * j as u32;
+                                    if let Some((plane, (rows, wv))) = bit_plane {
+                                        let set = [q.level(0.0), q.level(1.0)].map(|l| l << shift);
+                                        or_bit_levels(plane, iy.min(rows - 1) * wv, set, levels);
+                                        continue;
+                                    }
                                     for (l, &v) in levels.iter_mut().zip(input.row(c, iy, h)) {
                                         *l |= q.level(v) << shift;
                                     }
@@ -921,6 +1067,134 @@ mod tests {
             .unwrap_err();
         assert_eq!(err, Conv3x3Error::Int8Channels(MAX_CHANNELS + 1));
         assert!(err.to_string().contains("4097 input channels"), "{err}");
+    }
+
+    /// `planes` binary planes of `h x w` pixels, about `density` of them set (plane `k` empty
+    /// when `empty` holds `k`), packed as a window holds them, and the same unpacked to 0.0/1.0
+    /// after `dense` (`[D, h, w]`).
+    fn packed(
+        dense: &[f32],
+        planes: usize,
+        (h, w): (usize, usize),
+        seed: u32,
+        empty: &[usize],
+    ) -> (Vec<u8>, ndarray::Array3<f32>) {
+        let per = crate::conv3x3::packed_plane_bytes(h, w);
+        let d = dense.len() / (h * w).max(1);
+        let mut bits = vec![0u8; planes * per];
+        let mut all = ndarray::Array3::<f32>::zeros((d + planes, h, w));
+        all.slice_mut(ndarray::s![..d, .., ..])
+            .assign(&ArrayView3::from_shape((d, h, w), dense).unwrap());
+        let values = pattern(planes * h * w, seed);
+        for k in 0..planes {
+            for i in 0..h * w {
+                let set = values[k * h * w + i] > 0.4 && !empty.contains(&k);
+                if set {
+                    bits[k * per + i / 8] |= 1 << (i % 8);
+                    all[[d + k, i / w, i % w]] = 1.0;
+                }
+            }
+        }
+        (bits, all)
+    }
+
+    /// Packed binary planes give, on every path and precision, the bits of the same planes
+    /// unpacked to 0.0/1.0 (itself tested against the definitions).
+    fn bits_check(
+        (d, planes, c_out, stride): (usize, usize, usize, usize),
+        (h, w): (usize, usize),
+        (hp, wp): (usize, usize),
+        seed: u32,
+        empty: &[usize],
+    ) {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let base = conv(d + planes, c_out, stride, seed);
+        let base = if seed % 2 == 1 {
+            base.with_relu()
+        } else {
+            base
+        };
+        let dense = input(d * h * w, seed + 3, seed);
+        let (bits, all) = packed(&dense, planes, (h, w), seed + 5, empty);
+        let dense = ArrayView3::from_shape((d, h, w), &dense).unwrap();
+        let precisions = DotPath::ALL
+            .into_iter()
+            .filter(|p| p.is_supported())
+            .map(Precision::Int8)
+            .chain([Precision::F32]);
+        for precision in precisions {
+            let conv = base.clone().with_precision(precision);
+            let n = c_out * conv.out_len(hp) * conv.out_len(wp);
+            let mut want = vec![f32::NAN; n];
+            conv.run_edge_padded(all.view(), (hp, wp), &mut want, None)
+                .unwrap();
+            for pool in [None, Some(&pool)] {
+                let mut got = vec![f32::NAN; n];
+                conv.run_edge_padded_bits(dense, &bits, planes, (hp, wp), &mut got, pool)
+                    .unwrap();
+                assert_eq!(
+                    got,
+                    want,
+                    "{d} dense + {planes} packed -> {c_out}, stride {stride}, {h}x{w} as \
+                     {hp}x{wp}, {precision}, pool {}",
+                    pool.is_some()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn packed_planes_give_the_unpacked_planes_bits() {
+        // The spike representation at the network's size (1 dense channel, 31 planes), padded
+        // rows; widths that are not a multiple of 8 (rows starting inside a byte); no dense
+        // channel; quads mixed and whole; stride 2; empty planes; one pixel.
+        bits_check((1, 31, 4, 1), (13, 400), (16, 400), 1, &[]);
+        bits_check((1, 31, 8, 1), (9, 37), (16, 40), 2, &[3, 4]);
+        bits_check((0, 8, 4, 1), (5, 21), (8, 24), 3, &[0]);
+        bits_check((5, 6, 4, 2), (11, 197), (16, 200), 4, &[]);
+        bits_check((2, 3, 4, 2), (7, 18), (8, 21), 5, &[2]);
+        bits_check((1, 3, 4, 1), (1, 1), (5, 9), 6, &[]);
+        bits_check((0, 4, 4, 1), (3, 5), (3, 5), 7, &[0, 1, 2, 3]);
+    }
+
+    #[test]
+    fn packed_planes_refuse_what_they_cannot_read() {
+        let conv = conv(1 + 4, 4, 1, 1).with_precision(Precision::int8());
+        let dense = vec![0.5f32; 6 * 10];
+        let dense = ArrayView3::from_shape((1, 6, 10), &dense).unwrap();
+        let per = crate::conv3x3::packed_plane_bytes(6, 10);
+        let mut out = vec![0.0; 4 * 8 * 16];
+        // Too few bytes, another channel count, a size smaller than the view's.
+        for (bits, planes, hw) in [
+            (4 * per - 1, 4, (8, 16)),
+            (5 * per, 5, (8, 16)),
+            (4 * per, 4, (4, 16)),
+        ] {
+            let bits = vec![0xffu8; bits];
+            let err = conv.run_edge_padded_bits(dense, &bits, planes, hw, &mut out, None);
+            assert!(
+                matches!(err, Err(Conv3x3Error::Shape { .. })),
+                "{planes} planes in {} bytes as {hw:?}: {err:?}",
+                bits.len()
+            );
+        }
+    }
+
+    #[test]
+    fn set_pixels_are_counted_wherever_a_run_starts() {
+        let plane: Vec<u8> = pattern(40, 9)
+            .iter()
+            .map(|v| (v * 1000.0) as i32 as u8)
+            .collect();
+        for start in [0, 1, 7, 8, 13, 64, 65] {
+            for len in [0, 1, 7, 8, 9, 63, 64, 65, 200] {
+                let want = (start..start + len).filter(|&i| bit(&plane, i)).count() as u64;
+                assert_eq!(ones(&plane, start, len), want, "{start}..+{len}");
+            }
+        }
     }
 
     proptest! {
