@@ -172,3 +172,106 @@ pub fn time_model(
     set_threads(1);
     Ok(out)
 }
+
+/// A frame of a spike network from a spike window, two ways, per thread count: the spike
+/// representation made as the represent stage makes it (`f32`, `[C, H, W]`) then the network
+/// run on it, and the window read by the network itself (`LearnedModel::run_window`: the raw
+/// planes bit-packed). `(threads, representation then network ms, from the window ms)`, medians
+/// of `runs` runs each, the two alternated.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FromWindow {
+    /// Threads tract used.
+    pub threads: usize,
+    /// Median, the representation made then the network, milliseconds.
+    pub represented_ms: f64,
+    /// Median, the network reading the window, milliseconds.
+    pub window_ms: f64,
+}
+
+/// Times [`FromWindow`] for a network that reads spikes alone, on a window of 33 planes of
+/// `height x width` with about a quarter of the pixels set in each (a fixed pattern).
+///
+/// # Errors
+/// The model does not load, reads events, or fails to run.
+pub fn time_from_window(
+    path: &Path,
+    (height, width): (usize, usize),
+    threads: &[usize],
+    runs: usize,
+    conv: ConvPath,
+    precision: Precision,
+) -> eyre::Result<Vec<FromWindow>> {
+    use neuspike_reconstruction::learned::LearnedInput;
+    use neuspike_representations::{RepresentConfig, Representer};
+    use neuspike_schemas::{AlignedWindow, EventBatch, RepresentationKind, SpikeChunk};
+    let loaded = LearnedModel::load(path).wrap_err("bench-model")?;
+    let (&[LearnedInput::Spike], &[channels]) = (loaded.inputs(), loaded.channels()) else {
+        eyre::bail!(
+            "bench-model --from-window: {} reads events; the window path is for spike networks",
+            path.display()
+        );
+    };
+    const PLANES: usize = 33;
+    let per = (height * width).div_ceil(8);
+    let bits: Vec<u8> = (0..PLANES * per)
+        .map(|i| {
+            // Two bytes of a multiplicative hash and-ed: each bit set with probability 1/4.
+            let h = (i as u32).wrapping_mul(2_654_435_761);
+            (h >> 8) as u8 & (h >> 16) as u8
+        })
+        .collect();
+    let spikes = SpikeChunk {
+        width,
+        height,
+        first_plane: 0,
+        n_planes: PLANES,
+        t_first_ns: 0,
+        plane_period_ns: 50_000,
+        seq: 0,
+        bits,
+        lum_per_rate: Some(1.0),
+    };
+    let window = AlignedWindow {
+        t_ref_ns: spikes.plane_time_ns(PLANES / 2),
+        ref_plane: (PLANES / 2) as u64,
+        spikes,
+        events: EventBatch::empty(0, 0, 0, 1, 0),
+    };
+    let mut represent = Representer::new(RepresentConfig {
+        repr_channels: u32::try_from(channels).unwrap_or(u32::MAX),
+        ..RepresentConfig::default()
+    })?;
+    let mut out = Vec::new();
+    for &n in threads {
+        let mut model = loaded.clone();
+        model.set_conv_path(conv);
+        model.set_precision(precision);
+        set_threads(n);
+        let mut represented = |model: &mut LearnedModel| -> eyre::Result<f64> {
+            let start = Instant::now();
+            let rep = represent.represent(RepresentationKind::SpikeRepr, &window)?;
+            model.run(&[rep.data.view()])?;
+            Ok(start.elapsed().as_secs_f64() * 1e3)
+        };
+        represented(&mut model).wrap_err("bench-model: warm-up run")?;
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        let mut win_represent = Representer::new(RepresentConfig::default())?;
+        for _ in 0..runs.max(1) {
+            a.push(represented(&mut model)?);
+            let start = Instant::now();
+            model.run_window(&window, &mut win_represent)?;
+            b.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        out.push(FromWindow {
+            threads: n,
+            represented_ms: median(&mut a),
+            window_ms: median(&mut b),
+        });
+    }
+    set_threads(1);
+    Ok(out)
+}

@@ -187,6 +187,12 @@ enum Command {
         /// this CPU runs. Ratios are against the first.
         #[arg(long, value_delimiter = ',')]
         precision: Vec<neuspike_reconstruction::learned::Precision>,
+        /// A spike network: also time a frame from a spike window both ways, in each precision
+        /// and thread count, alternated: the spike representation made in `f32` (as the
+        /// represent stage makes it) then the network, against the network reading the window's
+        /// bit-packed planes itself (as the infer stage does when it reads align's windows).
+        #[arg(long)]
+        from_window: bool,
     },
     /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the
     /// output folder (`graph.yml`), e.g. `neuspike reconstruct --spikes car.dat --out out/car`.
@@ -497,6 +503,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
             profile,
             conv,
             precision,
+            from_window,
         } => {
             let precisions = if precision.is_empty() {
                 neuspike::bench_model::every_precision()
@@ -537,6 +544,29 @@ fn run(cli: Cli) -> eyre::Result<()> {
                     );
                 }
                 first.get_or_insert(t);
+            }
+            if from_window {
+                for &p in &precisions {
+                    let t = neuspike::bench_model::time_from_window(
+                        &model,
+                        (height, width),
+                        &threads,
+                        runs,
+                        conv,
+                        p,
+                    )?;
+                    for x in t {
+                        println!(
+                            "{:<16} threads {}: from a window: represented then run {:.2} ms, \
+                             read from the window {:.2} ms ({:.2}x)",
+                            p.to_string(),
+                            x.threads,
+                            x.represented_ms,
+                            x.window_ms,
+                            x.window_ms / x.represented_ms
+                        );
+                    }
+                }
             }
             if profile {
                 let n = threads.last().copied().unwrap_or(1);

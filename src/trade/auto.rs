@@ -154,28 +154,37 @@ fn mix_label<'a>(
     format!("{texture} [{}{late}]", chosen.join(" "))
 }
 
-/// The name of budget mode's rows: `auto-5ms`.
-pub fn budget_name(budget_ms: f64) -> String {
-    format!("{NAME}-{budget_ms}ms")
+/// The name of budget mode's rows: `auto-5ms` on one thread, `auto-5ms-2t` on two.
+pub fn budget_name(budget_ms: f64, threads: usize) -> String {
+    match threads {
+        0 | 1 => format!("{NAME}-{budget_ms}ms"),
+        n => format!("{NAME}-{budget_ms}ms-{n}t"),
+    }
 }
 
 /// Budget mode on one recording, run by the infer node's own stage ([`neuspike_reconstruction::auto`])
-/// on one thread, as a node runs it ([`stage_row`]); a frame is late when its cost exceeds the
-/// budget.
+/// on `threads` threads, as a node runs it ([`stage_row`]); a frame is late when its cost
+/// exceeds the budget.
 ///
 /// # Errors
 /// The stage refused a window.
 pub fn budget_row(
     stage: &mut neuspike_reconstruction::auto::Auto,
-    budget_ms: f64,
+    (budget_ms, threads): (f64, usize),
     rec: &Recording,
     template: &Row,
 ) -> eyre::Result<(Row, usize)> {
-    stage_row(stage, &budget_name(budget_ms), rec, template)
+    stage_row(
+        stage,
+        &budget_name(budget_ms, threads),
+        threads,
+        rec,
+        template,
+    )
 }
 
-/// A row of the infer node's own `auto` stage on one recording, on one thread, as a node runs
-/// it: 256-plane windows every 20 planes from plane 140 (the first a 256-plane window fits), the
+/// A row of the infer node's own `auto` stage on one recording, on `threads` threads (its
+/// networks' convolutions split across them), as a node runs it: 256-plane windows every 20 planes from plane 140 (the first a 256-plane window fits), the
 /// scored ones kept. Its cost is the stage's own measure of each scored frame (statistics,
 /// upkeep, representation, reconstruction); its label gives the frames per choice (per region:
 /// the tiles per method) and the frames late (`exact` counts nothing here; `windows` is the
@@ -186,15 +195,17 @@ pub fn budget_row(
 pub fn stage_row(
     stage: &mut neuspike_reconstruction::auto::Auto,
     name: &str,
+    threads: usize,
     rec: &Recording,
     template: &Row,
 ) -> eyre::Result<(Row, usize)> {
     stage.reset();
+    let threads = threads.max(1);
     let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
+        .num_threads(threads)
         .build()
         .wrap_err("cannot start a thread pool")?;
-    neuspike_reconstruction::learned::set_threads(1);
+    neuspike_reconstruction::learned::set_threads(threads);
     let last = rec.scored.last().copied().unwrap_or(0);
     let refs: Vec<u64> = (140..=last)
         .step_by(super::grid::STRIDE_PLANES as usize)
@@ -311,6 +322,10 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
                 (m.clone(), s.psnr, s.p50_1t_ms)
             })
             .collect();
+        let two_threads: BTreeMap<&str, f64> = methods
+            .iter()
+            .map(|(m, rs)| (m.as_str(), table::summarise(rs).p50_2t_ms))
+            .collect();
         let Some(pick) = neuspike_reconstruction::policy::best_value(&cands, opts.db_per_ms) else {
             continue;
         };
@@ -326,6 +341,10 @@ pub fn fit(rows: &[Row], opts: &BenchOptions, csv: &Path) -> eyre::Result<Policy
                 method: c.0.clone(),
                 psnr_db: round2(c.1),
                 ms: (c.2 * 1_000.0).round() / 1_000.0,
+                ms_2: two_threads
+                    .get(c.0.as_str())
+                    .filter(|v| v.is_finite())
+                    .map(|v| (v * 1_000.0).round() / 1_000.0),
             })
             .collect();
         ranked.sort_by(|a, b| b.psnr_db.total_cmp(&a.psnr_db));

@@ -5,7 +5,8 @@
 //! both cameras) plus six extreme corners, each seen through several textures never used in
 //! training. Every method ([`run::methods`]) runs each recording as a graph would run it
 //! ([`run::pass`]): align's windows every 20 planes, the represent stage computing only what the
-//! method reads, the infer stage's `Reconstructor`; a window's cost is its representation plus
+//! method reads (a network's inputs made by the infer stage of the window itself, as in the live
+//! graph and in `auto`), the infer stage's `Reconstructor`; a window's cost is its representation plus
 //! its reconstruction, timed on 1 and on 2 threads. Four frames a recording are scored against
 //! the truth (PSNR, PSNR after gain, SSIM, 2D entropy, as the sink computes them).
 //!
@@ -90,9 +91,14 @@ pub struct BenchOptions {
     #[arg(long, default_value_t = 0.04)]
     pub db_per_ms: f64,
     /// Budget mode's deadline, ms: with a policy, the infer node's `auto` stage runs each
-    /// recording under it on one thread (rows `auto-<X>ms`).
+    /// recording under it on `--budget-threads` threads (rows `auto-<X>ms`, `auto-<X>ms-2t` on
+    /// two).
     #[arg(long, default_value_t = 5.0)]
     pub budget_ms: f64,
+    /// Threads budget mode's stage runs its networks on (the infer node's `--threads`); its
+    /// cost priors are the policy's figures for as many threads.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=64))]
+    pub budget_threads: u16,
     /// Measure these methods again: their rows are removed from bench.csv first (e.g. `auto`
     /// after fitting a new policy).
     #[arg(long, value_delimiter = ',')]
@@ -221,6 +227,8 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
         let policy = loaded.as_ref().map(|(_, p)| p.clone());
         policy_used = policy.clone();
         // Budget mode runs the infer node's own stage, loaded once (its networks planned once).
+        // Its cost priors are for the threads its networks run on.
+        neuspike_reconstruction::learned::set_threads(usize::from(opts.budget_threads));
         let mut stage = match &loaded {
             Some((path, _)) => Some(
                 neuspike_reconstruction::auto::Auto::new(
@@ -234,7 +242,8 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
             ),
             None => None,
         };
-        let budget_name = auto::budget_name(opts.budget_ms);
+        let budget_name = auto::budget_name(opts.budget_ms, usize::from(opts.budget_threads));
+        neuspike_reconstruction::learned::set_threads(1);
         // Per-region auto: the same stage, choosing per tile.
         let mut regions = match &loaded {
             Some((path, _)) => Some(
@@ -391,7 +400,8 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
                 if let Some(b) = &bar {
                     b.set_message(format!("{} texture {t}: {budget_name}", class.name));
                 }
-                let (row, _) = auto::budget_row(s, opts.budget_ms, &rec, &template)
+                let budget = (opts.budget_ms, usize::from(opts.budget_threads));
+                let (row, _) = auto::budget_row(s, budget, &rec, &template)
                     .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
                 write_row(&mut csv, &csv_path, &row)?;
                 rows.push(row);
@@ -404,7 +414,7 @@ pub fn run(opts: &BenchOptions, progress: bool) -> eyre::Result<BenchRun> {
                         auto::REGIONS_NAME
                     ));
                 }
-                let (row, _) = auto::stage_row(s, auto::REGIONS_NAME, &rec, &template)
+                let (row, _) = auto::stage_row(s, auto::REGIONS_NAME, 1, &rec, &template)
                     .wrap_err_with(|| format!("bench: {} texture {t}", class.name))?;
                 write_row(&mut csv, &csv_path, &row)?;
                 rows.push(row);

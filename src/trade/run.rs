@@ -12,7 +12,9 @@ use ndarray::Array2;
 use neuspike_align::{AlignConfig, AlignStage};
 use neuspike_event_camera::{DvsConfig, EventCamera};
 use neuspike_reconstruction::learned::{BF16_SUFFIX, INT8_SUFFIX, LearnedModel, Precision};
-use neuspike_reconstruction::{EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor};
+use neuspike_reconstruction::{
+    EVENTS, InferConfig, Method, REPRESENTATION, Reconstructor, WINDOWS,
+};
 use neuspike_representations::{RepresentConfig, Representer, WindowStats};
 use neuspike_schemas::{
     AlignedWindow, EventBatch, RepresentationKind, SpikeChunk, bytes_per_plane,
@@ -174,9 +176,9 @@ impl MethodSpec {
                 vec![REPRESENTATION.to_string()]
             }
             Recon::Classical(_) => vec![],
-            Recon::Network { inputs, .. } => {
-                inputs.iter().map(|(k, _)| k.name().to_string()).collect()
-            }
+            // The infer stage makes a network's inputs of align's windows, as in the live graph
+            // and in `auto`: the spike planes read bit-packed.
+            Recon::Network { .. } => vec![WINDOWS.to_string()],
         };
         if self.reads_event_stream() {
             ids.push(EVENTS.to_string());
@@ -684,23 +686,29 @@ fn pass_on_this_pool(
         Recon::Classical(_) => before,
     };
     let mut represent = Representer::new(spec.represent_config()).map_err(|e| eyre!("{e}"))?;
-    let kinds = spec.representations();
+    let network = matches!(spec.recon, Recon::Network { .. });
+    let kinds = if network {
+        Vec::new()
+    } else {
+        spec.representations()
+    };
     let mut frames = Vec::with_capacity(rec.scored.len());
     let mut times_ms = Vec::with_capacity(refs.len());
     let mut scored_ms = Vec::with_capacity(rec.scored.len());
     let mut step = |cut: &Cut| -> eyre::Result<(f64, Array2<f32>)> {
         let (window, c) = (&cut.window, cut.window.ref_plane);
         let stream = cut.stream.clone();
+        // A copy of the window for the network (align sends it; not the stage's cost).
+        let owned = network.then(|| window.clone());
         let start = Instant::now();
         for &k in &kinds {
             let r = represent
                 .represent(k, window)
                 .map_err(|e| eyre!("{}: window at plane {c}: {e}", spec.name))?;
-            let id = match spec.recon {
-                Recon::Classical(_) => REPRESENTATION,
-                Recon::Network { .. } => k.name(),
-            };
-            reconstructor.push_representation(id, r);
+            reconstructor.push_representation(REPRESENTATION, r);
+        }
+        if let Some(w) = owned {
+            reconstructor.push_window(w);
         }
         if let Some(s) = stream {
             reconstructor.push_events(s);

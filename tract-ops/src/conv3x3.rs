@@ -844,15 +844,21 @@ pub fn unpacked(dense: ArrayView3<f32>, bits: &[u8], planes: usize) -> Option<Ar
     }
     let mut all = Array3::<f32>::zeros((d + planes, h, w));
     all.slice_mut(ndarray::s![..d, .., ..]).assign(&dense);
-    for (k, plane) in bits.chunks_exact(per.max(1)).take(planes).enumerate() {
-        for (i, v) in all
-            .slice_mut(ndarray::s![d + k, .., ..])
-            .iter_mut()
-            .enumerate()
-        {
-            *v = f32::from((plane[i / 8] >> (i % 8)) & 1);
-        }
-    }
+    // Each plane's pixels one run of memory (a fresh standard array), eight to a byte.
+    let values = all.as_slice_mut()?;
+    let outputs = values[d * h * w..].chunks_exact_mut((h * w).max(1));
+    neuspike_simd::dispatch(
+        #[inline(always)]
+        || {
+            for (out, plane) in outputs.zip(bits.chunks_exact(per.max(1))).take(planes) {
+                for (o, &byte) in out.chunks_mut(8).zip(plane) {
+                    for (b, v) in o.iter_mut().enumerate() {
+                        *v = f32::from((byte >> b) & 1);
+                    }
+                }
+            }
+        },
+    );
     Some(all)
 }
 

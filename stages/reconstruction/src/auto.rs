@@ -156,7 +156,9 @@ fn model_file(models: &Path, name: &str) -> PathBuf {
 }
 
 impl Auto {
-    /// Loads the policy and every method it names; the networks from `models`.
+    /// Loads the policy and every method it names; the networks from `models`. Each method's
+    /// cost prior is the policy's figure for the threads the networks run on when it is made
+    /// (`learned::set_threads`: its two-thread figure from two threads on, where it has one).
     ///
     /// # Errors
     /// The policy does not load or names a method auto cannot run (the event filters and the
@@ -200,6 +202,8 @@ impl Auto {
             ))
         })?;
         let mut candidates = Vec::new();
+        // Cost priors for the threads the networks run on now (`learned::set_threads`).
+        let threads = crate::learned::threads();
         for name in &installed {
             // Cost prior: the median of the figures the policy holds for it.
             let mut prior: Vec<f64> = policy
@@ -207,7 +211,7 @@ impl Auto {
                 .iter()
                 .flat_map(|r| r.ranked.iter())
                 .filter(|k| k.method == *name)
-                .map(|k| k.ms)
+                .map(|k| k.ms_on(threads))
                 .collect();
             prior.sort_by(f64::total_cmp);
             let cost_ms = prior.get(prior.len() / 2).copied().unwrap_or(0.0);

@@ -24,7 +24,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ndarray::{Array2, Array3, ArrayView3, Axis};
-use neuspike_representations::{RepresentError, Representer, spike_representation_parts};
+use neuspike_representations::{
+    RepresentError, Representer, spike_representation_packed_into, spike_representation_parts,
+};
 use neuspike_schemas::{AlignedWindow, RepresentationKind};
 use tract_onnx::prelude::*;
 use tract_onnx::tract_hir::infer::Factoid;
@@ -808,6 +810,19 @@ impl LearnedModel {
         let mut reps = Vec::with_capacity(self.inputs.len());
         for (i, &channels) in self.inputs.iter().zip(&self.channels) {
             reps.push(match i {
+                // Only an 8-bit first convolution reads bits: for the others the planes are
+                // unpacked as the represent stage unpacks them.
+                LearnedInput::Spike if !matches!(self.precision, Precision::Int8(_)) => {
+                    let mut all = Array3::<f32>::zeros((channels, h, w));
+                    spike_representation_packed_into(
+                        &spikes.bits,
+                        n,
+                        win.ref_index(),
+                        all.view_mut(),
+                    )
+                    .map_err(window_error)?;
+                    (all, None)
+                }
                 LearnedInput::Spike => {
                     let mut isi = Array3::<f32>::zeros((1, h, w));
                     let raw = spike_representation_parts(
@@ -1079,6 +1094,15 @@ fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
             out
         })
     })
+}
+
+/// The threads tract's matrix products and neuspike's convolutions split a frame across in this
+/// process ([`set_threads`]): 1 when they run on the calling thread.
+pub fn threads() -> usize {
+    match tract_linalg::multithread::current_tract_executor() {
+        tract_linalg::multithread::Executor::MultiThread(pool) => pool.current_num_threads(),
+        _ => 1,
+    }
 }
 
 /// Sets the number of threads tract's matrix products use, for every model of the process

@@ -127,6 +127,21 @@ pub struct Ranked {
     /// Its median cost of a frame on one thread where the policy was fitted, ms (a prior: a
     /// node measures its own).
     pub ms: f64,
+    /// The same on two threads, where the bench measured it: the prior of a stage whose
+    /// networks split a frame across two threads or more.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ms_2: Option<f64>,
+}
+
+impl Ranked {
+    /// Its cost prior on `threads` threads: [`ms_2`](Self::ms_2) from two on where there is
+    /// one, else [`ms`](Self::ms).
+    pub fn ms_on(&self, threads: usize) -> f64 {
+        match self.ms_2 {
+            Some(ms) if threads >= 2 => ms,
+            _ => self.ms,
+        }
+    }
 }
 
 /// The policy file.
@@ -475,6 +490,11 @@ impl Policy {
                         method: m.method.clone(),
                         psnr_db: figures.iter().map(|k| k.psnr_db).sum::<f64>() / n,
                         ms: figures.iter().map(|k| k.ms).sum::<f64>() / n,
+                        ms_2: figures
+                            .iter()
+                            .map(|k| k.ms_2)
+                            .sum::<Option<f64>>()
+                            .map(|t| t / n),
                     }
                 })
             })
@@ -621,6 +641,7 @@ mod tests {
                 method: method.into(),
                 psnr_db: 30.0,
                 ms: 0.5,
+                ms_2: None,
             }],
         }
     }
@@ -653,16 +674,19 @@ mod tests {
                 method: "neuspike-fused-8".into(),
                 psnr_db: 30.0,
                 ms: 40.0,
+                ms_2: None,
             },
             Ranked {
                 method: "neuspike-spike-8".into(),
                 psnr_db: 26.0,
                 ms: 20.0,
+                ms_2: None,
             },
             Ranked {
                 method: "tfstp".into(),
                 psnr_db: 25.5,
                 ms: 2.0,
+                ms_2: None,
             },
         ];
         let spikes_only = |m: &str| !m.contains("fused");
@@ -694,11 +718,13 @@ mod tests {
                     method: "tfstp".into(),
                     psnr_db: a,
                     ms: 1.0,
+                    ms_2: None,
                 },
                 Ranked {
                     method: "neuspike-spike-8".into(),
                     psnr_db: b,
                     ms: 10.0,
+                    ms_2: None,
                 },
             ]
         };
@@ -737,10 +763,16 @@ mod tests {
         let path = dir.path().join("policy.yml");
         let mut p = policy();
         p.neighbours = 1;
+        // A two-thread cost where the bench measured one: written, read back, and the prior
+        // from two threads on; without one, the one-thread cost everywhere.
+        p.classes[1].ranked[0].ms_2 = Some(0.3);
         std::fs::write(&path, p.to_yaml()).expect("save");
         let installed = ["tfp-256", "neuspike-fused-8", "tfi"];
         let q = Policy::load(&path, &installed).expect("load");
         assert_eq!(p, q);
+        let (two, one) = (&q.classes[1].ranked[0], &q.classes[0].ranked[0]);
+        assert_eq!([two.ms_on(1), two.ms_on(2), two.ms_on(4)], [0.5, 0.3, 0.3]);
+        assert_eq!([one.ms_on(1), one.ms_on(2)], [0.5, 0.5]);
         let bright = WindowStats {
             rate: 0.45,
             ..WindowStats::default()
