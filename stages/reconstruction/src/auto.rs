@@ -10,13 +10,16 @@
 //! whether chosen or not, so that it is current when chosen (its cost counts on every window).
 //!
 //! **Budget mode** (`--budget-ms X`): the method is instead the most accurate of the class's
-//! ranked methods whose expected cost, with TFSTP's upkeep, fits in [`PLAN_SHARE`] of the
-//! deadline after the statistics; else the most accurate that fits without the upkeep (TFSTP
-//! then misses those planes: its `gaps`); else the cheapest candidate. Expected costs start from
+//! ranked methods whose expected cost fits in [`PLAN_SHARE`] of the deadline after the
+//! statistics, else the cheapest candidate; TFSTP's upkeep runs beside it where it fits too
+//! (else TFSTP misses those planes: its `gaps`), so this frame's accuracy comes before keeping
+//! TFSTP current for later ones. Expected costs start from
 //! the policy's figures (measured where it was fitted) and follow this machine: each run updates
 //! its method's estimate (an exponentially weighted mean of the last runs, weight
-//! [`COST_WEIGHT`], taking a slower run at once), so load makes the stage fall back to cheaper
-//! methods instead of behind the camera. A frame whose whole cost exceeds the budget is late,
+//! [`COST_WEIGHT`], taking a slower run at once; a frame that does not run a method moves an
+//! estimate above the policy's figure back towards it by the same weight, so that one slow run
+//! does not rule a method out for good), so load makes the stage fall back to cheaper methods
+//! instead of behind the camera. A frame whose whole cost exceeds the budget is late,
 //! and counted.
 
 use std::borrow::Cow;
@@ -78,6 +81,8 @@ struct Candidate {
     represent: Representer,
     /// Expected milliseconds of a frame.
     cost_ms: f64,
+    /// The policy's figure, where [`Self::cost_ms`] starts.
+    prior_ms: f64,
 }
 
 /// Counts of a run, per method.
@@ -118,6 +123,15 @@ impl Candidate {
         } else {
             (1.0 - COST_WEIGHT) * self.cost_ms + COST_WEIGHT * ms
         };
+    }
+
+    /// A frame that did not run it: an estimate above the policy's figure moves back towards
+    /// it by [`COST_WEIGHT`], so that one slow run (a burst of load, a cold cache) does not rule
+    /// a method out for good; if it is still slow when tried again, its next run says so.
+    fn forget(&mut self) {
+        if self.cost_ms > self.prior_ms {
+            self.cost_ms = (1.0 - COST_WEIGHT) * self.cost_ms + COST_WEIGHT * self.prior_ms;
+        }
     }
 }
 
@@ -251,6 +265,7 @@ impl Auto {
                 planes,
                 represent: Representer::new(cfg).map_err(|e| wiring(e.to_string()))?,
                 cost_ms,
+                prior_ms: cost_ms,
             });
         }
         Ok(Auto {
@@ -408,10 +423,10 @@ impl Auto {
     }
 
     /// Which candidate a window gets, and whether TFSTP's upkeep runs: the policy's choice (with
-    /// upkeep), or under a budget the most accurate ranked method that fits with the upkeep, else
-    /// the most accurate that fits without it (TFSTP then misses this window's planes, counted
-    /// in its `gaps`), else the cheapest candidate without it. A frame is planned to
-    /// [`PLAN_SHARE`] of the budget; the rest absorbs jitter.
+    /// upkeep), or under a budget the most accurate ranked method that fits (TFSTP's cost being
+    /// its upkeep), with the upkeep where that fits beside it, else the cheapest candidate
+    /// without it (TFSTP then misses this window's planes, counted in its `gaps`). A frame is
+    /// planned to [`PLAN_SHARE`] of the budget; the rest absorbs jitter.
     fn pick(&self, row: &crate::policy::Class, spent_ms: f64) -> (usize, bool) {
         let chosen = self.index(&row.method).unwrap_or(0);
         let Some(budget) = self.budget_ms else {
@@ -423,26 +438,21 @@ impl Auto {
             .map(|i| self.candidates[i].cost_ms)
             .sum();
         let left = PLAN_SHARE * budget - spent_ms;
-        let ranked: Vec<usize> = row
+        // A TFSTP choice is its own upkeep.
+        let cost = |i: usize| {
+            if is_stp(i) {
+                upkeep
+            } else {
+                self.candidates[i].cost_ms
+            }
+        };
+        let fits = row
             .ranked
             .iter()
             .filter_map(|k| self.index(&k.method))
-            .collect();
-        // With the upkeep: a TFSTP choice is its own upkeep.
-        let with = |i: usize| {
-            let own = if is_stp(i) {
-                0.0
-            } else {
-                self.candidates[i].cost_ms
-            };
-            upkeep + own <= left
-        };
-        if let Some(&i) = ranked.iter().find(|&&i| with(i)) {
-            return (i, true);
-        }
-        let alone = |i: usize| !is_stp(i) && self.candidates[i].cost_ms <= left;
-        if let Some(&i) = ranked.iter().find(|&&i| alone(i)) {
-            return (i, false);
+            .find(|&i| cost(i) <= left);
+        if let Some(i) = fits {
+            return (i, is_stp(i) || upkeep + cost(i) <= left);
         }
         let cheapest = (0..self.candidates.len())
             .filter(|&i| !is_stp(i))
@@ -503,6 +513,12 @@ impl Auto {
         let method_ms = t0.elapsed().as_secs_f64() * 1e3;
         c.update_cost(method_ms);
         let method = c.name.clone();
+        for (k, c) in self.candidates.iter_mut().enumerate() {
+            let fed = upkeep && matches!(c.engine, Engine::Tfstp);
+            if k != i && !fed {
+                c.forget();
+            }
+        }
         let total = start.elapsed();
         let compute_ns = i64::try_from(total.as_nanos()).unwrap_or(i64::MAX);
         let late = self
@@ -1106,6 +1122,60 @@ mod tests {
                 .method
                 .starts_with("neuspike-")
         );
+    }
+
+    /// Under a budget this frame's accuracy comes first: the most accurate ranked method that
+    /// fits is taken even where TFSTP's upkeep does not fit beside it (not a worse one that
+    /// leaves room for the upkeep), the upkeep runs where it fits, and where nothing fits the
+    /// cheapest method runs alone.
+    #[test]
+    fn under_a_budget_the_most_accurate_method_that_fits_comes_before_tfstps_upkeep() {
+        let mut auto = shipped(Some(10.0));
+        let class = auto
+            .policy()
+            .classes
+            .iter()
+            .find(|c| c.class == "light1-speed0")
+            .expect("the bright still class")
+            .clone();
+        assert_eq!(class.ranked[0].method, "tfp-256");
+        fn set(auto: &mut Auto, name: &str, ms: f64) {
+            let i = auto.index(name).expect(name);
+            auto.candidates[i].cost_ms = ms;
+        }
+        fn pick(auto: &Auto, class: &crate::policy::Class) -> (String, bool) {
+            let (i, upkeep) = auto.pick(class, 0.0);
+            (auto.candidates[i].name.clone(), upkeep)
+        }
+        // 7 ms planned: TFP over 256 planes fits, but not with the upkeep beside it.
+        set(&mut auto, "tfstp", 6.5);
+        set(&mut auto, "tfp-256", 1.0);
+        assert_eq!(pick(&auto, &class), ("tfp-256".into(), false));
+        // With room for both, both run.
+        set(&mut auto, "tfstp", 2.0);
+        assert_eq!(pick(&auto, &class), ("tfp-256".into(), true));
+        // One slow run rules it out at once; frames that do not run it bring it back.
+        set(&mut auto, "tfp-256", 50.0);
+        assert_ne!(pick(&auto, &class).0, "tfp-256");
+        let i = auto.index("tfp-256").expect("tfp-256");
+        let prior = auto.candidates[i].prior_ms;
+        assert!(prior < 5.0, "{prior}");
+        for _ in 0..60 {
+            auto.candidates[i].forget();
+        }
+        assert!(auto.candidates[i].cost_ms < prior + 0.1);
+        assert!(auto.candidates[i].cost_ms >= prior);
+        assert_eq!(pick(&auto, &class).0, "tfp-256");
+        // The statistics took the whole plan: the cheapest method, alone.
+        let (i, upkeep) = auto.pick(&class, 7.5);
+        assert!(!upkeep);
+        let cheapest = auto
+            .candidates
+            .iter()
+            .filter(|c| !matches!(c.engine, Engine::Tfstp))
+            .map(|c| c.cost_ms)
+            .fold(f64::INFINITY, f64::min);
+        assert_eq!(auto.candidates[i].cost_ms, cheapest);
     }
 
     #[test]
