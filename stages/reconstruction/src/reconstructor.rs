@@ -683,21 +683,41 @@ fn learned(
     let image = model
         .run(&views)
         .map_err(|e| window_error(seq, format!("at {t_ref_ns} ns: {e}")))?;
+    let gain = || {
+        lum_per_rate.or_else(|| {
+            reps.iter()
+                .find_map(|r| r.params.get("lum_per_rate").copied())
+        })
+    };
+    let data = luminance(model, &image, seq, gain, "the representations carry")?;
+    Ok((t_ref_ns, data))
+}
+
+/// A network's `image` as luminance: a `rate` output times the calibration (`gain`, asked for
+/// only then; `carrier` says what did not carry one), a `luminance` output as it is (clamped to
+/// `[0, 1]` both ways).
+fn luminance(
+    model: &LearnedModel,
+    image: &Array2<f32>,
+    seq: u64,
+    gain: impl FnOnce() -> Option<f64>,
+    carrier: &str,
+) -> Result<Array2<f32>, InferError> {
     let gain = match model.output() {
         LearnedOutput::Luminance => 1.0,
-        LearnedOutput::Rate => lum_per_rate
-            .or_else(|| reps.iter().find_map(|r| r.params.get("lum_per_rate").copied()))
-            .ok_or_else(|| {
-                window_error(
-                    seq,
-                    "no calibration (the representations carry no `lum_per_rate` and the graph sets no `--lum-per-rate`)",
-                )
-            })?,
+        LearnedOutput::Rate => gain().ok_or_else(|| {
+            window_error(
+                seq,
+                format!(
+                    "no calibration ({carrier} no `lum_per_rate` and the graph sets no `--lum-per-rate`)"
+                ),
+            )
+        })?,
     };
     let mut data = Array2::<f32>::zeros(image.dim());
     luminance_from_rate_into(image.view(), gain, 1.0, data.view_mut())
         .map_err(|e| window_error(seq, e))?;
-    Ok((t_ref_ns, data))
+    Ok(data)
 }
 
 /// One window of the learned method, its representations made of align's window.
@@ -711,18 +731,8 @@ fn learned_window(
     let image = model
         .run_window(w, represent)
         .map_err(|e| window_error(seq, format!("at {} ns: {e}", w.t_ref_ns)))?;
-    let gain = match model.output() {
-        LearnedOutput::Luminance => 1.0,
-        LearnedOutput::Rate => lum_per_rate.or(w.spikes.lum_per_rate).ok_or_else(|| {
-            window_error(
-                seq,
-                "no calibration (the window carries no `lum_per_rate` and the graph sets no `--lum-per-rate`)",
-            )
-        })?,
-    };
-    let mut data = Array2::<f32>::zeros(image.dim());
-    luminance_from_rate_into(image.view(), gain, 1.0, data.view_mut())
-        .map_err(|e| window_error(seq, e))?;
+    let gain = || lum_per_rate.or(w.spikes.lum_per_rate);
+    let data = luminance(model, &image, seq, gain, "the window carries")?;
     Ok((w.t_ref_ns, data))
 }
 
