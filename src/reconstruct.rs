@@ -254,8 +254,13 @@ pub fn graph_yaml(
             ],
         );
     }
+    // A network that reads spikes alone reads align's windows itself (its raw planes as the
+    // window holds them, bit-packed): no represent node.
+    let from_windows =
+        learned.is_some_and(|l| l.inputs.iter().all(|(i, _)| *i == LearnedInput::Spike));
     // The represent outputs the infer node reads, each the input of the same name.
     let reprs: Vec<&str> = match learned {
+        Some(_) if from_windows => Vec::new(),
         Some(l) => l.inputs.iter().map(|(i, _)| i.input_id()).collect(),
         None => opts
             .method
@@ -313,7 +318,7 @@ pub fn graph_yaml(
         inputs.push(format!("events: {{ source: align/events, {queue} }}"));
         types.push(format!("events: {}", t("EventBatch")));
     }
-    if auto.is_some() {
+    if auto.is_some() || from_windows {
         inputs.push(format!("windows: {{ source: align/windows, {queue} }}"));
         types.push(format!("windows: {}", t("AlignedWindow")));
     }
@@ -835,16 +840,15 @@ mod tests {
             Path::new("/o"),
         );
         let graph = nodes(&y);
-        assert_eq!(graph.len(), 5);
-        let represent = find(&graph, "represent");
-        assert_eq!(represent["outputs"][0].as_str(), Some("spike_repr"));
-        let args = represent["args"].as_str().expect("args");
-        assert!(args.contains("--repr-channels 32"), "{args}");
+        // A spike network reads align's windows: no represent node.
+        assert_eq!(graph.len(), 4);
+        assert!(graph.iter().all(|n| n["id"].as_str() != Some("represent")));
         let infer = find(&graph, "infer-learned");
         assert_eq!(
-            infer["inputs"]["spike_repr"]["source"].as_str(),
-            Some("represent/spike_repr")
+            infer["inputs"]["windows"]["source"].as_str(),
+            Some("align/windows")
         );
+        assert!(infer["inputs"]["spike_repr"].is_null());
         let args = infer["args"].as_str().expect("args");
         assert!(
             args.contains("--method learned --model /m/spike.onnx"),
