@@ -284,13 +284,14 @@ pub fn prepare(opts: &LiveBenchOptions, layout: Layout) -> eyre::Result<PathBuf>
             }
             NetworkInput::Windows => {
                 edit("infer-tfp", "inputs", "{windows: align/windows}")?;
-                edit("represent", "id", "(unused)")?;
             }
         }
         edit("infer-tfp", "id", "infer")?;
         edit("sink", "inputs", &format!("{{{name}: infer/frames}}"))?;
-        if let Some(nodes) = g["nodes"].as_sequence_mut() {
-            nodes.retain(|n| n["id"].as_str() != Some("(unused)"));
+        if opts.network_input == NetworkInput::Windows
+            && let Some(nodes) = g["nodes"].as_sequence_mut()
+        {
+            nodes.retain(|n| n["id"].as_str() != Some("represent"));
         }
     }
     let represent = !matches!(

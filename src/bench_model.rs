@@ -42,6 +42,12 @@ pub fn every_precision() -> Vec<Precision> {
         .collect()
 }
 
+/// The median of `ms` (sorted in place); `ms` is not empty.
+fn median(ms: &mut [f64]) -> f64 {
+    ms.sort_by(f64::total_cmp);
+    ms[ms.len() / 2]
+}
+
 /// The input pattern every timing uses: `[0, 1]`, a fixed pattern per channel (dense convolutions
 /// cost the same whatever the values).
 fn pattern_inputs(model: &LearnedModel, height: usize, width: usize) -> Vec<Array3<f32>> {
@@ -120,9 +126,8 @@ pub fn profile_model(
     let nodes = (0..all[0].len())
         .map(|i| {
             let mut ms: Vec<f64> = all.iter().map(|run| run[i].ms).collect();
-            ms.sort_by(f64::total_cmp);
             NodeTime {
-                ms: ms[ms.len() / 2],
+                ms: median(&mut ms),
                 ..all[0][i].clone()
             }
         })
@@ -159,10 +164,9 @@ pub fn time_model(
             model.run(&views)?;
             ms.push(start.elapsed().as_secs_f64() * 1e3);
         }
-        ms.sort_by(f64::total_cmp);
         out.push(Timing {
             threads: n,
-            median_ms: ms[ms.len() / 2],
+            median_ms: median(&mut ms),
             min_ms: ms[0],
             runs: ms.len(),
             conv: model.conv_path_in_use().unwrap_or(conv),
@@ -205,7 +209,7 @@ pub fn time_from_window(
     use neuspike_representations::{RepresentConfig, Representer};
     use neuspike_schemas::{AlignedWindow, EventBatch, RepresentationKind, SpikeChunk};
     let loaded = LearnedModel::load(path).wrap_err("bench-model")?;
-    let (&[LearnedInput::Spike], &[channels]) = (loaded.inputs(), loaded.channels()) else {
+    let (&[LearnedInput::Spike], &[_]) = (loaded.inputs(), loaded.channels()) else {
         eyre::bail!(
             "bench-model --from-window: {} reads events; the window path is for spike networks",
             path.display()
@@ -237,10 +241,7 @@ pub fn time_from_window(
         spikes,
         events: EventBatch::empty(0, 0, 0, 1, 0),
     };
-    let mut represent = Representer::new(RepresentConfig {
-        repr_channels: u32::try_from(channels).unwrap_or(u32::MAX),
-        ..RepresentConfig::default()
-    })?;
+    let mut represent = Representer::new(loaded.represent_config())?;
     let mut out = Vec::new();
     for &n in threads {
         let mut model = loaded.clone();
@@ -262,10 +263,6 @@ pub fn time_from_window(
             model.run_window(&window, &mut win_represent)?;
             b.push(start.elapsed().as_secs_f64() * 1e3);
         }
-        let median = |v: &mut Vec<f64>| {
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
         out.push(FromWindow {
             threads: n,
             represented_ms: median(&mut a),

@@ -248,13 +248,7 @@ impl Auto {
                         );
                     }
                     net.set_precision(precision);
-                    for (i, c) in net.inputs().iter().zip(net.channels()) {
-                        let c = u32::try_from(*c).unwrap_or(u32::MAX);
-                        match i.representation() {
-                            RepresentationKind::SpikeRepr => cfg.repr_channels = c,
-                            _ => cfg.ei_channels = c,
-                        }
-                    }
+                    cfg = net.represent_config();
                     (Engine::Net(Box::new(net)), STATS_PLANES)
                 }
                 _ => continue,

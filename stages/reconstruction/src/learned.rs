@@ -25,7 +25,7 @@ use std::sync::Arc;
 
 use ndarray::{Array2, Array3, ArrayView3, Axis};
 use neuspike_representations::{
-    RepresentError, Representer, spike_representation_packed_into, spike_representation_parts,
+    RepresentConfig, RepresentError, Representer, spike_representation_parts,
 };
 use neuspike_schemas::{AlignedWindow, RepresentationKind};
 use tract_onnx::prelude::*;
@@ -788,9 +788,23 @@ impl LearnedModel {
         })
     }
 
+    /// The represent settings that make this network's inputs: its channel counts.
+    pub fn represent_config(&self) -> RepresentConfig {
+        let mut cfg = RepresentConfig::default();
+        for (i, &c) in self.inputs.iter().zip(&self.channels) {
+            let c = u32::try_from(c).unwrap_or(u32::MAX);
+            match i.representation() {
+                RepresentationKind::SpikeRepr => cfg.repr_channels = c,
+                _ => cfg.ei_channels = c,
+            }
+        }
+        cfg
+    }
+
     /// The network's frame of an aligned window: its spike input as the spike representation's
     /// ISI channel and the window's packed planes ([`ModelInput::Packed`], read as bits where
-    /// the first convolution runs in 8 bits), any other input as `represent` makes it. The same
+    /// the first convolution runs in 8 bits, unpacked before it otherwise), any other input as
+    /// `represent` makes it. The same
     /// frame as [`run`](Self::run) on the represent stage's representations of the window.
     ///
     /// # Errors
@@ -810,19 +824,6 @@ impl LearnedModel {
         let mut reps = Vec::with_capacity(self.inputs.len());
         for (i, &channels) in self.inputs.iter().zip(&self.channels) {
             reps.push(match i {
-                // Only an 8-bit first convolution reads bits: for the others the planes are
-                // unpacked as the represent stage unpacks them.
-                LearnedInput::Spike if !matches!(self.precision, Precision::Int8(_)) => {
-                    let mut all = Array3::<f32>::zeros((channels, h, w));
-                    spike_representation_packed_into(
-                        &spikes.bits,
-                        n,
-                        win.ref_index(),
-                        all.view_mut(),
-                    )
-                    .map_err(window_error)?;
-                    (all, None)
-                }
                 LearnedInput::Spike => {
                     let mut isi = Array3::<f32>::zeros((1, h, w));
                     let raw = spike_representation_parts(
@@ -871,7 +872,7 @@ impl LearnedModel {
     /// [`run`](Self::run) on inputs as the caller holds them ([`ModelInput`]): a spike
     /// representation whose raw planes are still bit-packed (as a window holds them) is read so
     /// where the network's first convolution runs in 8 bits, its planes never unpacked
-    /// (`Conv3x3::run_edge_padded_bits`); elsewhere they are unpacked first. The same frame as
+    /// (`Conv3x3::run_edge_padded_bits`, which unpacks them for other precisions). The same frame as
     /// `run` on the unpacked representation, bit for bit.
     ///
     /// # Errors
@@ -916,7 +917,7 @@ fn plan_inputs(
     let mut values = TVec::new();
     for (i, x) in xs.iter().enumerate() {
         let conv = first.get(i).and_then(Option::as_ref);
-        // Packed planes the first convolution does not read in 8 bits: unpacked here.
+        // Packed planes: read by the first convolution (as bits in 8 bits), else unpacked here.
         let owned;
         let x = match (x, conv) {
             (ModelInput::Dense(x), _) => x.view(),
@@ -927,7 +928,7 @@ fn plan_inputs(
                     planes,
                 },
                 Some(conv),
-            ) if matches!(conv.precision(), Precision::Int8(_)) => {
+            ) => {
                 let shape = [1, conv.c_out(), conv.out_len(hp), conv.out_len(wp)];
                 fill_input(path, buffers, i, shape, |dst| {
                     conv.run_edge_padded_bits(dense, bits, planes, (hp, wp), dst, pool.as_deref())
@@ -942,7 +943,7 @@ fn plan_inputs(
                     bits,
                     planes,
                 },
-                _,
+                None,
             ) => {
                 owned = neuspike_tract_ops::conv3x3::unpacked(dense, bits, planes)
                     .ok_or_else(|| model_error(path, "packed planes: too few bytes"))?;

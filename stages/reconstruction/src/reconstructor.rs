@@ -12,7 +12,7 @@ use neuspike_schemas::{
 };
 
 use crate::auto::Auto;
-use neuspike_representations::{RepresentConfig, Representer};
+use neuspike_representations::Representer;
 
 use crate::learned::{ConvPath, LearnedModel, LearnedOutput};
 use crate::{
@@ -199,16 +199,8 @@ impl InferConfig {
             if from_windows {
                 // Its representations made here of align's windows: the spike one read from
                 // the window's packed planes (`LearnedModel::run_window`).
-                let mut cfg = RepresentConfig::default();
-                for (i, &c) in model.inputs().iter().zip(model.channels()) {
-                    let c = u32::try_from(c).unwrap_or(u32::MAX);
-                    match i.representation() {
-                        RepresentationKind::SpikeRepr => cfg.repr_channels = c,
-                        _ => cfg.ei_channels = c,
-                    }
-                }
-                let represent =
-                    Representer::new(cfg).map_err(|e| InferError::Wiring(e.to_string()))?;
+                let represent = Representer::new(model.represent_config())
+                    .map_err(|e| InferError::Wiring(e.to_string()))?;
                 let mut r =
                     Reconstructor::new(Engine::Learned(Box::new(model)), self, vec![], false);
                 r.represent = Some(Box::new(represent));

@@ -654,6 +654,26 @@ impl Conv3x3 {
                 }))
             })
             .collect();
+        // For a quad of four binary channels, the word of each of the 16 ways its four bits can
+        // be set (channel `j` at bit `j`).
+        let tables: Vec<Option<[u32; 16]>> = (0..quads)
+            .map(|quad| {
+                let c0 = quad * dot::CHANNELS;
+                let quant = plan.quant.get(c0..c0 + dot::CHANNELS)?;
+                (0..dot::CHANNELS)
+                    .all(|j| input.bit_plane(c0 + j).is_some())
+                    .then(|| {
+                        std::array::from_fn(|m| {
+                            (0..dot::CHANNELS)
+                                .map(|j| {
+                                    let level = if (m >> j) & 1 == 1 { 1.0 } else { 0.0 };
+                                    quant[j].level(level) << (8 * j)
+                                })
+                                .fold(0, |a, b| a | b)
+                        })
+                    })
+            })
+            .collect();
         let mut held: [Option<isize>; 3] = [None; 3];
         let n_rows = planes.first().map_or(0, |p| p.len() / wo);
         for y in y0..y0 + n_rows {
@@ -675,25 +695,17 @@ impl Conv3x3 {
                             let bits: [_; dot::CHANNELS] =
                                 std::array::from_fn(|j| input.bit_plane(c0 + j));
                             let whole = plan.quant.get(c0..c0 + 4);
-                            if let (Some(quant), [Some(b0), Some(b1), Some(b2), Some(b3)]) =
-                                (whole, bits)
+                            if let (Some(table), [Some(b0), Some(b1), Some(b2), Some(b3)]) =
+                                (&tables[quad], bits)
                             {
                                 // Four binary channels: each word from the table of the 16
                                 // ways four bits can be set.
-                                let table: [u32; 16] = std::array::from_fn(|m| {
-                                    (0..dot::CHANNELS)
-                                        .map(|j| {
-                                            let level = if (m >> j) & 1 == 1 { 1.0 } else { 0.0 };
-                                            quant[j].level(level) << (8 * j)
-                                        })
-                                        .fold(0, |a, b| a | b)
-                                });
                                 let (rows, wv) = b0.1;
                                 levels.resize(n, 0);
                                 bit_words(
                                     [b0.0, b1.0, b2.0, b3.0],
                                     iy.min(rows - 1) * wv,
-                                    &table,
+                                    table,
                                     &mut levels[..n],
                                 );
                                 Some(&levels[..])
