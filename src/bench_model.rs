@@ -192,11 +192,12 @@ pub struct FromWindow {
     pub window_ms: f64,
 }
 
-/// Times [`FromWindow`] for a network that reads spikes alone, on a window of 33 planes of
-/// `height x width` with about a quarter of the pixels set in each (a fixed pattern).
+/// Times [`FromWindow`] on a window of 33 planes of `height x width` with about a quarter of
+/// the pixels set in each (a fixed pattern) and `events` events spread over its pixels and
+/// time (a fixed pattern; read by a network with an event input).
 ///
 /// # Errors
-/// The model does not load, reads events, or fails to run.
+/// The model does not load or fails to run.
 pub fn time_from_window(
     path: &Path,
     (height, width): (usize, usize),
@@ -204,18 +205,13 @@ pub fn time_from_window(
     runs: usize,
     conv: ConvPath,
     precision: Precision,
+    events: usize,
 ) -> eyre::Result<Vec<FromWindow>> {
-    use neuspike_reconstruction::learned::LearnedInput;
-    use neuspike_representations::{RepresentConfig, Representer};
-    use neuspike_schemas::{AlignedWindow, EventBatch, RepresentationKind, SpikeChunk};
+    use neuspike_representations::Representer;
+    use neuspike_schemas::{AlignedWindow, EventBatch, SpikeChunk};
     let loaded = LearnedModel::load(path).wrap_err("bench-model")?;
-    let (&[LearnedInput::Spike], &[_]) = (loaded.inputs(), loaded.channels()) else {
-        eyre::bail!(
-            "bench-model --from-window: {} reads events; the window path is for spike networks",
-            path.display()
-        );
-    };
     const PLANES: usize = 33;
+    const PERIOD_NS: i64 = 50_000;
     let per = (height * width).div_ceil(8);
     let bits: Vec<u8> = (0..PLANES * per)
         .map(|i| {
@@ -230,16 +226,25 @@ pub fn time_from_window(
         first_plane: 0,
         n_planes: PLANES,
         t_first_ns: 0,
-        plane_period_ns: 50_000,
+        plane_period_ns: PERIOD_NS,
         seq: 0,
         bits,
         lum_per_rate: Some(1.0),
     };
+    let span_ns = PERIOD_NS * PLANES as i64;
+    let mut batch = EventBatch::empty(width, height, 0, span_ns, 0);
+    for i in 0..events {
+        let h = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 16;
+        batch.t_ns.push(i as i64 * span_ns / events.max(1) as i64);
+        batch.x.push((h % width.max(1) as u64) as u16);
+        batch.y.push(((h >> 20) % height.max(1) as u64) as u16);
+        batch.polarity.push(if h >> 40 & 1 == 1 { 1 } else { -1 });
+    }
     let window = AlignedWindow {
         t_ref_ns: spikes.plane_time_ns(PLANES / 2),
         ref_plane: (PLANES / 2) as u64,
         spikes,
-        events: EventBatch::empty(0, 0, 0, 1, 0),
+        events: batch,
     };
     let mut represent = Representer::new(loaded.represent_config())?;
     let mut out = Vec::new();
@@ -250,13 +255,18 @@ pub fn time_from_window(
         set_threads(n);
         let mut represented = |model: &mut LearnedModel| -> eyre::Result<f64> {
             let start = Instant::now();
-            let rep = represent.represent(RepresentationKind::SpikeRepr, &window)?;
-            model.run(&[rep.data.view()])?;
+            let reps = model
+                .inputs()
+                .iter()
+                .map(|i| represent.represent(i.representation(), &window))
+                .collect::<Result<Vec<_>, _>>()?;
+            let views: Vec<_> = reps.iter().map(|r| r.data.view()).collect();
+            model.run(&views)?;
             Ok(start.elapsed().as_secs_f64() * 1e3)
         };
         represented(&mut model).wrap_err("bench-model: warm-up run")?;
         let (mut a, mut b) = (Vec::new(), Vec::new());
-        let mut win_represent = Representer::new(RepresentConfig::default())?;
+        let mut win_represent = Representer::new(loaded.represent_config())?;
         for _ in 0..runs.max(1) {
             a.push(represented(&mut model)?);
             let start = Instant::now();

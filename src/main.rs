@@ -187,12 +187,16 @@ enum Command {
         /// this CPU runs. Ratios are against the first.
         #[arg(long, value_delimiter = ',')]
         precision: Vec<neuspike_reconstruction::learned::Precision>,
-        /// A spike network: also time a frame from a spike window both ways, in each precision
-        /// and thread count, alternated: the spike representation made in `f32` (as the
-        /// represent stage makes it) then the network, against the network reading the window's
-        /// bit-packed planes itself (as the infer stage does when it reads align's windows).
+        /// Also time a frame from an aligned window both ways, in each precision and thread
+        /// count, alternated: the representations made in `f32` (as the represent stage makes
+        /// them) then the network, against the network reading the window itself (as the infer
+        /// stage does when it reads align's windows: the spike planes bit-packed, the events
+        /// themselves where they are few).
         #[arg(long)]
         from_window: bool,
+        /// Events in the window of `--from-window`, spread over its pixels and time.
+        #[arg(long, default_value_t = 10_000)]
+        window_events: usize,
     },
     /// Reconstruct frames from a recorded spike file (PKU .dat) through a graph written to the
     /// output folder (`graph.yml`), e.g. `neuspike reconstruct --spikes car.dat --out out/car`.
@@ -504,6 +508,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
             conv,
             precision,
             from_window,
+            window_events,
         } => {
             let precisions = if precision.is_empty() {
                 neuspike::bench_model::every_precision()
@@ -554,6 +559,7 @@ fn run(cli: Cli) -> eyre::Result<()> {
                         runs,
                         conv,
                         p,
+                        window_events,
                     )?;
                     for x in t {
                         println!(

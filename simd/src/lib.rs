@@ -10,7 +10,8 @@
 //! counterpart [`dot::accumulate`] (AVX-512 VNNI, where the CPU has it: [`dot::detect`]) and its `bf16`
 //! one [`bf16::accumulate`] (AVX-512 BF16: [`bf16::detect`]); so is the loop of
 //! loads at computed indices the vectoriser leaves scalar, [`gather::bilinear`] (a renderer's
-//! texture samples), its indices clamped inside the image; and packing 64 flags into a word,
+//! texture samples), its indices clamped inside the image; table lookups by 4-bit indices,
+//! [`lut::accumulate`] (a convolution of binary planes, 16 points a permute); and packing 64 flags into a word,
 //! [`bits::Pack64`], which the vectoriser does with a multiply per eight flags where AVX-512 has one
 //! byte test into a mask register. This crate holds the
 //! only `unsafe` of the project: calling a function compiled for an instruction set is sound
@@ -35,6 +36,7 @@ pub mod bits;
 pub mod dot;
 pub mod fastmath;
 pub mod gather;
+pub mod lut;
 pub mod taps;
 
 /// The instruction sets kernels can be compiled for, narrowest first (so `a <= b` says that code

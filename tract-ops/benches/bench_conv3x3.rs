@@ -154,6 +154,19 @@ fn bench_packed(c: &mut Criterion) {
                 .expect("runs")
         })
     });
+    group.bench_function("packed-without-tables", |b| {
+        b.iter(|| {
+            conv.run_edge_padded_bits_without_tables(
+                dense,
+                black_box(&bits),
+                planes,
+                (hp, wp),
+                &mut output,
+                None,
+            )
+            .expect("runs")
+        })
+    });
     group.finish();
 }
 

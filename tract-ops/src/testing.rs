@@ -125,3 +125,32 @@ pub(crate) fn parts_and_edge_give(
         .expect("runs");
     assert_eq!(got, want, "edge, stride {}", conv.stride());
 }
+
+/// `planes` binary planes of `h x w` pixels, about `density` of them set (plane `k` empty
+/// when `empty` holds `k`), packed as a window holds them, and the same unpacked to 0.0/1.0
+/// after `dense` (`[D, h, w]`).
+pub(crate) fn packed(
+    dense: &[f32],
+    planes: usize,
+    (h, w): (usize, usize),
+    seed: u32,
+    empty: &[usize],
+) -> (Vec<u8>, ndarray::Array3<f32>) {
+    let per = crate::conv3x3::packed_plane_bytes(h, w);
+    let d = dense.len() / (h * w).max(1);
+    let mut bits = vec![0u8; planes * per];
+    let mut all = ndarray::Array3::<f32>::zeros((d + planes, h, w));
+    all.slice_mut(ndarray::s![..d, .., ..])
+        .assign(&ndarray::ArrayView3::from_shape((d, h, w), dense).unwrap());
+    let values = pattern(planes * h * w, seed);
+    for k in 0..planes {
+        for i in 0..h * w {
+            let set = values[k * h * w + i] > 0.4 && !empty.contains(&k);
+            if set {
+                bits[k * per + i / 8] |= 1 << (i % 8);
+                all[[d + k, i / w, i % w]] = 1.0;
+            }
+        }
+    }
+    (bits, all)
+}

@@ -25,7 +25,8 @@ use std::sync::Arc;
 
 use ndarray::{Array2, Array3, ArrayView3, Axis};
 use neuspike_representations::{
-    RepresentConfig, RepresentError, Representer, spike_representation_parts,
+    EventSlice, RepresentConfig, RepresentError, Representer, event_integration_into,
+    integration_instants, spike_representation_parts,
 };
 use neuspike_schemas::{AlignedWindow, RepresentationKind};
 use tract_onnx::prelude::*;
@@ -89,7 +90,30 @@ pub enum ModelInput<'a> {
         /// How many binary channels.
         planes: usize,
     },
+    /// An event integration `[K, H, W]` not made yet: a window's events, the `K` instants,
+    /// the window's start and the decay, as
+    /// [`event_integration_into`](neuspike_representations::event_integration_into) takes them.
+    /// Where the network's first convolution is its own and the events are at most
+    /// [`SPARSE_EVENTS`] of the pixels, that convolution runs on the events themselves
+    /// (`Conv3x3::run_edge_padded_events`); otherwise the integration is made first.
+    Events {
+        /// The events, sorted by time.
+        events: EventSlice<'a>,
+        /// The window's start: earlier events are not counted.
+        t0_ns: i64,
+        /// The instant of each channel.
+        ts_ns: &'a [i64],
+        /// The decay constant, nanoseconds.
+        tau_ns: f64,
+        /// The sensor's `(H, W)`.
+        size: (usize, usize),
+    },
 }
+
+/// The share of a frame's pixels up to which a network's first convolution of event
+/// integration runs on the events themselves rather than on the integration made of them
+/// ([`ModelInput::Events`]).
+pub const SPARSE_EVENTS: f64 = 0.1;
 
 impl ModelInput<'_> {
     /// `(channels, H, W)`.
@@ -100,6 +124,7 @@ impl ModelInput<'_> {
                 let (d, h, w) = dense.dim();
                 (d.saturating_add(*planes), h, w)
             }
+            ModelInput::Events { ts_ns, size, .. } => (ts_ns.len(), size.0, size.1),
         }
     }
 }
@@ -802,10 +827,11 @@ impl LearnedModel {
     }
 
     /// The network's frame of an aligned window: its spike input as the spike representation's
-    /// ISI channel and the window's packed planes ([`ModelInput::Packed`], read as bits where
-    /// the first convolution runs in 8 bits, unpacked before it otherwise), any other input as
-    /// `represent` makes it. The same
-    /// frame as [`run`](Self::run) on the represent stage's representations of the window.
+    /// ISI channel and the window's packed planes ([`ModelInput::Packed`], read by tables on
+    /// AVX-512 and as bits where the first convolution runs in 8 bits, unpacked before it
+    /// otherwise), any other input as `represent` makes it. The frame of [`run`](Self::run) on
+    /// the represent stage's representations of the window, but for the first convolution's
+    /// planes computed in `f32` where read by tables.
     ///
     /// # Errors
     /// [`InferError::Window`] when a representation cannot be made of the window (too few
@@ -821,9 +847,16 @@ impl LearnedModel {
         };
         let spikes = &win.spikes;
         let (n, h, w) = (spikes.n_planes, spikes.height, spikes.width);
-        let mut reps = Vec::with_capacity(self.inputs.len());
+        /// An input as made here.
+        enum Made {
+            /// The ISI channel, and the range of the window's bytes holding the raw planes.
+            Spike(Array3<f32>, std::ops::Range<usize>, usize),
+            /// The event integration, made by `run_inputs` (from the events where few).
+            Events,
+        }
+        let mut made = Vec::with_capacity(self.inputs.len());
         for (i, &channels) in self.inputs.iter().zip(&self.channels) {
-            reps.push(match i {
+            made.push(match i {
                 LearnedInput::Spike => {
                     let mut isi = Array3::<f32>::zeros((1, h, w));
                     let raw = spike_representation_parts(
@@ -834,25 +867,41 @@ impl LearnedModel {
                         isi.index_axis_mut(Axis(0), 0),
                     )
                     .map_err(window_error)?;
-                    (isi, Some((raw, channels - 1)))
+                    Made::Spike(isi, raw, channels - 1)
                 }
-                LearnedInput::Events => {
-                    let r = represent
-                        .represent(i.representation(), win)
-                        .map_err(window_error)?;
-                    (r.data, None)
-                }
+                LearnedInput::Events => Made::Events,
             });
         }
-        let inputs: Vec<ModelInput> = reps
+        let ev = &win.events;
+        let cfg = represent.config();
+        let events_channels = self
+            .inputs
             .iter()
-            .map(|(data, raw)| match raw {
-                Some((raw, planes)) => ModelInput::Packed {
-                    dense: data.view(),
+            .zip(&self.channels)
+            .find(|(i, _)| **i == LearnedInput::Events)
+            .map_or(0, |(_, &c)| c);
+        let ts_ns = integration_instants(ev.t_start_ns, ev.t_end_ns, events_channels);
+        let events = EventSlice {
+            t_ns: &ev.t_ns,
+            x: &ev.x,
+            y: &ev.y,
+            polarity: &ev.polarity,
+        };
+        let inputs: Vec<ModelInput> = made
+            .iter()
+            .map(|m| match m {
+                Made::Spike(isi, raw, planes) => ModelInput::Packed {
+                    dense: isi.view(),
                     bits: spikes.bits.get(raw.clone()).unwrap_or(&[]),
                     planes: *planes,
                 },
-                None => ModelInput::Dense(data.view()),
+                Made::Events => ModelInput::Events {
+                    events,
+                    t0_ns: ev.t_start_ns,
+                    ts_ns: &ts_ns,
+                    tau_ns: cfg.tau_ns,
+                    size: (ev.height.max(1), ev.width.max(1)),
+                },
             })
             .collect();
         self.run_inputs(&inputs)
@@ -871,9 +920,11 @@ impl LearnedModel {
 
     /// [`run`](Self::run) on inputs as the caller holds them ([`ModelInput`]): a spike
     /// representation whose raw planes are still bit-packed (as a window holds them) is read so
-    /// where the network's first convolution runs in 8 bits, its planes never unpacked
-    /// (`Conv3x3::run_edge_padded_bits`, which unpacks them for other precisions). The same frame as
-    /// `run` on the unpacked representation, bit for bit.
+    /// by the network's first convolution, its planes never unpacked
+    /// (`Conv3x3::run_edge_padded_bits`: by tables in `f32` on AVX-512, as bits in 8 bits
+    /// elsewhere, unpacked for other precisions). The frame of `run` on the unpacked
+    /// representation: bit for bit without the tables; with them, the first convolution's planes
+    /// in `f32` whatever the precision (tested: no further from the `f32` frame).
     ///
     /// # Errors
     /// As [`run`](Self::run), and [`InferError::Model`] when `bits` holds fewer planes than
@@ -947,6 +998,38 @@ fn plan_inputs(
             ) => {
                 owned = neuspike_tract_ops::conv3x3::unpacked(dense, bits, planes)
                     .ok_or_else(|| model_error(path, "packed planes: too few bytes"))?;
+                owned.view()
+            }
+            (
+                &ModelInput::Events {
+                    events,
+                    t0_ns,
+                    ts_ns,
+                    tau_ns,
+                    size,
+                },
+                conv,
+            ) => {
+                let few = (events.len() as f64) <= SPARSE_EVENTS * (hp * wp) as f64;
+                if let Some(conv) = conv.filter(|c| few && c.stride() == 1) {
+                    let shape = [1, conv.c_out(), hp, wp];
+                    let ev = neuspike_tract_ops::conv3x3::events::Events {
+                        t_ns: events.t_ns,
+                        x: events.x,
+                        y: events.y,
+                        polarity: events.polarity,
+                    };
+                    fill_input(path, buffers, i, shape, |dst| {
+                        conv.run_edge_padded_events(ev, t0_ns, ts_ns, tau_ns, size, (hp, wp), dst)
+                            .map_err(|e| model_error(path, format!("first convolution: {e}")))
+                    })?;
+                    values.push(TValue::from_const(buffers[i].clone()));
+                    continue;
+                }
+                let mut made = Array3::<f32>::zeros((ts_ns.len(), size.0, size.1));
+                event_integration_into(events, t0_ns, ts_ns, tau_ns, made.view_mut())
+                    .map_err(|e| model_error(path, format!("event integration: {e}")))?;
+                owned = made;
                 owned.view()
             }
         };

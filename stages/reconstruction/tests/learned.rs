@@ -623,6 +623,13 @@ fn packed_spike_planes_give_the_unpacked_frame() {
             }
         }
         let mut model = LearnedModel::load(&path).expect("load");
+        let exact = model.run(&[all.view()]).expect("unpacked, f32");
+        // Off the `f32` frame: the largest and the mean difference.
+        let off = |a: &ndarray::Array2<f32>| {
+            let d: Vec<f32> = a.iter().zip(&exact).map(|(a, b)| (a - b).abs()).collect();
+            let max = d.iter().copied().fold(0.0f32, f32::max);
+            (max, d.iter().sum::<f32>() / d.len() as f32)
+        };
         for precision in [Precision::F32, Precision::int8(), Precision::bf16()] {
             model.set_precision(precision);
             let want = model.run(&[all.view()]).expect("unpacked");
@@ -632,7 +639,22 @@ fn packed_spike_planes_give_the_unpacked_frame() {
                 planes: c - 1,
             };
             let got = model.run_inputs(&[packed]).expect("packed");
-            assert_eq!(got, want, "{} in {precision}", path.display());
+            // Read by tables (AVX-512) the first convolution is the `f32` one, whatever the
+            // precision: the frame stays as near the `f32` frame as the precision's own error,
+            // or within `tol` of it (in `f32`, the same up to the order of the sums); elsewhere
+            // it is the unpacked planes' frame.
+            let ((got_max, got_mean), (want_max, want_mean)) = (off(&got), off(&want));
+            let tol = if precision == Precision::F32 {
+                1e-4
+            } else {
+                1e-3
+            };
+            assert!(
+                got_max <= want_max.max(tol) && got_mean <= want_mean.max(tol / 10.0),
+                "{} in {precision}: off the f32 frame by {got_max} (mean {got_mean}) read \
+                 packed, {want_max} (mean {want_mean}) unpacked",
+                path.display()
+            );
             // Too few bytes: an error naming the file, nothing run.
             let short = ModelInput::Packed {
                 dense: dense.view(),

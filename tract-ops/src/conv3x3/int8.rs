@@ -817,7 +817,7 @@ thread_local! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{conv, layer_input as input, pattern, runs_give};
+    use crate::testing::{conv, layer_input as input, packed, pattern, runs_give};
     use ndarray::Array4;
     use proptest::prelude::*;
 
@@ -1081,37 +1081,8 @@ mod tests {
         assert!(err.to_string().contains("4097 input channels"), "{err}");
     }
 
-    /// `planes` binary planes of `h x w` pixels, about `density` of them set (plane `k` empty
-    /// when `empty` holds `k`), packed as a window holds them, and the same unpacked to 0.0/1.0
-    /// after `dense` (`[D, h, w]`).
-    fn packed(
-        dense: &[f32],
-        planes: usize,
-        (h, w): (usize, usize),
-        seed: u32,
-        empty: &[usize],
-    ) -> (Vec<u8>, ndarray::Array3<f32>) {
-        let per = crate::conv3x3::packed_plane_bytes(h, w);
-        let d = dense.len() / (h * w).max(1);
-        let mut bits = vec![0u8; planes * per];
-        let mut all = ndarray::Array3::<f32>::zeros((d + planes, h, w));
-        all.slice_mut(ndarray::s![..d, .., ..])
-            .assign(&ArrayView3::from_shape((d, h, w), dense).unwrap());
-        let values = pattern(planes * h * w, seed);
-        for k in 0..planes {
-            for i in 0..h * w {
-                let set = values[k * h * w + i] > 0.4 && !empty.contains(&k);
-                if set {
-                    bits[k * per + i / 8] |= 1 << (i % 8);
-                    all[[d + k, i / w, i % w]] = 1.0;
-                }
-            }
-        }
-        (bits, all)
-    }
-
-    /// Packed binary planes give, on every path and precision, the bits of the same planes
-    /// unpacked to 0.0/1.0 (itself tested against the definitions).
+    /// Packed binary planes read without tables give, on every path and precision, the bits of
+    /// the same planes unpacked to 0.0/1.0 (itself tested against the definitions).
     fn bits_check(
         (d, planes, c_out, stride): (usize, usize, usize, usize),
         (h, w): (usize, usize),
@@ -1145,7 +1116,7 @@ mod tests {
                 .unwrap();
             for pool in [None, Some(&pool)] {
                 let mut got = vec![f32::NAN; n];
-                conv.run_edge_padded_bits(dense, &bits, planes, (hp, wp), &mut got, pool)
+                conv.bits_by(false, dense, &bits, planes, (hp, wp), &mut got, pool)
                     .unwrap();
                 assert_eq!(
                     got,
