@@ -669,3 +669,101 @@ fn packed_spike_planes_give_the_unpacked_frame() {
     }
     assert!(tested >= 2, "{tested} spike-only networks");
 }
+
+/// A window of 33 planes of 250x400 (about a quarter of the pixels set in each, a fixed pattern)
+/// and `events` events over its pixels and time (some on the edge row and column).
+fn window_with_events(events: usize) -> neuspike_schemas::AlignedWindow {
+    use neuspike_schemas::{AlignedWindow, EventBatch, SpikeChunk};
+    let (planes, h, w, period) = (33usize, 250usize, 400usize, 50_000i64);
+    let per = (h * w).div_ceil(8);
+    let bits = (0..planes * per)
+        .map(|i| {
+            let k = (i as u32).wrapping_mul(2_654_435_761);
+            (k >> 8) as u8 & (k >> 16) as u8
+        })
+        .collect();
+    let spikes = SpikeChunk {
+        width: w,
+        height: h,
+        first_plane: 0,
+        n_planes: planes,
+        t_first_ns: 0,
+        plane_period_ns: period,
+        seq: 0,
+        bits,
+        lum_per_rate: Some(1.0),
+    };
+    let span = period * planes as i64;
+    let mut batch = EventBatch::empty(w, h, 0, span, 0);
+    for i in 0..events {
+        let k = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 16;
+        batch.t_ns.push(i as i64 * span / events as i64);
+        batch.x.push(if i % 11 == 0 {
+            w as u16 - 1
+        } else {
+            (k % w as u64) as u16
+        });
+        batch.y.push(if i % 13 == 0 {
+            h as u16 - 1
+        } else {
+            ((k >> 20) % h as u64) as u16
+        });
+        batch.polarity.push(if k >> 40 & 1 == 1 { 1 } else { -1 });
+    }
+    AlignedWindow {
+        t_ref_ns: spikes.plane_time_ns(planes / 2),
+        ref_plane: (planes / 2) as u64,
+        spikes,
+        events: batch,
+    }
+}
+
+/// A network reading spikes and events from the window itself (its spike planes by tables or as
+/// bits, its events' convolution added event by event while they are few, the integration made
+/// first when they are many) gives the frame of the representations made then run, in `f32`
+/// within 1e-3 (the first convolutions' sums in another order).
+#[test]
+fn a_fused_network_reads_the_windows_events_themselves() {
+    use neuspike_representations::Representer;
+    let path = models_dir().join("neuspike-fused-8-lite.onnx");
+    let mut model = LearnedModel::load(&path).expect("load");
+    let mut represent = Representer::new(model.represent_config()).expect("represent");
+    // 4,000 events (few: from the events) and 30,000 (many: the integration made first).
+    for events in [4_000, 30_000] {
+        let win = window_with_events(events);
+        let reps: Vec<_> = model
+            .inputs()
+            .iter()
+            .map(|i| {
+                represent
+                    .represent(i.representation(), &win)
+                    .expect("represented")
+            })
+            .collect();
+        let views: Vec<_> = reps.iter().map(|r| r.data.view()).collect();
+        let want = model.run(&views).expect("represented run");
+        let got = model
+            .run_window(&win, &mut represent)
+            .expect("from the window");
+        assert_eq!(got.dim(), want.dim());
+        let off = got
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(off <= 1e-3, "{events} events: off by {off}");
+        // The events matter: without them the frame is another.
+        let mut quiet = win.clone();
+        quiet.events = neuspike_schemas::EventBatch::empty(400, 250, 0, win.events.t_end_ns, 0);
+        let silent = model.run_window(&quiet, &mut represent).expect("no events");
+        let moved = silent
+            .iter()
+            .zip(&want)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            moved > 1e-2,
+            "{events} events change the frame by only {moved}"
+        );
+    }
+}
