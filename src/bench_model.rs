@@ -177,10 +177,10 @@ pub fn time_model(
     Ok(out)
 }
 
-/// A frame of a spike network from a spike window, two ways, per thread count: the spike
-/// representation made as the represent stage makes it (`f32`, `[C, H, W]`) then the network
-/// run on it, and the window read by the network itself (`LearnedModel::run_window`: the raw
-/// planes bit-packed). `(threads, representation then network ms, from the window ms)`, medians
+/// A network's frame of an aligned window, two ways, per thread count: its representations made
+/// as the represent stage makes them (`f32`, `[C, H, W]`) then the network run on them, and the
+/// window read by the network itself (`LearnedModel::run_window`: the raw planes bit-packed, the
+/// events themselves where few). `(threads, representation then network ms, from the window ms)`, medians
 /// of `runs` runs each, the two alternated.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FromWindow {

@@ -156,7 +156,8 @@ fn bench_packed(c: &mut Criterion) {
     });
     group.bench_function("packed-without-tables", |b| {
         b.iter(|| {
-            conv.run_edge_padded_bits_without_tables(
+            conv.run_edge_padded_bits_by(
+                false,
                 dense,
                 black_box(&bits),
                 planes,

@@ -538,29 +538,15 @@ impl Conv3x3 {
         output: &mut [f32],
         pool: Option<&rayon::ThreadPool>,
     ) -> Result<(), Conv3x3Error> {
-        let tables = self.stride == 1 && neuspike_simd::detect() == neuspike_simd::Isa::Avx512;
-        self.bits_by(tables, dense, bits, planes, hw, output, pool)
+        self.run_edge_padded_bits_by(true, dense, bits, planes, hw, output, pool)
     }
 
-    /// [`run_edge_padded_bits`](Self::run_edge_padded_bits) without the tables, as on a CPU
-    /// without AVX-512 (benchmarks compare the two).
+    /// [`run_edge_padded_bits`](Self::run_edge_padded_bits) by tables where they run (`tables`,
+    /// at stride 1 on AVX-512), or without them as on a CPU without AVX-512 (`!tables`: tests
+    /// and benchmarks compare the two).
     #[doc(hidden)]
-    pub fn run_edge_padded_bits_without_tables(
-        &self,
-        dense: ArrayView3<f32>,
-        bits: &[u8],
-        planes: usize,
-        hw: (usize, usize),
-        output: &mut [f32],
-        pool: Option<&rayon::ThreadPool>,
-    ) -> Result<(), Conv3x3Error> {
-        self.bits_by(false, dense, bits, planes, hw, output, pool)
-    }
-
-    /// [`run_edge_padded_bits`](Self::run_edge_padded_bits), by tables (`tables`: at stride 1
-    /// on AVX-512 only) or as 8 bits or unpacked.
     #[allow(clippy::too_many_arguments)]
-    fn bits_by(
+    pub fn run_edge_padded_bits_by(
         &self,
         tables: bool,
         dense: ArrayView3<f32>,

@@ -154,3 +154,28 @@ pub(crate) fn packed(
     }
     (bits, all)
 }
+
+/// A convolution of `d` dense and `planes` binary input channels to `c_out` (a ReLU after it for
+/// odd seeds), a dense input `[d, h, w]` of [`layer_input`], and the planes bit-packed and the
+/// whole input unpacked as [`packed`] makes them.
+pub(crate) fn bits_case(
+    (d, planes, c_out, stride): (usize, usize, usize, usize),
+    (h, w): (usize, usize),
+    seed: u32,
+    empty: &[usize],
+) -> (
+    crate::conv3x3::Conv3x3,
+    Vec<f32>,
+    Vec<u8>,
+    ndarray::Array3<f32>,
+) {
+    let base = conv(d + planes, c_out, stride, seed);
+    let base = if seed % 2 == 1 {
+        base.with_relu()
+    } else {
+        base
+    };
+    let dense = layer_input(d * h * w, seed + 3, seed);
+    let (bits, all) = packed(&dense, planes, (h, w), seed + 5, empty);
+    (base, dense, bits, all)
+}

@@ -829,9 +829,11 @@ impl LearnedModel {
     /// The network's frame of an aligned window: its spike input as the spike representation's
     /// ISI channel and the window's packed planes ([`ModelInput::Packed`], read by tables on
     /// AVX-512 and as bits where the first convolution runs in 8 bits, unpacked before it
-    /// otherwise), any other input as `represent` makes it. The frame of [`run`](Self::run) on
-    /// the represent stage's representations of the window, but for the first convolution's
-    /// planes computed in `f32` where read by tables.
+    /// otherwise), its event input as the window's events with `represent`'s decay
+    /// ([`ModelInput::Events`]: the first convolution adds them one by one where they are few).
+    /// The frame of [`run`](Self::run) on the represent stage's representations of the window,
+    /// up to the order of the first convolutions' sums (and their precision: `f32` where the
+    /// planes are read by tables or the events one by one).
     ///
     /// # Errors
     /// [`InferError::Window`] when a representation cannot be made of the window (too few
@@ -851,8 +853,9 @@ impl LearnedModel {
         enum Made {
             /// The ISI channel, and the range of the window's bytes holding the raw planes.
             Spike(Array3<f32>, std::ops::Range<usize>, usize),
-            /// The event integration, made by `run_inputs` (from the events where few).
-            Events,
+            /// The event integration's instants; it is made by `run_inputs` (from the events
+            /// themselves where they are few).
+            Events(Vec<i64>),
         }
         let mut made = Vec::with_capacity(self.inputs.len());
         for (i, &channels) in self.inputs.iter().zip(&self.channels) {
@@ -869,18 +872,14 @@ impl LearnedModel {
                     .map_err(window_error)?;
                     Made::Spike(isi, raw, channels - 1)
                 }
-                LearnedInput::Events => Made::Events,
+                LearnedInput::Events => Made::Events(integration_instants(
+                    win.events.t_start_ns,
+                    win.events.t_end_ns,
+                    channels,
+                )),
             });
         }
         let ev = &win.events;
-        let cfg = represent.config();
-        let events_channels = self
-            .inputs
-            .iter()
-            .zip(&self.channels)
-            .find(|(i, _)| **i == LearnedInput::Events)
-            .map_or(0, |(_, &c)| c);
-        let ts_ns = integration_instants(ev.t_start_ns, ev.t_end_ns, events_channels);
         let events = EventSlice {
             t_ns: &ev.t_ns,
             x: &ev.x,
@@ -895,11 +894,11 @@ impl LearnedModel {
                     bits: spikes.bits.get(raw.clone()).unwrap_or(&[]),
                     planes: *planes,
                 },
-                Made::Events => ModelInput::Events {
+                Made::Events(ts_ns) => ModelInput::Events {
                     events,
                     t0_ns: ev.t_start_ns,
-                    ts_ns: &ts_ns,
-                    tau_ns: cfg.tau_ns,
+                    ts_ns,
+                    tau_ns: represent.config().tau_ns,
                     size: (ev.height.max(1), ev.width.max(1)),
                 },
             })

@@ -225,7 +225,7 @@ impl Tables {
 mod tests {
     use super::*;
     use crate::conv3x3::Precision;
-    use crate::testing::{conv, layer_input as input, packed};
+    use crate::testing::bits_case;
 
     /// The tables give the `f32` convolution of the planes unpacked to 0.0/1.0, whatever the
     /// precision asked, up to the order of the sums: within `1e-5` of each output's `Σ |w| + |b|`.
@@ -244,14 +244,7 @@ mod tests {
             .num_threads(2)
             .build()
             .unwrap();
-        let base = conv(d + planes, c_out, 1, seed);
-        let base = if seed % 2 == 1 {
-            base.with_relu()
-        } else {
-            base
-        };
-        let dense = input(d * h * w, seed + 3, seed);
-        let (bits, all) = packed(&dense, planes, (h, w), seed + 5, empty);
+        let (base, dense, bits, all) = bits_case((d, planes, c_out, 1), (h, w), seed, empty);
         let dense = ArrayView3::from_shape((d, h, w), &dense).unwrap();
         let n = c_out * hp * wp;
         let mut want = vec![f32::NAN; n];

@@ -147,17 +147,17 @@ impl Conv3x3 {
         let mut a = vec![0f64; k_all * per];
         let mut b = vec![0f64; k_all * per];
         for k in (0..k_all).rev() {
-            let next = (k + 1 < k_all).then(|| decay.factor(ts_ns[k + 1], ts_ns[k]));
+            // The sums from channel k + 1 on (none past the last), B's decayed to ts_k.
+            let decay_next = match ts_ns.get(k + 1) {
+                Some(&next) => decay.factor(next, ts_ns[k]),
+                None => 0.0,
+            };
             for o in 0..self.c_out {
                 for tap in 0..TAPS {
                     let j = k * per + o * TAPS + tap;
                     let weight = f64::from(self.weight(o, k, tap / 3, tap % 3));
-                    let (after_a, after_b) = match next {
-                        Some(_) => (a[j + per], b[j + per]),
-                        None => (0.0, 0.0),
-                    };
-                    a[j] = weight + after_a;
-                    b[j] = weight + next.unwrap_or(0.0) * after_b;
+                    a[j] = weight + a.get(j + per).copied().unwrap_or(0.0);
+                    b[j] = weight + decay_next * b.get(j + per).copied().unwrap_or(0.0);
                 }
             }
         }

@@ -817,7 +817,7 @@ thread_local! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::{conv, layer_input as input, packed, pattern, runs_give};
+    use crate::testing::{bits_case, conv, layer_input as input, pattern, runs_give};
     use ndarray::Array4;
     use proptest::prelude::*;
 
@@ -1094,14 +1094,7 @@ mod tests {
             .num_threads(2)
             .build()
             .unwrap();
-        let base = conv(d + planes, c_out, stride, seed);
-        let base = if seed % 2 == 1 {
-            base.with_relu()
-        } else {
-            base
-        };
-        let dense = input(d * h * w, seed + 3, seed);
-        let (bits, all) = packed(&dense, planes, (h, w), seed + 5, empty);
+        let (base, dense, bits, all) = bits_case((d, planes, c_out, stride), (h, w), seed, empty);
         let dense = ArrayView3::from_shape((d, h, w), &dense).unwrap();
         let precisions = DotPath::ALL
             .into_iter()
@@ -1116,7 +1109,7 @@ mod tests {
                 .unwrap();
             for pool in [None, Some(&pool)] {
                 let mut got = vec![f32::NAN; n];
-                conv.bits_by(false, dense, &bits, planes, (hp, wp), &mut got, pool)
+                conv.run_edge_padded_bits_by(false, dense, &bits, planes, (hp, wp), &mut got, pool)
                     .unwrap();
                 assert_eq!(
                     got,
